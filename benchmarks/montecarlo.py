@@ -1,0 +1,138 @@
+"""Closed-loop Monte Carlo on the vector environment, and the statistics the reports use."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from sdjls_gym import SDJLSModel, SDJLSVectorEnv
+
+__all__ = ["Rollouts", "rollout", "wilson", "mean_ci", "decide_batch"]
+
+
+@dataclass
+class Rollouts:
+    """Closed-loop trajectories of ``runs`` episodes of ``T`` steps.
+
+    Attributes
+    ----------
+    x : (runs, T+1, n) states x_0 .. x_T
+    mode : (runs, T+1) modes
+    u : (runs, T, m) applied inputs
+    rho : (runs, T) slack of the controller's QP (0 for controllers without one)
+    J : (runs, T) the controller's reported cost (J*_k for the receding-horizon controller)
+    stage_cost : (runs, T) x_k'Q x_k + u_k'R u_k
+    violations : (runs, T, r) whether row j of G x_{k+1} <= H_{k+1} is violated
+    status_ok : (runs, T) whether the controller's solver succeeded without fallback
+    """
+
+    x: np.ndarray
+    mode: np.ndarray
+    u: np.ndarray
+    rho: np.ndarray
+    J: np.ndarray
+    stage_cost: np.ndarray
+    violations: np.ndarray
+    status_ok: np.ndarray
+
+    @property
+    def runs(self) -> int:
+        return self.x.shape[0]
+
+    @property
+    def any_violation(self) -> np.ndarray:
+        """(runs, T) whether any row is violated at k+1."""
+        return self.violations.any(axis=-1)
+
+    @property
+    def episode_cost(self) -> np.ndarray:
+        """(runs,) sum over the episode of the stage costs."""
+        return self.stage_cost.sum(axis=1)
+
+
+def decide_batch(controller: Any, x: np.ndarray, mode: np.ndarray, k: np.ndarray) -> tuple:
+    """``controller.act_batch`` when the controller has one, else a loop over ``act``.
+
+    Returns ``(u (B, m), rho (B,), J (B,), ok (B,))``.
+    """
+    if hasattr(controller, "act_batch"):
+        u, info = controller.act_batch(x, mode, k)
+        B = x.shape[0]
+        rho = np.asarray(info.get("rho", np.zeros(B)), dtype=np.float64)
+        ok = np.asarray(info.get("ok", np.ones(B, dtype=bool)), dtype=bool)
+        return u, rho, np.asarray(info["cost"], dtype=np.float64), ok
+    us, rhos, Js, oks = [], [], [], []
+    for xi, mi, ki in zip(x, mode, k, strict=True):
+        u, info = controller.act(xi, int(mi), int(ki))
+        us.append(u)
+        rhos.append(float(info.get("rho", 0.0)))
+        Js.append(float(info["cost"]))
+        oks.append(str(info.get("status", "")).startswith(("solved", "optimal")))
+    return np.array(us), np.array(rhos), np.array(Js), np.array(oks)
+
+
+def rollout(
+    model: SDJLSModel,
+    controller: Any,
+    runs: int,
+    horizon: int,
+    seed: int,
+    action_bound: float = 200.0,
+    progress: Any = None,
+) -> Rollouts:
+    """Simulate ``runs`` closed-loop episodes on :class:`~sdjls_gym.SDJLSVectorEnv`.
+
+    The controller sees the exact state (``info["state"]``), the mode and ``k``. The
+    environment's noise comes from ``seed``, so two controllers run with the same seed see the
+    same noise sequence as long as they draw nothing themselves (common random numbers).
+    """
+    env = SDJLSVectorEnv(num_envs=runs, model=model, horizon=horizon, action_bound=action_bound)
+    _, info = env.reset(seed=seed)
+    n, m, r = model.n, model.m, model.r
+    x = np.empty((runs, horizon + 1, n))
+    modes = np.empty((runs, horizon + 1), dtype=np.int64)
+    u_all = np.empty((runs, horizon, m))
+    rho = np.empty((runs, horizon))
+    J = np.empty((runs, horizon))
+    stage = np.empty((runs, horizon))
+    viol = np.empty((runs, horizon, r), dtype=bool)
+    ok = np.empty((runs, horizon), dtype=bool)
+    x[:, 0], modes[:, 0] = info["state"], info["mode"]
+    for k in range(horizon):
+        u, rho[:, k], J[:, k], ok[:, k] = decide_batch(
+            controller, info["state"], info["mode"], info["k"]
+        )
+        _, _, _, _, info = env.step(u)
+        x[:, k + 1], modes[:, k + 1] = info["state"], info["mode"]
+        u_all[:, k], stage[:, k], viol[:, k] = info["u"], info["stage_cost"], info["violations"]
+        if progress is not None:
+            progress.update(1)
+    return Rollouts(x, modes, u_all, rho, J, stage, viol, ok)
+
+
+def wilson(successes: int | np.ndarray, trials: int, confidence: float = 0.95) -> tuple:
+    """Wilson score interval for a binomial proportion; returns ``(low, high)``."""
+    z = stats.norm.ppf(0.5 + confidence / 2)
+    s = np.asarray(successes, dtype=np.float64)
+    phat = s / trials
+    denom = 1 + z**2 / trials
+    center = (phat + z**2 / (2 * trials)) / denom
+    half = z * np.sqrt(phat * (1 - phat) / trials + z**2 / (4 * trials**2)) / denom
+    return center - half, center + half
+
+
+def mean_ci(values: np.ndarray, confidence: float = 0.95) -> tuple[float, float, float]:
+    """Mean and Student-t interval ``(mean, low, high)`` of i.i.d. samples."""
+    values = np.asarray(values, dtype=np.float64)
+    mean = float(values.mean())
+    if values.size < 2:
+        return mean, mean, mean
+    half = float(
+        stats.t.ppf(0.5 + confidence / 2, values.size - 1)
+        * values.std(ddof=1)
+        / np.sqrt(values.size)
+    )
+    return mean, mean - half, mean + half

@@ -1,0 +1,40 @@
+"""Controllers for SDJLS models: LMI pre-stabilization, chance constraints, receding horizon.
+
+Controllers read an :class:`sdjls_gym.SDJLSModel`; they never simulate.
+"""
+
+from controllers.baselines import LinearFeedbackController, MJLSLQRController
+from controllers.chance import row_satisfaction_probability, tightening
+from controllers.lmi import (
+    GainSynthesisResult,
+    LMIError,
+    LMIInfeasibleError,
+    LMISolverError,
+    MeanSquareCertificate,
+    check_proposition2,
+    second_moment_spectral_radius,
+    synthesize_gains,
+    verify_mean_square_bound,
+)
+from controllers.rhc import RecedingHorizonController, UnconstrainedRecedingHorizonController
+
+__all__: list[str] = []
+__all__ += [
+    "GainSynthesisResult",
+    "LMIError",
+    "LMIInfeasibleError",
+    "LMISolverError",
+    "MeanSquareCertificate",
+    "check_proposition2",
+    "second_moment_spectral_radius",
+    "synthesize_gains",
+    "verify_mean_square_bound",
+]
+__all__ += [
+    "LinearFeedbackController",
+    "MJLSLQRController",
+    "RecedingHorizonController",
+    "UnconstrainedRecedingHorizonController",
+    "row_satisfaction_probability",
+    "tightening",
+]

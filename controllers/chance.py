@@ -1,0 +1,174 @@
+"""Probabilistic -> deterministic constraint tightening (section 4 of the paper).
+
+The chance constraint on the next state, ``Pr{G_j x_{k+1} <= H_{k+1, j} | F_k} >= xi``, with
+``x_{k+1} ~ N(Atilde_theta x_k + B_theta nu_k, E_theta W E_theta')``, is replaced by the
+deterministic constraint on the mean of the next state::
+
+    G_j (Atilde_theta x_k + B_theta nu_k) <= H_{k+1, j} - t[theta, j]
+
+where ``t = tightening(model, xi, constraint)`` is computed once per model and level ``xi``.
+
+Three kinds of tightening are offered:
+
+``"individual"``
+    Each row separately holds with probability ``>= xi``, eq. (constraint:univariate_final); the
+    tightening ``t = Phi^{-1}(xi) * sqrt(G_j E_i W E_i' G_j')`` is exact, eq.
+    (constraint:det_univariate) with ``G_j E_i w ~ N(0, G_j E_i W E_i' G_j')``.
+``"joint"``
+    All rows hold together with probability ``>= xi``, eq. (constraint:multivariate_final),
+    through the inscribed-ellipsoid argument of Lemma 1, eq. (constraint:chi_square), generalised
+    to ``E`` and ``W``: ``t = sqrt(F^{-1}_{chi2, p}(xi)) * ||W^{1/2} E_i' G_j'||_2`` with ``p`` the
+    number of noise inputs. For ``E = W = I`` this is the paper's ``delta * ||G_j||_2``.
+``"bonferroni"``
+    All rows hold together with probability ``>= xi`` through the union bound: every row is
+    tightened to the individual level ``1 - (1 - xi) / r``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from scipy import special, stats
+
+from sdjls_gym.model import SDJLSModel
+
+__all__ = ["CONSTRAINT_KINDS", "tightening", "row_satisfaction_probability"]
+
+#: The kinds of chance constraint understood by :func:`tightening`.
+CONSTRAINT_KINDS = ("individual", "joint", "bonferroni")
+
+
+def _check_model(model: Any) -> SDJLSModel:
+    if not isinstance(model, SDJLSModel):
+        raise TypeError(
+            f"model must be an sdjls_gym.SDJLSModel, got {type(model).__name__}; build one with "
+            "SDJLSModel(...) or a preset such as sdjls_gym.systems.macro()"
+        )
+    return model
+
+
+def _check_xi(xi: Any) -> float:
+    """Return ``xi`` as a float in the open interval (0, 1) or raise a ValueError naming it."""
+    if isinstance(xi, (bool, np.bool_)):
+        raise ValueError(
+            f"xi = {xi!r} is a bool; xi is a probability level strictly between 0 and 1"
+        )
+    try:
+        value = float(xi)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"xi = {xi!r:.60} is not a number; xi is a probability level strictly between 0 and 1"
+        ) from None
+    if not (math.isfinite(value) and 0.0 < value < 1.0):
+        raise ValueError(
+            f"xi = {value!r} is out of range; the chance-constraint level xi must lie strictly "
+            "between 0 and 1 (xi = 0 imposes nothing and xi = 1 cannot be met under Gaussian noise)"
+        )
+    return value
+
+
+def _check_constraint(constraint: Any) -> str:
+    if not isinstance(constraint, str) or constraint not in CONSTRAINT_KINDS:
+        raise ValueError(
+            f"constraint = {constraint!r} is not a known kind of chance constraint; expected one "
+            f"of {CONSTRAINT_KINDS}"
+        )
+    return constraint
+
+
+def _row_std(model: SDJLSModel) -> np.ndarray:
+    """(N, r) standard deviation of ``G_j E_i w``: ``sqrt(G_j E_i W E_i' G_j')``."""
+    var = np.einsum("jn,inm,jm->ij", model.G, model.noise_cov, model.G)
+    return np.sqrt(np.clip(var, 0.0, None))
+
+
+def tightening(model: SDJLSModel, xi: float, constraint: str = "individual") -> np.ndarray:
+    """Amount by which each row of ``G x <= H`` is tightened in each mode.
+
+    Parameters
+    ----------
+    model : SDJLSModel
+        The system; uses ``G`` (r, n), ``E`` (N, n, p) and ``W`` (p, p).
+    xi : float
+        Chance-constraint level, strictly between 0 and 1.
+    constraint : {"individual", "joint", "bonferroni"}
+        Which chance constraint the tightening guarantees (see the module docstring).
+
+    Returns
+    -------
+    t : (N, r) ndarray
+        ``t[i, j]``: subtract it from ``H_{k+1, j}`` in the constraint on the mean of ``x_{k+1}``
+        when the current mode is ``i``. Negative for ``xi < 0.5`` with ``"individual"``.
+
+    Raises
+    ------
+    ValueError
+        If ``xi`` is not strictly between 0 and 1 or ``constraint`` is not a known kind.
+    TypeError
+        If ``model`` is not an :class:`SDJLSModel`.
+
+    Examples
+    --------
+    >>> from sdjls_gym.systems.macro import macro
+    >>> tightening(macro(), 0.85).round(4)[0]
+    array([1.0364, 1.0364])
+    """
+    model = _check_model(model)
+    xi = _check_xi(xi)
+    constraint = _check_constraint(constraint)
+
+    if constraint == "individual":
+        # eq. (constraint:det_univariate): F^{-1}_{G_j E_i w}(xi), G_j E_i w ~ N(0, G_j E_i W E_i' G_j')
+        return special.ndtri(xi) * _row_std(model)
+    if constraint == "bonferroni":
+        # union bound: each row at level 1 - (1 - xi) / r, so all rows hold with prob. >= xi
+        return special.ndtri(1.0 - (1.0 - xi) / model.r) * _row_std(model)
+    # eq. (constraint:chi_square), Lemma 1 with w = W^{1/2} v, v ~ N(0, I_p): the ellipsoid
+    # ||v|| <= delta, delta^2 = F^{-1}_{chi2, p}(xi), must lie in {v : G_j E_i W^{1/2} v <= slack_j}
+    delta = math.sqrt(stats.chi2.ppf(xi, df=model.p))
+    rows = np.einsum("jn,inp,pq->ijq", model.G, model.E, model.W_sqrt)  # (N, r, p): G_j E_i W^{1/2}
+    return delta * np.linalg.norm(rows, axis=-1)
+
+
+def row_satisfaction_probability(
+    model: SDJLSModel,
+    mean_next: np.ndarray,
+    mode: int | np.ndarray,
+    k_next: int | np.ndarray,
+) -> np.ndarray:
+    """Exact ``Pr{G_j x_{k+1} <= H_{k+1, j}}`` for ``x_{k+1} ~ N(mean_next, E_mode W E_mode')``.
+
+    Parameters
+    ----------
+    model : SDJLSModel
+    mean_next : (..., n) array
+        Mean of the next state, ``Atilde_theta x_k + B_theta nu_k``.
+    mode : int or (...) int array
+        The current mode ``theta_k`` (it selects the noise matrix ``E_theta``).
+    k_next : int or int array broadcastable to the batch shape
+        The time ``k + 1`` of the next state (it selects the band ``H_{k+1}``).
+
+    Returns
+    -------
+    (..., r) ndarray
+        Probability that each row holds. A row whose variance ``G_j E W E' G_j'`` is 0 is
+        deterministic: 1.0 if ``G_j mean_next <= H_{k+1, j}``, else 0.0.
+    """
+    model = _check_model(model)
+    mean_next = np.asarray(mean_next, dtype=np.float64)
+    if mean_next.ndim < 1 or mean_next.shape[-1] != model.n:
+        raise ValueError(
+            f"mean_next has shape {mean_next.shape}; expected (..., {model.n}), the mean of the "
+            "next state"
+        )
+    mode = np.asarray(mode)
+    if not np.issubdtype(mode.dtype, np.integer) or np.any((mode < 0) | (mode >= model.N)):
+        raise ValueError(f"mode = {mode!r} must be an integer (array) in [0, {model.N})")
+    var = np.einsum("jn,...nm,jm->...j", model.G, model.noise_cov[mode], model.G)
+    slack = model.H(k_next) - mean_next @ model.G.T  # (..., r)
+    var, slack = np.broadcast_arrays(var, slack)
+    positive = var > 0.0
+    std = np.sqrt(np.where(positive, var, 1.0))
+    return np.where(positive, stats.norm.cdf(slack / std), np.where(slack >= 0.0, 1.0, 0.0))

@@ -1,0 +1,657 @@
+"""The one-step receding-horizon controller with probabilistic constraints (problem P3).
+
+At each time ``k`` the controller observes ``(x_k, theta_k)`` and solves (section 5 of the paper)::
+
+    P3:  min_{nu, rho}  x'Q_theta x + u'R_theta u + (Atilde_theta x + B_theta nu)' Pi (...)
+                        + tr(Pi E_theta W E_theta') + alpha rho
+         s.t.  G_j (Atilde_theta x + B_theta nu) <= H_{k+1, j} - t[theta, j] + rho,  j = 1..r
+               nu in U,  rho >= 0,          u = K_theta x + nu
+
+with ``Atilde_i = A_i + B_i K_i``, ``Pi = sum_j pi_{theta j}(x_k) Psi_j`` (eq. eq:exp_noise; the
+row ``pi_{theta .}(x_k)`` is ``P_in[theta]`` if ``x_k`` is in C1 at time ``k`` and ``P_out[theta]``
+otherwise) and the tightening ``t`` of :func:`controllers.chance.tightening`. The constraint is on
+``x_{k+1}``, so it uses the band ``H_{k+1}``. The paper writes ``tr(Pi)``: that is the special case
+``E = W = I`` of the noise term above (Lemma 1, eq. eq:lemm1).
+
+Solvers
+-------
+``solver="osqp"`` (default, fast path)
+    The QP in ``z = (nu, rho)`` has a Hessian and a constraint matrix that depend only on the
+    mode and on whether ``x_k`` is in C1, so one ``osqp.OSQP`` object is set up per such pair on
+    first use and every later step only calls ``update(q=, l=, u=)`` and ``solve()`` (warm
+    started). With ``nu_set="ball"`` and ``m > 1`` OSQP cannot express ``||nu||_2 <= nu_bound``;
+    the controller then solves the second-order cone program with cvxpy + Clarabel instead.
+``solver="cvxpy"``
+    The plain formulation written with cvxpy and solved by Clarabel, rebuilt at every call; a
+    reference for checking the fast path.
+
+An episode never crashes on a solver failure: OSQP is retried once (cold, 10x the iterations),
+then the cvxpy reference is tried (unless ``cvxpy_fallback=False``), and as a last resort
+``nu = 0`` with the smallest feasible ``rho``. ``info["status"]`` says what happened.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import osqp
+import scipy.sparse as sp
+
+from sdjls_gym.model import SDJLSModel
+
+from .active_set import ActiveSetQP
+from .baselines import _check_gain, _check_positive, _FeedbackPolicy, _fmt
+from .chance import _check_constraint, _check_xi, tightening
+
+__all__ = ["RecedingHorizonController", "UnconstrainedRecedingHorizonController"]
+
+SOLVERS = ("osqp", "cvxpy")
+NU_SETS = ("box", "ball")
+
+#: Settings of the OSQP fast path; tight enough that OSQP and the cvxpy/Clarabel reference agree
+#: to ~1e-8. Override any of them with ``osqp_settings=``.
+DEFAULT_OSQP_SETTINGS: dict[str, Any] = {
+    "eps_abs": 1e-10,
+    "eps_rel": 1e-10,
+    "eps_prim_inf": 1e-12,
+    "eps_dual_inf": 1e-12,
+    "max_iter": 20000,
+    "polishing": True,
+    "polish_refine_iter": 10,
+    "warm_starting": True,
+    "verbose": False,
+}
+
+#: A slack below this (relative to max |H_{k+1} - t|) is round-off on an active row and is
+#: reported as ``rho = 0``; the constraint then holds to within this tolerance.
+_RHO_ZERO_TOL = 1e-10
+
+#: Clarabel settings of the cvxpy reference.
+CLARABEL_SETTINGS: dict[str, Any] = {
+    "tol_gap_abs": 1e-11,
+    "tol_gap_rel": 1e-11,
+    "tol_feas": 1e-11,
+    "tol_ktratio": 1e-9,
+    "max_iter": 200,
+}
+
+
+def _check_Psi(model: SDJLSModel, Psi: Any) -> np.ndarray:
+    """A finite ``(N, n, n)`` array of symmetric positive definite terminal weights."""
+    try:
+        Psi = np.array(Psi, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"Psi could not be read as an array of numbers ({exc})") from None
+    expected = (model.N, model.n, model.n)
+    if Psi.shape != expected:
+        raise ValueError(
+            f"Psi has shape {Psi.shape}; expected {expected} (one n x n terminal weight per mode)"
+        )
+    if not np.all(np.isfinite(Psi)):
+        raise ValueError("Psi has a non-finite entry; every entry must be finite")
+    for i, M in enumerate(Psi):
+        scale = max(1.0, float(np.max(np.abs(M))))
+        asym = float(np.max(np.abs(M - M.T)))
+        if asym > 1e-9 * scale:
+            raise ValueError(
+                f"Psi[{i}] is not symmetric (max |M - M'| = {asym:.3g}); each Psi_i must be "
+                f"symmetric positive definite, got {_fmt(M)}"
+            )
+        eig_min = float(np.linalg.eigvalsh(M)[0])
+        if eig_min <= 1e-12 * scale:
+            raise ValueError(
+                f"Psi[{i}] is not positive definite (smallest eigenvalue {eig_min:.3g}); each "
+                f"Psi_i must be symmetric positive definite, got {_fmt(M)}"
+            )
+    Psi = 0.5 * (Psi + Psi.transpose(0, 2, 1))
+    Psi.setflags(write=False)
+    return Psi
+
+
+def _check_choice(name: str, value: Any, allowed: tuple[str, ...]) -> str:
+    if not isinstance(value, str) or value not in allowed:
+        raise ValueError(f"{name} = {value!r} is not known; expected one of {allowed}")
+    return value
+
+
+def _check_osqp_settings(settings: Any) -> dict[str, Any]:
+    merged = dict(DEFAULT_OSQP_SETTINGS)
+    if settings is None:
+        return merged
+    if not isinstance(settings, dict):
+        raise ValueError(
+            f"osqp_settings = {settings!r:.80} must be a dict of OSQP settings (e.g. "
+            "{'max_iter': 50000}) or None"
+        )
+    merged.update(settings)
+    try:  # let OSQP itself reject unknown names or bad values, on a one-variable problem
+        probe = osqp.OSQP()
+        one = sp.csc_matrix(np.ones((1, 1)))
+        probe.setup(one, np.zeros(1), one, -np.ones(1), np.ones(1), **merged)
+    except Exception as exc:  # OSQP raises ValueError/TypeError/OSQPException
+        raise ValueError(
+            f"osqp_settings = {settings!r:.120} were rejected by OSQP ({exc}); see "
+            "https://osqp.org/docs/interfaces/solver_settings.html for the valid names"
+        ) from None
+    return merged
+
+
+@dataclass(frozen=True)
+class _Batch:
+    """Data of P3 for a batch of states: every field has a leading batch axis B."""
+
+    x: np.ndarray  # (B, n)
+    mode: np.ndarray  # (B,)
+    k: np.ndarray  # (B,)
+    inside: np.ndarray  # (B,) bool
+    Pi: np.ndarray  # (B, n, n)
+    Kx: np.ndarray  # (B, m)
+    a: np.ndarray  # (B, n)
+    hbar: np.ndarray | None  # (B, r)
+    noise_term: np.ndarray  # (B,)
+
+
+@dataclass(frozen=True)
+class _Step:
+    """Data of P3 at one ``(x_k, theta_k, k)``."""
+
+    x: np.ndarray  # (n,)
+    mode: int
+    k: int
+    inside: bool  # x_k in C1 at time k
+    Pi: np.ndarray  # (n, n)  eq. (eq:exp_noise)
+    Kx: np.ndarray  # (m,)
+    a: np.ndarray  # (n,)  Atilde_theta x_k
+    hbar: np.ndarray | None  # (r,)  H_{k+1} - t[theta]; None without chance constraints
+    noise_term: float  # tr(Pi E_theta W E_theta')
+    batch: _Batch  # the same data as a batch of one
+
+
+class RecedingHorizonController(_FeedbackPolicy):
+    """One-step receding-horizon control with chance constraints, problem P3 of the paper.
+
+    Parameters
+    ----------
+    model : SDJLSModel
+    K : (N, m, n) array
+        Pre-stabilising gains of ``u = K_theta x + nu`` (eq. eq:stabilization_input), e.g. from
+        Proposition 2 or ``PAPER_K`` of the macro example.
+    Psi : (N, n, n) array
+        Terminal weights ``Psi_i``, symmetric positive definite.
+    xi : float
+        Chance-constraint level, strictly between 0 and 1.
+    constraint : {"individual", "joint", "bonferroni"}
+        Kind of chance constraint; see :func:`controllers.chance.tightening`.
+    alpha : float
+        Penalty on the slack ``rho`` (> 0; large, e.g. 1000).
+    nu_bound : float
+        Size of the set ``U`` of offsets ``nu`` (> 0).
+    solver : {"osqp", "cvxpy"}
+        Fast path with warm-started OSQP, or the cvxpy/Clarabel reference (see module docstring).
+    nu_set : {"box", "ball"}
+        ``U = {|nu_i| <= nu_bound}`` or ``U = {||nu||_2 <= nu_bound}`` (the same when ``m = 1``).
+    horizon : int, optional
+        Episode length of the environment; needed only by :meth:`predict`.
+    osqp_settings : dict, optional
+        Overrides of :data:`DEFAULT_OSQP_SETTINGS` (e.g. ``{"max_iter": 1}`` forces failures).
+    cvxpy_fallback : bool
+        Whether to try the cvxpy reference when OSQP fails twice before falling back to
+        ``nu = 0``.
+
+    Attributes
+    ----------
+    tightening : (N, r) ndarray
+        ``t[i, j]`` of eq. (constraint:det_univariate) / (constraint:chi_square).
+    A_tilde : (N, n, n) ndarray
+        ``A_i + B_i K_i``.
+
+    Raises
+    ------
+    ValueError
+        Any invalid argument; the message names it, its value and what is expected. Raised
+        before any work.
+    TypeError
+        If ``model`` is not an :class:`SDJLSModel`.
+
+    Examples
+    --------
+    >>> from sdjls_gym.systems.macro import macro, PAPER_K, PAPER_RHC
+    >>> ctrl = RecedingHorizonController(macro(), PAPER_K, **PAPER_RHC)
+    >>> u, info = ctrl.act([2.0, 2.0], 0, 0)
+    >>> info["rho"], info["status"]
+    (0.0, 'solved')
+    """
+
+    _chance_constrained = True
+
+    def __init__(
+        self,
+        model: SDJLSModel,
+        K: np.ndarray,
+        Psi: np.ndarray,
+        xi: float,
+        constraint: str = "individual",
+        alpha: float = 1000.0,
+        nu_bound: float = 100.0,
+        solver: str = "osqp",
+        nu_set: str = "box",
+        horizon: int | None = None,
+        osqp_settings: dict[str, Any] | None = None,
+        cvxpy_fallback: bool = True,
+    ) -> None:
+        self._init_common(
+            model, K, Psi, alpha, nu_bound, solver, nu_set, horizon, osqp_settings, cvxpy_fallback
+        )
+        self.xi = _check_xi(xi)
+        self.constraint = _check_constraint(constraint)
+        self.tightening = tightening(self.model, self.xi, self.constraint)
+        self.tightening.setflags(write=False)
+
+    def _init_common(
+        self,
+        model: SDJLSModel,
+        K: Any,
+        Psi: Any,
+        alpha: Any,
+        nu_bound: Any,
+        solver: Any,
+        nu_set: Any,
+        horizon: Any,
+        osqp_settings: Any,
+        cvxpy_fallback: Any,
+    ) -> None:
+        super().__init__(model, horizon)
+        model = self.model
+        self.K = _check_gain(model, K)
+        self.Psi = _check_Psi(model, Psi)
+        self.alpha = _check_positive("alpha", alpha, "penalty on the slack rho")
+        self.nu_bound = _check_positive("nu_bound", nu_bound, "size of the set U of offsets nu")
+        self.solver = _check_choice("solver", solver, SOLVERS)
+        self.nu_set = _check_choice("nu_set", nu_set, NU_SETS)
+        self.osqp_settings = _check_osqp_settings(osqp_settings)
+        if not isinstance(cvxpy_fallback, (bool, np.bool_)):
+            raise ValueError(f"cvxpy_fallback = {cvxpy_fallback!r:.60} must be True or False")
+        self.cvxpy_fallback = bool(cvxpy_fallback)
+        self.A_tilde = model.A + model.B @ self.K  # eq. (sys:stabilized_input)
+        self.A_tilde.setflags(write=False)
+        self._osqp: dict[tuple[int, bool], osqp.OSQP] = {}
+        self._active_sets: dict[tuple[int, bool], ActiveSetQP] = {}
+        self.tightening: np.ndarray | None = None
+
+    # ------------------------------------------------------------------ problem data
+    @property
+    def _uses_socp(self) -> bool:
+        """``||nu||_2 <= nu_bound`` with m > 1 is not a QP: solved with cvxpy + Clarabel."""
+        return self.nu_set == "ball" and self.model.m > 1
+
+    def _batch(self, x: np.ndarray, mode: np.ndarray, k: np.ndarray) -> _Batch:
+        """Data of P3 for a batch of ``(x_k, theta_k, k)``; ``x`` (B, n), ``mode``, ``k`` (B,)."""
+        model = self.model
+        inside = model.in_region(x, k)
+        pi_rows = model.transition_rows(x, mode, k)  # eq. (eq:p_tran)
+        Pi = np.einsum("bj,jac->bac", pi_rows, self.Psi)  # eq. (eq:exp_noise)
+        Pi = 0.5 * (Pi + Pi.transpose(0, 2, 1))
+        hbar = None
+        if self._chance_constrained:
+            # eq. (constraint:feasibility): the constraint is on x_{k+1}, band H_{k+1}
+            hbar = model.H(k + 1) - self.tightening[mode]
+        return _Batch(
+            x=x,
+            mode=mode,
+            k=k,
+            inside=inside,
+            Pi=Pi,
+            Kx=np.einsum("bij,bj->bi", self.K[mode], x),
+            a=np.einsum("bij,bj->bi", self.A_tilde[mode], x),
+            hbar=hbar,
+            # Lemma 1, eq. (eq:lemm1): E[w'E'Pi E w] = tr(Pi E W E')
+            noise_term=np.einsum("bij,bji->b", Pi, model.noise_cov[mode]),
+        )
+
+    def _step(self, x: np.ndarray, mode: int, k: int) -> _Step:
+        b = self._batch(x[None], np.array([mode]), np.array([k]))
+        return _Step(
+            x=x,
+            mode=mode,
+            k=k,
+            inside=bool(b.inside[0]),
+            Pi=b.Pi[0],
+            Kx=b.Kx[0],
+            a=b.a[0],
+            hbar=None if b.hbar is None else b.hbar[0],
+            noise_term=float(b.noise_term[0]),
+            batch=b,
+        )
+
+    def _mean_next(self, b: _Batch, nu: np.ndarray) -> np.ndarray:
+        """``E[x_{k+1} | F_k] = Atilde x + B nu`` (B, n) from the model's own dynamics (w = 0)."""
+        return self.model.next_state(b.x, b.mode, b.Kx + nu, np.zeros((len(b.mode), self.model.p)))
+
+    def _min_rho(self, b: _Batch, nu: np.ndarray) -> np.ndarray:
+        """Smallest ``rho >= 0`` (B,) that makes ``nu`` (B, m) feasible in eq. (constraint:feasibility)."""
+        if b.hbar is None:
+            return np.zeros(len(b.mode))
+        excess = np.max(self._mean_next(b, nu) @ self.model.G.T - b.hbar, axis=1)
+        # round-off on an active row (|excess| ~ 1e-15) is not a use of the slack: report 0
+        zero = excess <= _RHO_ZERO_TOL * np.maximum(1.0, np.max(np.abs(b.hbar), axis=1))
+        return np.where(zero, 0.0, excess)
+
+    def _objective(self, b: _Batch, nu: np.ndarray, rho: np.ndarray) -> np.ndarray:
+        """``J_k`` (B,) of P3 at ``(nu, rho)``, every constant term included."""
+        mean = self._mean_next(b, nu)
+        stage = self.model.stage_cost(b.x, b.mode, b.Kx + nu)
+        terminal = np.einsum("bi,bij,bj->b", mean, b.Pi, mean)
+        return stage + terminal + b.noise_term + self.alpha * rho
+
+    def _project_nu(self, nu: np.ndarray) -> np.ndarray:
+        """Remove solver round-off outside ``U``; ``nu`` (..., m)."""
+        if self.nu_set == "ball" and self.model.m > 1:
+            norm = np.linalg.norm(nu, axis=-1, keepdims=True)
+            return nu * np.minimum(1.0, self.nu_bound / np.maximum(norm, 1e-300))
+        return np.clip(nu, -self.nu_bound, self.nu_bound)
+
+    # ------------------------------------------------------------------ OSQP fast path
+    def _qp_matrices(self, mode: int, Pi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Hessian and constraint matrix of the family ``(mode, in_region)``; z = (nu, rho).
+
+        ``Pi`` depends only on the mode and on whether ``x_k`` is in C1, so these two matrices
+        are fixed within a family.
+        """
+        model, m = self.model, self.model.m
+        Bm = model.B[mode]
+        H_nu = model.R[mode] + Bm.T @ Pi @ Bm
+        P = np.zeros((m + 1, m + 1))
+        P[:m, :m] = H_nu + H_nu.T  # 0.5 z'P z = nu'(R + B'Pi B) nu
+        rows = []
+        if self._chance_constrained:
+            rows.append(np.hstack([model.G @ Bm, -np.ones((model.r, 1))]))  # G B nu - rho
+        rows.append(np.hstack([np.eye(m), np.zeros((m, 1))]))  # nu in the box U
+        rows.append(np.hstack([np.zeros((1, m)), np.ones((1, 1))]))  # rho >= 0
+        return P, np.vstack(rows)
+
+    def _qp_vectors(self, b: _Batch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Linear term ``q`` (B, m+1) and bounds ``l, u`` (B, rows) of P3 in OSQP form."""
+        model, nb = self.model, self.nu_bound
+        Bm = model.B[b.mode]  # (B, n, m)
+        grad = 2.0 * (
+            np.einsum("bij,bj->bi", model.R[b.mode], b.Kx)
+            + np.einsum("bji,bjk,bk->bi", Bm, b.Pi, b.a)
+        )
+        size = len(b.mode)
+        q = np.hstack([grad, np.full((size, 1), self.alpha if self._chance_constrained else 0.0)])
+        lo, hi = [], []
+        if self._chance_constrained:
+            lo.append(np.full((size, model.r), -np.inf))
+            hi.append(b.hbar - b.a @ model.G.T)
+        lo += [np.full((size, model.m), -nb), np.zeros((size, 1))]
+        hi += [
+            np.full((size, model.m), nb),
+            np.full((size, 1), np.inf if self._chance_constrained else 0.0),
+        ]
+        return q, np.hstack(lo), np.hstack(hi)
+
+    def _run_osqp(self, step: _Step, retry: bool) -> tuple[np.ndarray | None, str]:
+        """Solve with OSQP; return ``(z, status)``, ``z`` None on failure."""
+        q, lo, hi = (v[0] for v in self._qp_vectors(step.batch))
+        key = (step.mode, step.inside)
+        try:
+            if retry or key not in self._osqp:
+                settings = dict(self.osqp_settings)
+                if retry:
+                    settings["max_iter"] = 10 * int(settings["max_iter"])
+                solver = osqp.OSQP()
+                P, A = self._qp_matrices(step.mode, step.Pi)
+                solver.setup(sp.csc_matrix(np.triu(P)), q, sp.csc_matrix(A), lo, hi, **settings)
+                if not retry:
+                    self._osqp[key] = solver
+            else:
+                solver = self._osqp[key]
+                solver.update(q=q, l=lo, u=hi)
+            res = solver.solve(raise_error=False)
+        except Exception as exc:  # noqa: BLE001 - an episode must not crash on a solver error
+            self._osqp.pop(key, None)
+            return None, f"error {type(exc).__name__}: {exc}"
+        z = np.asarray(res.x, dtype=np.float64)
+        status = str(res.info.status)
+        if res.info.status_val != osqp.SolverStatus.OSQP_SOLVED or not np.all(np.isfinite(z)):
+            self._osqp.pop(key, None)  # do not warm start from a failed iterate
+            return None, status
+        return z, status
+
+    # ------------------------------------------------------------------ cvxpy reference
+    def _run_cvxpy(self, step: _Step) -> tuple[np.ndarray | None, float, float, str]:
+        """P3 written plainly with cvxpy, solved by Clarabel; ``(nu, rho, value, status)``."""
+        import cvxpy as cp
+
+        model, mode = self.model, step.mode
+        nu = cp.Variable(model.m)
+        u = step.Kx + nu  # eq. (eq:stabilization_input)
+        mean_next = step.a + model.B[mode] @ nu  # E[x_{k+1} | F_k], eq. (sys:stabilized_input)
+        x = step.x
+        objective = (
+            float(x @ model.Q[mode] @ x)
+            + cp.quad_form(u, model.R[mode])
+            + cp.quad_form(mean_next, step.Pi)
+            + step.noise_term
+        )
+        constraints = []
+        if self.nu_set == "ball":
+            constraints.append(cp.norm(nu, 2) <= self.nu_bound)
+        else:
+            constraints.append(cp.abs(nu) <= self.nu_bound)
+        rho = None
+        if self._chance_constrained:
+            rho = cp.Variable(nonneg=True)
+            objective = objective + self.alpha * rho
+            constraints.append(
+                model.G @ mean_next <= step.hbar + rho
+            )  # eq. (constraint:feasibility)
+        problem = cp.Problem(cp.Minimize(objective), constraints)
+        try:
+            problem.solve(solver=cp.CLARABEL, **CLARABEL_SETTINGS)
+        except Exception as exc:  # noqa: BLE001 - an episode must not crash on a solver error
+            return None, np.nan, np.nan, f"error {type(exc).__name__}: {exc}"
+        status = str(problem.status)
+        nu_val = None if nu.value is None else np.asarray(nu.value, dtype=np.float64).reshape(-1)
+        rho_val = 0.0 if rho is None else (np.nan if rho.value is None else float(rho.value))
+        value = np.nan if problem.value is None else float(problem.value)
+        ok = (
+            status == cp.OPTIMAL
+            and nu_val is not None
+            and np.all(np.isfinite(nu_val))
+            and np.isfinite(rho_val)
+            and np.isfinite(value)
+        )
+        return (nu_val if ok else None), rho_val, value, status
+
+    # ------------------------------------------------------------------ decision
+    def _solve(self, step: _Step) -> tuple[np.ndarray, float, float, str, str]:
+        """``(nu, rho, cost, status, path)`` of P3, never raising, never NaN."""
+        notes: list[str] = []
+        if self.solver == "cvxpy":
+            nu, rho, value, status = self._run_cvxpy(step)
+            if nu is not None:  # the plain reference: values exactly as the solver returned them
+                return nu, rho, value, "solved", "cvxpy"
+            notes.append(f"cvxpy status {status!r}")
+        else:
+            if not self._uses_socp:
+                z, status = self._run_osqp(step, retry=False)
+                if z is not None:
+                    return self._finish(step, z[: self.model.m], "solved", "osqp")
+                notes.append(f"osqp status {status!r}")
+                z, status = self._run_osqp(step, retry=True)
+                if z is not None:
+                    return self._finish(
+                        step, z[: self.model.m], f"solved ({notes[0]}; retried)", "osqp_retry"
+                    )
+                notes.append(f"osqp retry status {status!r}")
+            if self._uses_socp or self.cvxpy_fallback:
+                nu, _, _, status = self._run_cvxpy(step)
+                path = "cvxpy_socp" if self._uses_socp else "cvxpy"
+                if nu is not None:
+                    text = "solved" if not notes else f"solved by cvxpy ({'; '.join(notes)})"
+                    return self._finish(step, nu, text, path)
+                notes.append(f"cvxpy status {status!r}")
+            else:
+                notes.append("cvxpy retry disabled")
+        # last resort: nu = 0 (in U) with the smallest feasible slack
+        nu = np.zeros(self.model.m)
+        rho = float(self._min_rho(step.batch, nu[None])[0])
+        return (
+            nu,
+            rho,
+            float(self._objective(step.batch, nu[None], np.array([rho]))[0]),
+            "fallback_nu0: " + "; ".join(notes),
+            "fallback",
+        )
+
+    def _finish(self, step: _Step, nu: np.ndarray, status: str, path: str) -> tuple:
+        nu = self._project_nu(np.asarray(nu, dtype=np.float64))
+        rho = self._min_rho(step.batch, nu[None])  # the optimal rho for this nu (alpha > 0)
+        return nu, float(rho[0]), float(self._objective(step.batch, nu[None], rho)[0]), status, path
+
+    def act(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, dict[str, Any]]:
+        """Solve P3 at ``(x_k, theta_k, k)`` and return ``u_k = K_theta x_k + nu_k``.
+
+        Parameters
+        ----------
+        x : (n,) array
+            Current state ``x_k``.
+        mode : int
+            Current mode ``theta_k`` in ``[0, N)``.
+        k : int
+            Current time ``k >= 0`` (the constraint uses the band ``H_{k+1}``).
+
+        Returns
+        -------
+        u : (m,) float64 array
+        info : dict
+            ``"nu"`` (m,), ``"rho"`` (float), ``"cost"`` (``J*_k`` with every constant term),
+            ``"status"`` (``"solved"``, or a description of the retries / fallback),
+            ``"solver"`` (which path produced the answer), ``"in_region"`` (``x_k`` in C1),
+            ``"Pi"`` (n, n).
+
+        Raises
+        ------
+        ValueError
+            If ``x`` is not a finite ``(n,)`` vector, ``mode`` is out of range or ``k < 0``.
+        """
+        x, mode, k = self._check_inputs(x, mode, k)
+        step = self._step(x, mode, k)
+        nu, rho, cost, status, path = self._solve(step)
+        u = step.Kx + nu  # eq. (eq:stabilization_input)
+        info = {
+            "nu": np.array(nu, dtype=np.float64),
+            "rho": float(rho),
+            "cost": float(cost),
+            "status": status,
+            "solver": path,
+            "in_region": step.inside,
+            "Pi": step.Pi,
+        }
+        return np.asarray(u, dtype=np.float64), info
+
+    def act_batch(
+        self, x: np.ndarray, mode: np.ndarray, k: np.ndarray | int
+    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Solve P3 for a batch of states at once, with no Python loop over the batch.
+
+        The states are grouped by family ``(mode, x_k in C1)``; each family's QP has fixed
+        matrices, and is solved exactly for the whole group by
+        :class:`controllers.active_set.ActiveSetQP` (enumeration of the candidate active sets,
+        built once per family and cached). The rare instance that no candidate settles, and
+        every instance when ``nu_set="ball"`` with ``m > 1``, goes through :meth:`act` (OSQP
+        and its fallbacks). The answers equal those of :meth:`act` up to solver tolerance.
+
+        Parameters
+        ----------
+        x : (B, n) array
+        mode : (B,) int array
+        k : (B,) int array or int
+
+        Returns
+        -------
+        u : (B, m) float64 array
+        info : dict of arrays
+            ``"nu"`` (B, m), ``"rho"`` (B,), ``"cost"`` (B,) (J*_k), ``"status"`` (B,) str
+            objects, ``"ok"`` (B,) bool (solved without a fallback), ``"in_region"`` (B,).
+        """
+        x, mode, k = self._check_batch_inputs(x, mode, k)
+        if self._uses_socp or self.solver == "cvxpy":
+            return super().act_batch(x, mode, k)
+        b = self._batch(x, mode, k)
+        size, m = len(mode), self.model.m
+        q, lo, hi = self._qp_vectors(b)
+        nu = np.zeros((size, m))
+        solved = np.zeros(size, dtype=bool)
+        family = mode * 2 + b.inside
+        for key in np.unique(family):
+            sel = np.flatnonzero(family == key)
+            qp = self._active_set_family(
+                int(mode[sel[0]]), bool(b.inside[sel[0]]), b.Pi[sel[0]], lo[sel[0]], hi[sel[0]]
+            )
+            z, ok = qp.solve(q[sel], lo[sel], hi[sel])
+            nu[sel[ok]] = z[ok, :m]
+            solved[sel] = ok
+        status = np.full(size, "solved", dtype=object)
+        for i in np.flatnonzero(~solved):  # not settled by enumeration: the single-state path
+            _, info_i = self.act(x[i], int(mode[i]), int(k[i]))
+            nu[i], status[i] = info_i["nu"], info_i["status"]
+        nu = self._project_nu(nu)
+        rho = self._min_rho(b, nu)  # the optimal rho for this nu (alpha > 0)
+        info = {
+            "nu": nu,
+            "rho": rho,
+            "cost": self._objective(b, nu, rho),
+            "status": status,
+            "ok": np.array([not str(st).startswith("fallback") for st in status]),
+            "in_region": b.inside,
+        }
+        return b.Kx + nu, info
+
+    def _active_set_family(
+        self, mode: int, inside: bool, Pi: np.ndarray, lo: np.ndarray, hi: np.ndarray
+    ) -> ActiveSetQP:
+        key = (mode, inside)
+        if key not in self._active_sets:
+            P, A = self._qp_matrices(mode, Pi)
+            self._active_sets[key] = ActiveSetQP(P, A, np.isfinite(lo), np.isfinite(hi))
+        return self._active_sets[key]
+
+
+class UnconstrainedRecedingHorizonController(RecedingHorizonController):
+    """Problem P3 without the chance constraints: only ``nu in U`` (``rho = 0`` always).
+
+    Same parameters as :class:`RecedingHorizonController` minus ``xi`` and ``constraint``;
+    ``alpha`` is accepted for symmetry and has no effect.
+
+    Examples
+    --------
+    >>> from sdjls_gym.systems.macro import macro, PAPER_K, PAPER_RHC
+    >>> ctrl = UnconstrainedRecedingHorizonController(macro(), PAPER_K, PAPER_RHC["Psi"])
+    >>> ctrl.act([2.0, 2.0], 0, 0)[1]["rho"]
+    0.0
+    """
+
+    _chance_constrained = False
+
+    def __init__(
+        self,
+        model: SDJLSModel,
+        K: np.ndarray,
+        Psi: np.ndarray,
+        alpha: float = 1000.0,
+        nu_bound: float = 100.0,
+        solver: str = "osqp",
+        nu_set: str = "box",
+        horizon: int | None = None,
+        osqp_settings: dict[str, Any] | None = None,
+        cvxpy_fallback: bool = True,
+    ) -> None:
+        self._init_common(
+            model, K, Psi, alpha, nu_bound, solver, nu_set, horizon, osqp_settings, cvxpy_fallback
+        )
+        self.xi = None
+        self.constraint = None

@@ -1,0 +1,45 @@
+"""sdjls-gym: state-dependent jump linear systems as Gymnasium environments.
+
+Importing the package registers two environment ids:
+
+* ``SDJLS-v0``: any system, ``gym.make("SDJLS-v0", model=model, horizon=T)``;
+* ``SDJLS-Macro-v0``: the macroeconomic example of section 6 of the paper (20 quarters).
+
+Both have ``SDJLSVectorEnv`` as their ``vector_entry_point``.
+"""
+
+import gymnasium
+
+from sdjls_gym.env import SDJLSEnv
+from sdjls_gym.model import InvalidModelError, SDJLSModel, load_model, save_model
+from sdjls_gym.systems import macro
+from sdjls_gym.systems.macro import ACTION_BOUND as _MACRO_ACTION_BOUND
+from sdjls_gym.systems.macro import HORIZON as _MACRO_HORIZON
+from sdjls_gym.vector_env import SDJLSVectorEnv
+
+__all__ = [
+    "SDJLSModel",
+    "InvalidModelError",
+    "SDJLSEnv",
+    "SDJLSVectorEnv",
+    "load_model",
+    "save_model",
+    "macro",
+]
+
+__version__ = "0.1.0"
+
+if "SDJLS-v0" not in gymnasium.registry:
+    gymnasium.register(
+        id="SDJLS-v0",
+        entry_point="sdjls_gym.env:SDJLSEnv",
+        vector_entry_point="sdjls_gym.vector_env:SDJLSVectorEnv",
+    )
+if "SDJLS-Macro-v0" not in gymnasium.registry:
+    gymnasium.register(
+        id="SDJLS-Macro-v0",
+        entry_point="sdjls_gym.env:SDJLSEnv",
+        vector_entry_point="sdjls_gym.vector_env:SDJLSVectorEnv",
+        max_episode_steps=_MACRO_HORIZON,
+        kwargs={"model": "macro", "horizon": _MACRO_HORIZON, "action_bound": _MACRO_ACTION_BOUND},
+    )

@@ -1,0 +1,384 @@
+"""``SDJLSEnv``: a state-dependent jump linear system as a Gymnasium environment."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from sdjls_gym.model import SDJLSModel
+
+__all__ = ["SDJLSEnv", "resolve_model", "observation_space", "action_space", "decode_observation"]
+
+
+def resolve_model(model: SDJLSModel | str | dict) -> SDJLSModel:
+    """Accept a model, a preset name (``"macro"``) or a ``to_dict()`` dict."""
+    if isinstance(model, SDJLSModel):
+        return model
+    if isinstance(model, str):
+        from sdjls_gym.systems import PRESETS
+
+        if model not in PRESETS:
+            raise ValueError(
+                f"model = {model!r} is not a preset; known presets are {sorted(PRESETS)}"
+            )
+        return PRESETS[model]()
+    if isinstance(model, dict):
+        return SDJLSModel.from_dict(model)
+    raise TypeError(
+        f"model must be an SDJLSModel, a preset name or a dict, got {type(model).__name__}; "
+        'e.g. gym.make("SDJLS-v0", model=my_model, horizon=20)'
+    )
+
+
+def _check_positive_int(name: str, value: Any) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} = {value!r}; expected a positive int")
+    return int(value)
+
+
+#: Largest allowed ``divergence_bound``: squares of states stay finite in float64 and the clipped
+#: observation stays finite in float32.
+MAX_DIVERGENCE_BOUND = 1e30
+
+
+def _check_divergence_bound(value: Any) -> float:
+    try:
+        bound = float(value)
+    except (TypeError, ValueError):
+        bound = float("nan")
+    if not (np.isfinite(bound) and 0 < bound <= MAX_DIVERGENCE_BOUND):
+        raise ValueError(
+            f"divergence_bound = {value!r}; expected a positive float <= {MAX_DIVERGENCE_BOUND:g}"
+        )
+    return bound
+
+
+def parse_reset_options(
+    model: SDJLSModel, options: dict[str, Any] | None, divergence_bound: float
+) -> tuple[np.ndarray | None, int | None]:
+    """Validate ``reset(options=...)``: ``(x0 or None, mode0 or None)``, None when not given."""
+    options = dict(options or {})
+    unknown = sorted(set(options) - {"x0", "mode0"})
+    if unknown:
+        raise ValueError(
+            f"reset options {unknown} are not understood; expected keys 'x0' and/or 'mode0'"
+        )
+    x0 = mode0 = None
+    if "x0" in options:
+        try:
+            x0 = np.array(options["x0"], dtype=np.float64)
+        except (TypeError, ValueError):
+            x0 = np.full(1, np.nan)
+        if x0.shape != (model.n,) or not np.all(np.abs(x0) <= divergence_bound):
+            raise ValueError(
+                f"options['x0'] = {options['x0']!r}; expected {model.n} finite numbers with "
+                f"|x0_i| <= divergence_bound = {divergence_bound:g}"
+            )
+    if "mode0" in options:
+        mode0 = options["mode0"]
+        if (
+            isinstance(mode0, (bool, np.bool_))
+            or not isinstance(mode0, (int, np.integer))
+            or not 0 <= mode0 < model.N
+        ):
+            raise ValueError(f"options['mode0'] = {mode0!r}; expected an int in [0, {model.N})")
+        mode0 = int(mode0)
+    return x0, mode0
+
+
+def _action_bounds(model: SDJLSModel, action_bound: float | np.ndarray) -> np.ndarray:
+    bound = np.broadcast_to(np.asarray(action_bound, dtype=np.float64), (model.m,)).copy()
+    if not np.all(np.isfinite(bound)) or np.any(bound <= 0):
+        raise ValueError(
+            f"action_bound = {action_bound!r}; expected finite positive bound(s) on |u_i|, a float "
+            f"or an array of shape ({model.m},)"
+        )
+    return bound
+
+
+def observation_space(model: SDJLSModel, divergence_bound: float) -> spaces.Box:
+    """The Box ``[x (n), one-hot of the mode (N), k / horizon]`` of float32.
+
+    ``x`` is clipped to ``[-divergence_bound, divergence_bound]`` in the observation (an episode
+    terminates as soon as it leaves that box); the exact state is ``info["state"]``.
+    """
+    low = np.concatenate([np.full(model.n, -divergence_bound), np.zeros(model.N + 1)])
+    high = np.concatenate([np.full(model.n, divergence_bound), np.ones(model.N + 1)])
+    return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
+
+
+def action_space(model: SDJLSModel, action_bound: float | np.ndarray) -> spaces.Box:
+    """The Box ``|u_i| <= action_bound`` of float32."""
+    bound = _action_bounds(model, action_bound).astype(np.float32)
+    return spaces.Box(-bound, bound, dtype=np.float32)
+
+
+def encode_observation(
+    model: SDJLSModel,
+    x: np.ndarray,
+    mode: np.ndarray | int,
+    k: np.ndarray | int,
+    horizon: int,
+    divergence_bound: float,
+) -> np.ndarray:
+    """Observation(s) ``[clip(x), one_hot(mode), k / horizon]``; batched over a leading axis."""
+    x = np.clip(np.asarray(x, dtype=np.float64), -divergence_bound, divergence_bound)
+    one_hot = np.eye(model.N)[np.asarray(mode)]
+    t = np.broadcast_to(np.asarray(k, dtype=np.float64) / horizon, x.shape[:-1])[..., None]
+    return np.concatenate([x, one_hot, t], axis=-1).astype(np.float32)
+
+
+def decode_observation(
+    model: SDJLSModel, observation: np.ndarray, horizon: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Inverse of the observation encoding: ``(x (..., n), mode (...), k (...))``.
+
+    ``x`` comes back as float64 but carries float32 precision; use ``info["state"]`` when the
+    exact state matters.
+    """
+    obs = np.asarray(observation, dtype=np.float64)
+    if obs.shape[-1] != model.n + model.N + 1:
+        raise ValueError(
+            f"observation has shape {obs.shape}; expected (..., {model.n + model.N + 1}) = "
+            "[x (n), one-hot mode (N), k/horizon]"
+        )
+    x = obs[..., : model.n]
+    mode = np.argmax(obs[..., model.n : model.n + model.N], axis=-1)
+    k = np.rint(obs[..., -1] * horizon).astype(np.int64)
+    return x, mode, k
+
+
+def step_info(model: SDJLSModel, x: np.ndarray, mode: Any, k: Any) -> dict[str, Any]:
+    """The info entries that describe a state ``(x, mode, k)``; batched over a leading axis."""
+    values = model.constraint_values(x, k)
+    violations = values > 0.0
+    return {
+        "state": np.array(x, dtype=np.float64),
+        "mode": mode,
+        "k": k,
+        "in_region": ~np.any(violations, axis=-1),
+        "constraint_values": values,
+        "violations": violations,
+        "cost": np.any(violations, axis=-1).astype(np.float64),
+    }
+
+
+class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
+    r"""
+    ## Description
+
+    A discrete-time state-dependent jump linear system (SDJLS), the model of section 2 of
+    Chitraganti et al., *On control of discrete-time state-dependent jump linear systems with
+    probabilistic constraints: a receding horizon approach*:
+
+    ```
+    x_{k+1} = A_{θ_k} x_k + B_{θ_k} u_k + E_{θ_k} w_k,          w_k ~ N(0, W)
+    θ_{k+1} ~ row θ_k of P_in   if G x_k <= H_k   (x_k in the region C1)
+    θ_{k+1} ~ row θ_k of P_out  otherwise                       H_k = H0 + k · H_rate
+    ```
+
+    The mode θ_k (0-based) is observed. The region `G x <= H_k` is also the constraint the
+    controller should keep the state in; violations are reported on the info channel.
+
+    ## Time indexing
+
+    `reset()` returns the observation of `(x_0, θ_0, k = 0)`. The `k`-th call of `step(u_k)`
+    (k = 0, 1, ...) draws `w_k`, sets `x_{k+1}`, draws `θ_{k+1}` using the region test on
+    `x_k` at time `k`, and returns the observation and the info of `(x_{k+1}, θ_{k+1}, k+1)`
+    together with the reward of the pair `(x_k, u_k)`. An episode has `horizon` steps: it is
+    truncated when `k + 1 = horizon`, so the last state is `x_T`.
+
+    ## Action Space
+
+    `Box(-action_bound, action_bound, (m,), float32)`: the input `u_k`.
+
+    | Num | Action | Min | Max |
+    |-----|--------|-----|-----|
+    | i   | u_k(i) | -action_bound[i] | action_bound[i] |
+
+    Finite actions outside the box are clipped to it (the clipped action is used for the
+    dynamics and the reward and returned as `info["u"]`). An action of the wrong shape or
+    with NaN or inf raises `ValueError`.
+
+    ## Observation Space
+
+    `Box((n + N + 1,), float32)`:
+
+    | Index | Observation | Min | Max |
+    |-------|-------------|-----|-----|
+    | 0 .. n-1 | x_k, clipped to ±divergence_bound | -divergence_bound | divergence_bound |
+    | n .. n+N-1 | one-hot of θ_k | 0 | 1 |
+    | n+N | k / horizon (the band moves with k) | 0 | 1 |
+
+    The exact float64 state is `info["state"]`.
+
+    ## Rewards
+
+    `reward = -(x_k' Q_{θ_k} x_k + u_k' R_{θ_k} u_k)`, a Python float: the negative stage cost
+    of the state the action was applied in.
+
+    ## Info
+
+    At reset and at every step, describing the new state `(x_{k+1}, θ_{k+1}, k+1)`:
+
+    | Key | Meaning |
+    |-----|---------|
+    | `state` | x (float64, exact) |
+    | `mode` | θ (int) |
+    | `k` | time index of the new state |
+    | `in_region` | whether `G x <= H_k` holds in every row (x in C1) |
+    | `constraint_values` | `G x - H_k` (r,); positive means violated |
+    | `violations` | `constraint_values > 0` (r,) bool |
+    | `cost` | 1.0 if any row is violated, else 0.0 (Safety-Gymnasium convention) |
+    | `stage_cost` | `x_k' Q x_k + u_k' R u_k` of the step (0.0 at reset) |
+    | `u` | the applied (clipped) action, float64 (steps only) |
+    | `diverged` | whether `max |x| > divergence_bound` |
+
+    ## Starting State
+
+    `x_0 = model.x0` and `θ_0 = model.mode0` (or a draw from it, if it is a probability
+    vector). `reset(options={"x0": ..., "mode0": ...})` overrides either.
+
+    ## Episode End
+
+    * Truncation: after `horizon` steps (`SDJLS-Macro-v0` also registers
+      `max_episode_steps = 20`, the same number).
+    * Termination: only on divergence, when `max |x_{k+1}| > divergence_bound`
+      (`info["diverged"] = True`). Rewards stay finite.
+
+    ## Arguments
+
+    * `model`: an `SDJLSModel`, a preset name (`"macro"`) or a `to_dict()` dict.
+    * `horizon`: episode length T (default 20).
+    * `action_bound`: bound on |u_i|, float or (m,) (default 200.0).
+    * `divergence_bound`: termination threshold on max |x| (default 1e6).
+    * `render_mode`: `None` or `"rgb_array"` (a matplotlib picture of the episode so far).
+
+    ```python
+    import gymnasium as gym
+    import sdjls_gym  # registers the ids
+    env = gym.make("SDJLS-Macro-v0")
+    env = gym.make("SDJLS-v0", model=my_model, horizon=40)
+    ```
+
+    ## Version History
+
+    * v0: Initial version.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
+
+    def __init__(
+        self,
+        model: SDJLSModel | str | dict,
+        horizon: int = 20,
+        action_bound: float | np.ndarray = 200.0,
+        divergence_bound: float = 1e6,
+        render_mode: str | None = None,
+    ) -> None:
+        self.model = resolve_model(model)
+        self.horizon = _check_positive_int("horizon", horizon)
+        self.divergence_bound = _check_divergence_bound(divergence_bound)
+        parse_reset_options(self.model, {"x0": self.model.x0}, self.divergence_bound)
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode = {render_mode!r}; expected None or one of {self.metadata['render_modes']}"
+            )
+        self.render_mode = render_mode
+        self.action_space = action_space(self.model, action_bound)
+        self.observation_space = observation_space(self.model, self.divergence_bound)
+        self._low = self.action_space.low.astype(np.float64)
+        self._high = self.action_space.high.astype(np.float64)
+        self._x: np.ndarray | None = None
+        self._mode = 0
+        self._k = 0
+        self._history: list[tuple[np.ndarray, int]] = []
+
+    # ------------------------------------------------------------------ current state
+    @property
+    def state(self) -> np.ndarray:
+        """The current state ``x_k`` (float64 copy)."""
+        if self._x is None:
+            raise RuntimeError("call reset() before reading the state")
+        return self._x.copy()
+
+    @property
+    def mode(self) -> int:
+        """The current mode ``theta_k``."""
+        return self._mode
+
+    @property
+    def k(self) -> int:
+        """The current time index ``k``."""
+        return self._k
+
+    # ------------------------------------------------------------------ helpers
+    def _obs(self) -> np.ndarray:
+        return encode_observation(
+            self.model, self._x, self._mode, self._k, self.horizon, self.divergence_bound
+        )
+
+    def _info(self, stage_cost: float) -> dict[str, Any]:
+        info = step_info(self.model, self._x, self._mode, self._k)
+        info["in_region"] = bool(info["in_region"])
+        info["cost"] = float(info["cost"])
+        info["stage_cost"] = float(stage_cost)
+        info["diverged"] = bool(np.max(np.abs(self._x)) > self.divergence_bound)
+        return info
+
+    # ------------------------------------------------------------------ Gymnasium API
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        x0, mode0 = parse_reset_options(self.model, options, self.divergence_bound)
+        self._x = self.model.x0.copy() if x0 is None else x0
+        self._mode = self.model.sample_mode0(self.np_random) if mode0 is None else mode0
+        self._k = 0
+        self._history = [(self._x.copy(), self._mode)]
+        return self._obs(), self._info(0.0)
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._x is None:
+            raise RuntimeError("call reset() before step()")
+        try:
+            u = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"action = {action!r:.80}; expected {self.model.m} finite numbers"
+            ) from None
+        if u.size != self.model.m or u.ndim > 1:
+            raise ValueError(
+                f"action has shape {u.shape}; expected ({self.model.m},), the input u_k"
+            )
+        u = u.reshape(self.model.m)
+        if not np.all(np.isfinite(u)):
+            raise ValueError(f"action = {u} contains NaN or inf; expected finite numbers")
+        u = np.clip(u, self._low, self._high)
+
+        model, rng = self.model, self.np_random
+        stage_cost = float(model.stage_cost(self._x, self._mode, u))
+        w = model.sample_noise(rng)
+        self._x, mode = model.step(self._x, self._mode, u, self._k, w, rng.random())
+        self._mode = int(mode)
+        self._k += 1
+        self._history.append((self._x.copy(), self._mode))
+
+        info = self._info(stage_cost)
+        info["u"] = u
+        terminated = info["diverged"]
+        truncated = self._k >= self.horizon
+        return self._obs(), -stage_cost, terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gym.logger.warn('render() needs render_mode="rgb_array" at construction')
+            return None
+        from sdjls_gym.render import render_episode
+
+        xs = np.array([x for x, _ in self._history])
+        modes = np.array([mode for _, mode in self._history])
+        return render_episode(self.model, xs, modes, self.horizon)

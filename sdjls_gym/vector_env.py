@@ -1,0 +1,181 @@
+"""``SDJLSVectorEnv``: the same dynamics as :class:`~sdjls_gym.env.SDJLSEnv` on a batch, in numpy."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from sdjls_gym.env import (
+    _check_divergence_bound,
+    _check_positive_int,
+    action_space,
+    encode_observation,
+    observation_space,
+    parse_reset_options,
+    resolve_model,
+    step_info,
+)
+from sdjls_gym.model import SDJLSModel
+
+__all__ = ["SDJLSVectorEnv"]
+
+
+class SDJLSVectorEnv(VectorEnv):
+    """``num_envs`` independent copies of :class:`~sdjls_gym.env.SDJLSEnv`, stepped together.
+
+    The whole batch is advanced by one call of the model's batched dynamics; there is no
+    Python loop over sub-environments. Semantics per sub-environment are those of
+    ``SDJLSEnv`` (time indexing, reward, info keys, clipping of actions, truncation at the
+    horizon, termination on divergence), with Gymnasium's vector conventions:
+
+    * autoreset mode ``NEXT_STEP``: the step after a sub-environment ended resets it (from the
+      model's ``x0`` and ``mode0``; ``reset(options=...)`` applies to the explicit reset only,
+      as with Gymnasium's sync vector env), ignores its action and returns its reset
+      observation with reward 0 and ``terminated = truncated = False``;
+    * infos are a dict of arrays with a leading batch axis, each key ``key`` with a boolean
+      mask ``_key`` (``u`` is masked out for sub-environments that were reset this step);
+    * randomness comes from one ``numpy.random.Generator`` (``self.np_random``) for the batch,
+      so the same seed gives the same batch. The stream differs from ``num_envs`` separate
+      ``SDJLSEnv`` instances; the two agree in distribution.
+
+    Parameters
+    ----------
+    num_envs : int
+        Number of sub-environments.
+    model, horizon, action_bound, divergence_bound
+        As for :class:`~sdjls_gym.env.SDJLSEnv`.
+    max_episode_steps : int, optional
+        Passed by ``gymnasium.make_vec`` from the registration; episodes are truncated after
+        ``min(horizon, max_episode_steps)`` steps, as a ``TimeLimit`` would do.
+    render_mode : None
+        Rendering is not supported for the batch; render one ``SDJLSEnv`` instead.
+
+    Examples
+    --------
+    >>> import gymnasium as gym, sdjls_gym
+    >>> envs = gym.make_vec("SDJLS-Macro-v0", num_envs=1024, vectorization_mode="vector_entry_point")
+    >>> obs, info = envs.reset(seed=0)
+    >>> obs.shape
+    (1024, 6)
+    """
+
+    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        model: SDJLSModel | str | dict = "macro",
+        horizon: int = 20,
+        action_bound: float | np.ndarray = 200.0,
+        divergence_bound: float = 1e6,
+        max_episode_steps: int | None = None,
+        render_mode: str | None = None,
+    ) -> None:
+        if render_mode is not None:
+            raise ValueError(
+                f"render_mode = {render_mode!r}; SDJLSVectorEnv does not render, use SDJLSEnv"
+            )
+        self.model = resolve_model(model)
+        self.num_envs = _check_positive_int("num_envs", num_envs)
+        self.horizon = _check_positive_int("horizon", horizon)
+        self.episode_steps = self.horizon
+        if max_episode_steps is not None:
+            self.episode_steps = min(
+                self.horizon, _check_positive_int("max_episode_steps", max_episode_steps)
+            )
+        self.divergence_bound = _check_divergence_bound(divergence_bound)
+        parse_reset_options(self.model, {"x0": self.model.x0}, self.divergence_bound)
+        self.render_mode = None
+
+        self.single_observation_space = observation_space(self.model, self.divergence_bound)
+        self.single_action_space = action_space(self.model, action_bound)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._low = self.single_action_space.low.astype(np.float64)
+        self._high = self.single_action_space.high.astype(np.float64)
+
+        B, model = self.num_envs, self.model
+        self._x = np.zeros((B, model.n))
+        self._mode = np.zeros(B, dtype=np.int64)
+        self._k = np.zeros(B, dtype=np.int64)
+        self._prev_done = np.zeros(B, dtype=bool)
+        self._started = False
+
+    # ------------------------------------------------------------------ helpers
+    def _infos(self, stage_cost: np.ndarray) -> dict[str, Any]:
+        raw = step_info(self.model, self._x, self._mode.copy(), self._k.copy())
+        raw["stage_cost"] = stage_cost
+        raw["diverged"] = np.max(np.abs(self._x), axis=-1) > self.divergence_bound
+        infos: dict[str, Any] = {}
+        everyone = np.ones(self.num_envs, dtype=bool)
+        for key, value in raw.items():
+            infos[key] = value
+            infos[f"_{key}"] = everyone
+        return infos
+
+    # ------------------------------------------------------------------ Gymnasium API
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        x0, mode0 = parse_reset_options(self.model, options, self.divergence_bound)
+        B = self.num_envs
+        self._x = np.broadcast_to(self.model.x0 if x0 is None else x0, (B, self.model.n)).copy()
+        self._mode = (
+            self.model.sample_mode0(self.np_random, B)
+            if mode0 is None
+            else np.full(B, mode0, dtype=np.int64)
+        )
+        self._k = np.zeros(B, dtype=np.int64)
+        self._prev_done = np.zeros(B, dtype=bool)
+        self._started = True
+        obs = encode_observation(
+            self.model, self._x, self._mode, self._k, self.horizon, self.divergence_bound
+        )
+        return obs, self._infos(np.zeros(B))
+
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        if not self._started:
+            raise RuntimeError("call reset() before step()")
+        B, model = self.num_envs, self.model
+        u = np.asarray(actions, dtype=np.float64)
+        if u.shape != (B, model.m):
+            if u.size == B * model.m and model.m == 1 and u.shape == (B,):
+                u = u.reshape(B, 1)
+            else:
+                raise ValueError(f"actions have shape {u.shape}; expected ({B}, {model.m})")
+        if not np.all(np.isfinite(u)):
+            raise ValueError("actions contain NaN or inf; expected finite numbers")
+        u = np.clip(u, self._low, self._high)
+
+        rng = self.np_random
+        stage_cost = model.stage_cost(self._x, self._mode, u)
+        w = model.sample_noise(rng, (B,))
+        x_new, mode_new = model.step(self._x, self._mode, u, self._k, w, rng.random(B))
+        k_new = self._k + 1
+
+        reset = self._prev_done
+        if np.any(reset):
+            count = int(reset.sum())
+            # autoreset starts from the model's x0 and mode0, as a reset without options
+            x_new[reset] = model.x0
+            mode_new[reset] = model.sample_mode0(rng, count)
+            k_new[reset] = 0
+            stage_cost[reset] = 0.0
+        self._x, self._mode, self._k = x_new, mode_new, k_new
+
+        infos = self._infos(stage_cost)
+        infos["u"] = u
+        infos["_u"] = ~reset
+        terminated = infos["diverged"] & ~reset
+        truncated = (k_new >= self.episode_steps) & ~reset
+        self._prev_done = terminated | truncated
+        obs = encode_observation(
+            model, self._x, self._mode, self._k, self.horizon, self.divergence_bound
+        )
+        return obs, -stage_cost, terminated, truncated, infos
