@@ -21,7 +21,6 @@ no linearly independent subset satisfying KKT: not expected for strictly convex 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from itertools import combinations
 
 import numpy as np
@@ -29,13 +28,13 @@ import numpy as np
 __all__ = ["ActiveSetQP"]
 
 
-@dataclass
-class _Candidate:
-    rows: np.ndarray  # indices into the one-sided constraint list
-    Mz_q: np.ndarray  # (d, d): z = Mz_q @ q + Mz_h @ h_S
-    Mz_h: np.ndarray  # (d, |S|)
-    Ml_q: np.ndarray  # (|S|, d): lambda = Ml_q @ q + Ml_h @ h_S
-    Ml_h: np.ndarray  # (|S|, |S|)
+def _max_over_middle(a: np.ndarray) -> np.ndarray:
+    """``a.max(axis=1)`` for ``a`` (B, j, k) with small ``j``, as ``j - 1`` elementwise maxima
+    (numpy's reductions over short axes are slow)."""
+    out = a[:, 0].copy()
+    for j in range(1, a.shape[1]):
+        np.maximum(out, a[:, j], out=out)
+    return out
 
 
 class ActiveSetQP:
@@ -78,8 +77,11 @@ class ActiveSetQP:
         self.P, self.d, self.tol = P, d, tol
         max_active = d if max_active is None else max_active
         scale = max(1.0, float(np.max(np.abs(P))), float(np.max(np.abs(self.C))))
-        self.candidates: list[_Candidate] = []
+        # Candidate S gives [z; lam_S] = Kinv_S [-q; h_S]. With a selection matrix S_c (h_S = S_c h)
+        # every candidate is a linear map of w = [q; h]; all of them are stacked so that one
+        # matrix product evaluates every candidate for a whole batch.
         n_rows = self.C.shape[0]
+        z_maps, lam_maps, rows_list = [], [], []
         for size in range(0, min(max_active, d) + 1):
             for rows in combinations(range(n_rows), size):
                 rows_arr = np.array(rows, dtype=np.int64)
@@ -91,16 +93,30 @@ class ActiveSetQP:
                 if np.linalg.cond(K) > 1e10 * scale:
                     continue
                 Kinv = np.linalg.inv(K)
-                # [z; lam] = Kinv @ [-q; h_S]
-                self.candidates.append(
-                    _Candidate(
-                        rows=rows_arr,
-                        Mz_q=-Kinv[:d, :d],
-                        Mz_h=Kinv[:d, d:],
-                        Ml_q=-Kinv[d:, :d],
-                        Ml_h=Kinv[d:, d:],
-                    )
-                )
+                select = np.zeros((size, n_rows))
+                select[np.arange(size), rows_arr] = 1.0
+                # w = [q (d); h (n_rows)]
+                z_maps.append(np.hstack([-Kinv[:d, :d], Kinv[:d, d:] @ select]))
+                lam = np.zeros((n_rows, d + n_rows))  # multipliers of all rows (0 if inactive)
+                lam[rows_arr] = np.hstack([-Kinv[d:, :d], Kinv[d:, d:] @ select])
+                lam_maps.append(lam)
+                rows_list.append(rows_arr)
+        self.n_candidates = len(z_maps)
+        self.active_sets = rows_list
+        self._Z = np.vstack(z_maps)  # (ncand * d, d + n_rows): every candidate's z
+        # KKT residuals as linear maps of w too: C z_c - h (primal) and -lam_c (dual), all <= 0
+        # at a KKT point; stacked so that one product gives every residual of every candidate.
+        h_part = np.hstack([np.zeros((n_rows, d)), np.eye(n_rows)])
+        kkt = np.stack(
+            [
+                np.vstack([self.C @ zm - h_part, -lm])
+                for zm, lm in zip(z_maps, lam_maps, strict=True)
+            ]
+        )  # (ncand, 2 n_rows, d + n_rows)
+        # ordered residual-major (column j * ncand + candidate) so that the worst residual of every
+        # candidate is an elementwise maximum of 2 n_rows slices, not a reduction over a short axis
+        self._kkt_T = kkt.transpose(1, 0, 2).reshape(-1, d + n_rows).T.copy()
+        self._Z_T = self._Z.T.copy()
 
     def one_sided_bounds(self, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
         """``h`` of the one-sided form ``C z <= h`` for bounds ``l, u`` of shape ``(B, c)``."""
@@ -123,26 +139,16 @@ class ActiveSetQP:
         """
         q = np.atleast_2d(np.asarray(q, dtype=np.float64))
         h = self.one_sided_bounds(np.atleast_2d(lower), np.atleast_2d(upper))
-        B = q.shape[0]
-        best_z = np.full((B, self.d), np.nan)
-        best_obj = np.full(B, np.inf)
-        scale = 1.0 + np.max(np.abs(h), axis=1)
-        for cand in self.candidates:
-            hS = h[:, cand.rows]
-            z = q @ cand.Mz_q.T + hS @ cand.Mz_h.T
-            if cand.rows.size:
-                lam = q @ cand.Ml_q.T + hS @ cand.Ml_h.T
-                dual_ok = np.all(
-                    lam >= -self.tol * (1.0 + np.abs(lam).max(axis=1, keepdims=True)), axis=1
-                )
-            else:
-                dual_ok = np.ones(B, dtype=bool)
-            primal_ok = np.all(z @ self.C.T <= h + self.tol * scale[:, None], axis=1)
-            ok = primal_ok & dual_ok
-            if not np.any(ok):
-                continue
-            obj = 0.5 * np.einsum("bi,ij,bj->b", z, self.P, z) + np.einsum("bi,bi->b", q, z)
-            better = ok & (obj < best_obj)
-            best_obj[better] = obj[better]
-            best_z[better] = z[better]
-        return best_z, np.isfinite(best_obj)
+        B, d, nc = q.shape[0], self.d, self.n_candidates
+        w = np.concatenate([q, h], axis=1)  # (B, d + c)
+        residual = (w @ self._kkt_T).reshape(B, -1, nc)  # (B, 2c, nc)
+        worst = _max_over_middle(residual)  # (B, nc) largest KKT residual of each candidate
+        tol = self.tol * (1.0 + _max_over_middle(np.abs(w)[:, :, None])[:, 0])
+        ok = worst <= tol[:, None]  # (B, nc): the KKT conditions hold
+        # a convex QP: every KKT point is optimal; take the first candidate that passes
+        best = np.argmax(ok, axis=1)
+        rows = np.arange(B)
+        found = ok[rows, best]
+        z = (w @ self._Z_T).reshape(B, nc, d)[rows, best]
+        z[~found] = np.nan
+        return z, found

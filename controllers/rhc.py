@@ -24,6 +24,11 @@ Solvers
 ``solver="cvxpy"``
     The plain formulation written with cvxpy and solved by Clarabel, rebuilt at every call; a
     reference for checking the fast path.
+``solver="active_set"``
+    Exact solution by enumeration of the candidate active sets of the family's QP (see
+    :mod:`controllers.active_set`), set up once per family; OSQP takes over in the rare case
+    where no candidate satisfies the KKT conditions. The fastest single-state path for small
+    problems; :meth:`RecedingHorizonController.act_batch` always uses it for the box ``U``.
 
 An episode never crashes on a solver failure: OSQP is retried once (cold, 10x the iterations),
 then the cvxpy reference is tried (unless ``cvxpy_fallback=False``), and as a last resort
@@ -47,7 +52,7 @@ from .chance import _check_constraint, _check_xi, tightening
 
 __all__ = ["RecedingHorizonController", "UnconstrainedRecedingHorizonController"]
 
-SOLVERS = ("osqp", "cvxpy")
+SOLVERS = ("osqp", "cvxpy", "active_set")
 NU_SETS = ("box", "ball")
 
 #: Settings of the OSQP fast path; tight enough that OSQP and the cvxpy/Clarabel reference agree
@@ -138,35 +143,55 @@ def _check_osqp_settings(settings: Any) -> dict[str, Any]:
     return merged
 
 
-@dataclass(frozen=True)
-class _Batch:
-    """Data of P3 for a batch of states: every field has a leading batch axis B."""
+@dataclass(frozen=True, eq=False)
+class _Family:
+    """P3 for one ``(mode, x_k in C1)`` pair: ``Pi`` and every matrix of the QP are fixed.
 
-    x: np.ndarray  # (B, n)
-    mode: np.ndarray  # (B,)
-    k: np.ndarray  # (B,)
-    inside: np.ndarray  # (B,) bool
-    Pi: np.ndarray  # (B, n, n)
-    Kx: np.ndarray  # (B, m)
-    a: np.ndarray  # (B, n)
-    hbar: np.ndarray | None  # (B, r)
-    noise_term: np.ndarray  # (B,)
+    With ``u = K x + nu`` the objective of P3 expands to (eq. eq:exp_noise, Lemma 1)::
+
+        J = x'C x + tr(Pi E W E') + nu'H_nu nu + g'nu + alpha rho,
+        C = Q + K'RK + Atilde'Pi Atilde,   H_nu = R + B'Pi B,   g = 2 (R K + B'Pi Atilde) x
+
+    and the constraint rows are ``G Atilde x + G B nu - rho <= H_{k+1} - t``.
+    """
+
+    mode: int
+    inside: bool
+    Pi: np.ndarray  # (n, n)
+    maps: np.ndarray  # (2m + n + r, n): rows [K; Atilde; 2(RK + B'Pi Atilde); G Atilde]
+    C: np.ndarray  # (n, n)
+    H_nu: np.ndarray  # (m, m)
+    GB: np.ndarray  # (r, m)
+    noise_term: float  # tr(Pi E W E')
+    P: np.ndarray  # (m+1, m+1) Hessian of the QP in z = (nu, rho), OSQP's 1/2 z'Pz
+    A: np.ndarray  # constraint matrix of the QP
+    solver: ActiveSetQP | None  # exact batched solver (box U only)
 
 
 @dataclass(frozen=True)
 class _Step:
-    """Data of P3 at one ``(x_k, theta_k, k)``."""
+    """Data of P3 for ``B`` states of one family (``B = 1`` for :meth:`act`)."""
 
-    x: np.ndarray  # (n,)
-    mode: int
-    k: int
-    inside: bool  # x_k in C1 at time k
-    Pi: np.ndarray  # (n, n)  eq. (eq:exp_noise)
-    Kx: np.ndarray  # (m,)
-    a: np.ndarray  # (n,)  Atilde_theta x_k
-    hbar: np.ndarray | None  # (r,)  H_{k+1} - t[theta]; None without chance constraints
-    noise_term: float  # tr(Pi E_theta W E_theta')
-    batch: _Batch  # the same data as a batch of one
+    fam: _Family
+    x: np.ndarray  # (B, n)
+    k: np.ndarray  # (B,)
+    Kx: np.ndarray  # (B, m)
+    a: np.ndarray  # (B, n)  Atilde x
+    g: np.ndarray  # (B, m)  gradient of J in nu at nu = 0
+    GAx: np.ndarray  # (B, r)  G Atilde x
+    hbar: np.ndarray  # (B, r)  H_{k+1} - t[theta]
+
+    @property
+    def mode(self) -> int:
+        return self.fam.mode
+
+    @property
+    def Pi(self) -> np.ndarray:
+        return self.fam.Pi
+
+    @property
+    def noise_term(self) -> float:
+        return self.fam.noise_term
 
 
 class RecedingHorizonController(_FeedbackPolicy):
@@ -188,7 +213,7 @@ class RecedingHorizonController(_FeedbackPolicy):
         Penalty on the slack ``rho`` (> 0; large, e.g. 1000).
     nu_bound : float
         Size of the set ``U`` of offsets ``nu`` (> 0).
-    solver : {"osqp", "cvxpy"}
+    solver : {"osqp", "cvxpy", "active_set"}
         Fast path with warm-started OSQP, or the cvxpy/Clarabel reference (see module docstring).
     nu_set : {"box", "ball"}
         ``U = {|nu_i| <= nu_bound}`` or ``U = {||nu||_2 <= nu_bound}`` (the same when ``m = 1``).
@@ -277,7 +302,7 @@ class RecedingHorizonController(_FeedbackPolicy):
         self.A_tilde = model.A + model.B @ self.K  # eq. (sys:stabilized_input)
         self.A_tilde.setflags(write=False)
         self._osqp: dict[tuple[int, bool], osqp.OSQP] = {}
-        self._active_sets: dict[tuple[int, bool], ActiveSetQP] = {}
+        self._families: dict[tuple[int, bool], _Family] = {}
         self.tightening: np.ndarray | None = None
 
     # ------------------------------------------------------------------ problem data
@@ -286,64 +311,109 @@ class RecedingHorizonController(_FeedbackPolicy):
         """``||nu||_2 <= nu_bound`` with m > 1 is not a QP: solved with cvxpy + Clarabel."""
         return self.nu_set == "ball" and self.model.m > 1
 
-    def _batch(self, x: np.ndarray, mode: np.ndarray, k: np.ndarray) -> _Batch:
-        """Data of P3 for a batch of ``(x_k, theta_k, k)``; ``x`` (B, n), ``mode``, ``k`` (B,)."""
-        model = self.model
-        inside = model.in_region(x, k)
-        pi_rows = model.transition_rows(x, mode, k)  # eq. (eq:p_tran)
-        Pi = np.einsum("bj,jac->bac", pi_rows, self.Psi)  # eq. (eq:exp_noise)
-        Pi = 0.5 * (Pi + Pi.transpose(0, 2, 1))
-        hbar = None
+    def _family(self, mode: int, inside: bool) -> _Family:
+        """The QP family of ``(mode, inside)``, built on first use and cached."""
+        key = (mode, inside)
+        fam = self._families.get(key)
+        if fam is not None:
+            return fam
+        model, m, r = self.model, self.model.m, self.model.r
+        P_row = (model.P_in if inside else model.P_out)[mode]  # eq. (eq:p_tran)
+        Pi = np.einsum("j,jab->ab", P_row, self.Psi)  # eq. (eq:exp_noise)
+        Pi = 0.5 * (Pi + Pi.T)
+        K, At, Bm, R = self.K[mode], self.A_tilde[mode], model.B[mode], model.R[mode]
+        H_nu = R + Bm.T @ Pi @ Bm
+        C = model.Q[mode] + K.T @ R @ K + At.T @ Pi @ At
+        grad = 2.0 * (R @ K + Bm.T @ Pi @ At)
+        P = np.zeros((m + 1, m + 1))
+        P[:m, :m] = H_nu + H_nu.T  # 0.5 z'P z = nu'(R + B'Pi B) nu
+        rows = []
         if self._chance_constrained:
-            # eq. (constraint:feasibility): the constraint is on x_{k+1}, band H_{k+1}
-            hbar = model.H(k + 1) - self.tightening[mode]
-        return _Batch(
-            x=x,
+            rows.append(np.hstack([model.G @ Bm, -np.ones((r, 1))]))  # G B nu - rho
+        rows.append(np.hstack([np.eye(m), np.zeros((m, 1))]))  # nu in the box U
+        rows.append(np.hstack([np.zeros((1, m)), np.ones((1, 1))]))  # rho >= 0
+        A = np.vstack(rows)
+        lo, hi = self._bounds(np.zeros((1, r)))
+        fam = _Family(
             mode=mode,
-            k=k,
             inside=inside,
             Pi=Pi,
-            Kx=np.einsum("bij,bj->bi", self.K[mode], x),
-            a=np.einsum("bij,bj->bi", self.A_tilde[mode], x),
+            maps=np.vstack([K, At, grad, model.G @ At]),
+            C=C,
+            H_nu=H_nu,
+            GB=model.G @ Bm,
+            noise_term=float(np.trace(Pi @ model.noise_cov[mode])),  # Lemma 1, eq. (eq:lemm1)
+            P=P,
+            A=A,
+            solver=None
+            if self._uses_socp
+            else ActiveSetQP(P, A, np.isfinite(lo[0]), np.isfinite(hi[0])),
+        )
+        self._families[key] = fam
+        return fam
+
+    def _data(self, fam: _Family, x: np.ndarray, k: np.ndarray) -> _Step:
+        """P3's state-dependent data for states ``x`` (B, n) of one family at times ``k`` (B,)."""
+        m, n = self.model.m, self.model.n
+        y = x @ fam.maps.T
+        if self._chance_constrained:
+            # eq. (constraint:feasibility): the constraint is on x_{k+1}, band H_{k+1}
+            hbar = self.model.H(k + 1) - self.tightening[fam.mode]
+        else:
+            hbar = np.zeros((x.shape[0], self.model.r))  # unused: no chance constraints
+        return _Step(
+            fam=fam,
+            x=x,
+            k=k,
+            Kx=y[:, :m],
+            a=y[:, m : m + n],
+            g=y[:, m + n : 2 * m + n],
+            GAx=y[:, 2 * m + n :],
             hbar=hbar,
-            # Lemma 1, eq. (eq:lemm1): E[w'E'Pi E w] = tr(Pi E W E')
-            noise_term=np.einsum("bij,bji->b", Pi, model.noise_cov[mode]),
         )
 
     def _step(self, x: np.ndarray, mode: int, k: int) -> _Step:
-        b = self._batch(x[None], np.array([mode]), np.array([k]))
-        return _Step(
-            x=x,
-            mode=mode,
-            k=k,
-            inside=bool(b.inside[0]),
-            Pi=b.Pi[0],
-            Kx=b.Kx[0],
-            a=b.a[0],
-            hbar=None if b.hbar is None else b.hbar[0],
-            noise_term=float(b.noise_term[0]),
-            batch=b,
-        )
+        inside = max(self.model.constraint_values_one(x, k).tolist()) <= 0.0  # in C1 at time k
+        return self._data(self._family(mode, inside), x[None], np.array([k]))
 
-    def _mean_next(self, b: _Batch, nu: np.ndarray) -> np.ndarray:
-        """``E[x_{k+1} | F_k] = Atilde x + B nu`` (B, n) from the model's own dynamics (w = 0)."""
-        return self.model.next_state(b.x, b.mode, b.Kx + nu, np.zeros((len(b.mode), self.model.p)))
+    def _bounds(self, upper_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds ``l, u`` (B, rows) of the QP in OSQP form, given the right sides of the rows."""
+        size, m, nb = upper_rows.shape[0], self.model.m, self.nu_bound
+        lo = [np.full((size, m), -nb), np.zeros((size, 1))]
+        hi = [
+            np.full((size, m), nb),
+            np.full((size, 1), np.inf if self._chance_constrained else 0.0),
+        ]
+        if self._chance_constrained:
+            lo.insert(0, np.full(upper_rows.shape, -np.inf))
+            hi.insert(0, upper_rows)
+        return np.hstack(lo), np.hstack(hi)
 
-    def _min_rho(self, b: _Batch, nu: np.ndarray) -> np.ndarray:
+    def _qp_vectors(self, d: _Step) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Linear term ``q`` (B, m+1) and bounds ``l, u`` of the QP in z = (nu, rho)."""
+        alpha = self.alpha if self._chance_constrained else 0.0
+        q = np.hstack([d.g, np.full((d.g.shape[0], 1), alpha)])
+        return (q, *self._bounds(d.hbar - d.GAx))
+
+    def _min_rho(self, d: _Step, nu: np.ndarray) -> np.ndarray:
         """Smallest ``rho >= 0`` (B,) that makes ``nu`` (B, m) feasible in eq. (constraint:feasibility)."""
-        if b.hbar is None:
-            return np.zeros(len(b.mode))
-        excess = np.max(self._mean_next(b, nu) @ self.model.G.T - b.hbar, axis=1)
+        if not self._chance_constrained:
+            return np.zeros(nu.shape[0])
+        excess = np.max(d.GAx + nu @ d.fam.GB.T - d.hbar, axis=1)
         # round-off on an active row (|excess| ~ 1e-15) is not a use of the slack: report 0
-        zero = excess <= _RHO_ZERO_TOL * np.maximum(1.0, np.max(np.abs(b.hbar), axis=1))
+        zero = excess <= _RHO_ZERO_TOL * np.maximum(1.0, np.max(np.abs(d.hbar), axis=1))
         return np.where(zero, 0.0, excess)
 
-    def _objective(self, b: _Batch, nu: np.ndarray, rho: np.ndarray) -> np.ndarray:
-        """``J_k`` (B,) of P3 at ``(nu, rho)``, every constant term included."""
-        mean = self._mean_next(b, nu)
-        stage = self.model.stage_cost(b.x, b.mode, b.Kx + nu)
-        terminal = np.einsum("bi,bij,bj->b", mean, b.Pi, mean)
-        return stage + terminal + b.noise_term + self.alpha * rho
+    def _objective(self, d: _Step, nu: np.ndarray, rho: np.ndarray) -> np.ndarray:
+        """``J_k`` (B,) of P3 at ``(nu, rho)``, every constant term included (see :class:`_Family`)."""
+        fam = d.fam
+        return (
+            np.sum((d.x @ fam.C) * d.x, axis=1)
+            + fam.noise_term
+            + np.sum((nu @ fam.H_nu) * nu, axis=1)
+            + np.sum(d.g * nu, axis=1)
+            + self.alpha * rho
+        )
 
     def _project_nu(self, nu: np.ndarray) -> np.ndarray:
         """Remove solver round-off outside ``U``; ``nu`` (..., m)."""
@@ -352,58 +422,18 @@ class RecedingHorizonController(_FeedbackPolicy):
             return nu * np.minimum(1.0, self.nu_bound / np.maximum(norm, 1e-300))
         return np.clip(nu, -self.nu_bound, self.nu_bound)
 
-    # ------------------------------------------------------------------ OSQP fast path
-    def _qp_matrices(self, mode: int, Pi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Hessian and constraint matrix of the family ``(mode, in_region)``; z = (nu, rho).
-
-        ``Pi`` depends only on the mode and on whether ``x_k`` is in C1, so these two matrices
-        are fixed within a family.
-        """
-        model, m = self.model, self.model.m
-        Bm = model.B[mode]
-        H_nu = model.R[mode] + Bm.T @ Pi @ Bm
-        P = np.zeros((m + 1, m + 1))
-        P[:m, :m] = H_nu + H_nu.T  # 0.5 z'P z = nu'(R + B'Pi B) nu
-        rows = []
-        if self._chance_constrained:
-            rows.append(np.hstack([model.G @ Bm, -np.ones((model.r, 1))]))  # G B nu - rho
-        rows.append(np.hstack([np.eye(m), np.zeros((m, 1))]))  # nu in the box U
-        rows.append(np.hstack([np.zeros((1, m)), np.ones((1, 1))]))  # rho >= 0
-        return P, np.vstack(rows)
-
-    def _qp_vectors(self, b: _Batch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Linear term ``q`` (B, m+1) and bounds ``l, u`` (B, rows) of P3 in OSQP form."""
-        model, nb = self.model, self.nu_bound
-        Bm = model.B[b.mode]  # (B, n, m)
-        grad = 2.0 * (
-            np.einsum("bij,bj->bi", model.R[b.mode], b.Kx)
-            + np.einsum("bji,bjk,bk->bi", Bm, b.Pi, b.a)
-        )
-        size = len(b.mode)
-        q = np.hstack([grad, np.full((size, 1), self.alpha if self._chance_constrained else 0.0)])
-        lo, hi = [], []
-        if self._chance_constrained:
-            lo.append(np.full((size, model.r), -np.inf))
-            hi.append(b.hbar - b.a @ model.G.T)
-        lo += [np.full((size, model.m), -nb), np.zeros((size, 1))]
-        hi += [
-            np.full((size, model.m), nb),
-            np.full((size, 1), np.inf if self._chance_constrained else 0.0),
-        ]
-        return q, np.hstack(lo), np.hstack(hi)
-
     def _run_osqp(self, step: _Step, retry: bool) -> tuple[np.ndarray | None, str]:
         """Solve with OSQP; return ``(z, status)``, ``z`` None on failure."""
-        q, lo, hi = (v[0] for v in self._qp_vectors(step.batch))
-        key = (step.mode, step.inside)
+        q, lo, hi = (v[0] for v in self._qp_vectors(step))
+        key = (step.mode, step.fam.inside)
         try:
             if retry or key not in self._osqp:
                 settings = dict(self.osqp_settings)
                 if retry:
                     settings["max_iter"] = 10 * int(settings["max_iter"])
                 solver = osqp.OSQP()
-                P, A = self._qp_matrices(step.mode, step.Pi)
-                solver.setup(sp.csc_matrix(np.triu(P)), q, sp.csc_matrix(A), lo, hi, **settings)
+                P, A = sp.csc_matrix(np.triu(step.fam.P)), sp.csc_matrix(step.fam.A)
+                solver.setup(P, q, A, lo, hi, **settings)
                 if not retry:
                     self._osqp[key] = solver
             else:
@@ -427,9 +457,9 @@ class RecedingHorizonController(_FeedbackPolicy):
 
         model, mode = self.model, step.mode
         nu = cp.Variable(model.m)
-        u = step.Kx + nu  # eq. (eq:stabilization_input)
-        mean_next = step.a + model.B[mode] @ nu  # E[x_{k+1} | F_k], eq. (sys:stabilized_input)
-        x = step.x
+        u = step.Kx[0] + nu  # eq. (eq:stabilization_input)
+        mean_next = step.a[0] + model.B[mode] @ nu  # E[x_{k+1} | F_k], eq. (sys:stabilized_input)
+        x = step.x[0]
         objective = (
             float(x @ model.Q[mode] @ x)
             + cp.quad_form(u, model.R[mode])
@@ -446,7 +476,7 @@ class RecedingHorizonController(_FeedbackPolicy):
             rho = cp.Variable(nonneg=True)
             objective = objective + self.alpha * rho
             constraints.append(
-                model.G @ mean_next <= step.hbar + rho
+                model.G @ mean_next <= step.hbar[0] + rho
             )  # eq. (constraint:feasibility)
         problem = cp.Problem(cp.Minimize(objective), constraints)
         try:
@@ -476,6 +506,11 @@ class RecedingHorizonController(_FeedbackPolicy):
                 return nu, rho, value, "solved", "cvxpy"
             notes.append(f"cvxpy status {status!r}")
         else:
+            if self.solver == "active_set" and not self._uses_socp:
+                z, found = step.fam.solver.solve(*self._qp_vectors(step))
+                if found[0]:
+                    return self._finish(step, z[0, : self.model.m], "solved", "active_set")
+                notes.append("active-set enumeration found no KKT point")
             if not self._uses_socp:
                 z, status = self._run_osqp(step, retry=False)
                 if z is not None:
@@ -484,7 +519,10 @@ class RecedingHorizonController(_FeedbackPolicy):
                 z, status = self._run_osqp(step, retry=True)
                 if z is not None:
                     return self._finish(
-                        step, z[: self.model.m], f"solved ({notes[0]}; retried)", "osqp_retry"
+                        step,
+                        z[: self.model.m],
+                        f"solved ({'; '.join(notes)}; retried)",
+                        "osqp_retry",
                     )
                 notes.append(f"osqp retry status {status!r}")
             if self._uses_socp or self.cvxpy_fallback:
@@ -498,19 +536,19 @@ class RecedingHorizonController(_FeedbackPolicy):
                 notes.append("cvxpy retry disabled")
         # last resort: nu = 0 (in U) with the smallest feasible slack
         nu = np.zeros(self.model.m)
-        rho = float(self._min_rho(step.batch, nu[None])[0])
+        rho = float(self._min_rho(step, nu[None])[0])
         return (
             nu,
             rho,
-            float(self._objective(step.batch, nu[None], np.array([rho]))[0]),
+            float(self._objective(step, nu[None], np.array([rho]))[0]),
             "fallback_nu0: " + "; ".join(notes),
             "fallback",
         )
 
     def _finish(self, step: _Step, nu: np.ndarray, status: str, path: str) -> tuple:
         nu = self._project_nu(np.asarray(nu, dtype=np.float64))
-        rho = self._min_rho(step.batch, nu[None])  # the optimal rho for this nu (alpha > 0)
-        return nu, float(rho[0]), float(self._objective(step.batch, nu[None], rho)[0]), status, path
+        rho = self._min_rho(step, nu[None])  # the optimal rho for this nu (alpha > 0)
+        return nu, float(rho[0]), float(self._objective(step, nu[None], rho)[0]), status, path
 
     def act(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, dict[str, Any]]:
         """Solve P3 at ``(x_k, theta_k, k)`` and return ``u_k = K_theta x_k + nu_k``.
@@ -541,14 +579,14 @@ class RecedingHorizonController(_FeedbackPolicy):
         x, mode, k = self._check_inputs(x, mode, k)
         step = self._step(x, mode, k)
         nu, rho, cost, status, path = self._solve(step)
-        u = step.Kx + nu  # eq. (eq:stabilization_input)
+        u = step.Kx[0] + nu  # eq. (eq:stabilization_input)
         info = {
             "nu": np.array(nu, dtype=np.float64),
             "rho": float(rho),
             "cost": float(cost),
             "status": status,
             "solver": path,
-            "in_region": step.inside,
+            "in_region": step.fam.inside,
             "Pi": step.Pi,
         }
         return np.asarray(u, dtype=np.float64), info
@@ -581,44 +619,28 @@ class RecedingHorizonController(_FeedbackPolicy):
         x, mode, k = self._check_batch_inputs(x, mode, k)
         if self._uses_socp or self.solver == "cvxpy":
             return super().act_batch(x, mode, k)
-        b = self._batch(x, mode, k)
-        size, m = len(mode), self.model.m
-        q, lo, hi = self._qp_vectors(b)
-        nu = np.zeros((size, m))
-        solved = np.zeros(size, dtype=bool)
-        family = mode * 2 + b.inside
+        size, m = x.shape[0], self.model.m
+        inside = self.model.in_region(x, k)
+        u, nu = np.empty((size, m)), np.empty((size, m))
+        rho, cost = np.empty(size), np.empty(size)
+        status = np.full(size, "solved", dtype=object)
+        ok = np.ones(size, dtype=bool)
+        family = mode * 2 + inside
         for key in np.unique(family):
             sel = np.flatnonzero(family == key)
-            qp = self._active_set_family(
-                int(mode[sel[0]]), bool(b.inside[sel[0]]), b.Pi[sel[0]], lo[sel[0]], hi[sel[0]]
-            )
-            z, ok = qp.solve(q[sel], lo[sel], hi[sel])
-            nu[sel[ok]] = z[ok, :m]
-            solved[sel] = ok
-        status = np.full(size, "solved", dtype=object)
-        for i in np.flatnonzero(~solved):  # not settled by enumeration: the single-state path
-            _, info_i = self.act(x[i], int(mode[i]), int(k[i]))
-            nu[i], status[i] = info_i["nu"], info_i["status"]
-        nu = self._project_nu(nu)
-        rho = self._min_rho(b, nu)  # the optimal rho for this nu (alpha > 0)
-        info = {
-            "nu": nu,
-            "rho": rho,
-            "cost": self._objective(b, nu, rho),
-            "status": status,
-            "ok": np.array([not str(st).startswith("fallback") for st in status]),
-            "in_region": b.inside,
-        }
-        return b.Kx + nu, info
-
-    def _active_set_family(
-        self, mode: int, inside: bool, Pi: np.ndarray, lo: np.ndarray, hi: np.ndarray
-    ) -> ActiveSetQP:
-        key = (mode, inside)
-        if key not in self._active_sets:
-            P, A = self._qp_matrices(mode, Pi)
-            self._active_sets[key] = ActiveSetQP(P, A, np.isfinite(lo), np.isfinite(hi))
-        return self._active_sets[key]
+            d = self._data(self._family(int(key) // 2, bool(key % 2)), x[sel], k[sel])
+            z, found = d.fam.solver.solve(*self._qp_vectors(d))
+            nu_f = self._project_nu(np.where(found[:, None], z[:, :m], 0.0))
+            for j in np.flatnonzero(~found):  # not settled by enumeration: the single-state path
+                _, info_j = self.act(x[sel[j]], int(mode[sel[j]]), int(k[sel[j]]))
+                nu_f[j], status[sel[j]] = info_j["nu"], info_j["status"]
+                ok[sel[j]] = not info_j["status"].startswith("fallback")
+            rho_f = self._min_rho(d, nu_f)  # the optimal rho for this nu (alpha > 0)
+            nu[sel], rho[sel] = nu_f, rho_f
+            cost[sel] = self._objective(d, nu_f, rho_f)
+            u[sel] = d.Kx + nu_f  # eq. (eq:stabilization_input)
+        info = {"nu": nu, "rho": rho, "cost": cost, "status": status, "ok": ok, "in_region": inside}
+        return u, info
 
 
 class UnconstrainedRecedingHorizonController(RecedingHorizonController):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import gymnasium as gym
@@ -125,10 +126,14 @@ def encode_observation(
     divergence_bound: float,
 ) -> np.ndarray:
     """Observation(s) ``[clip(x), one_hot(mode), k / horizon]``; batched over a leading axis."""
-    x = np.clip(np.asarray(x, dtype=np.float64), -divergence_bound, divergence_bound)
-    one_hot = np.eye(model.N)[np.asarray(mode)]
-    t = np.broadcast_to(np.asarray(k, dtype=np.float64) / horizon, x.shape[:-1])[..., None]
-    return np.concatenate([x, one_hot, t], axis=-1).astype(np.float32)
+    x = np.asarray(x, dtype=np.float64)
+    batch = x.shape[:-1]
+    obs = np.zeros((*batch, model.n + model.N + 1), dtype=np.float32)
+    obs[..., : model.n] = np.clip(x, -divergence_bound, divergence_bound)
+    one_hot = obs[..., model.n : model.n + model.N]
+    np.put_along_axis(one_hot, np.broadcast_to(np.asarray(mode), batch)[..., None], 1.0, axis=-1)
+    obs[..., -1] = np.asarray(k, dtype=np.float64) / horizon
+    return obs
 
 
 def decode_observation(
@@ -292,9 +297,11 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         self.observation_space = observation_space(self.model, self.divergence_bound)
         self._low = self.action_space.low.astype(np.float64)
         self._high = self.action_space.high.astype(np.float64)
+        self._low_list, self._high_list = self._low.tolist(), self._high.tolist()
         self._x: np.ndarray | None = None
         self._mode = 0
         self._k = 0
+        self._inside = True
         self._history: list[tuple[np.ndarray, int]] = []
 
     # ------------------------------------------------------------------ current state
@@ -316,18 +323,31 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._k
 
     # ------------------------------------------------------------------ helpers
-    def _obs(self) -> np.ndarray:
-        return encode_observation(
-            self.model, self._x, self._mode, self._k, self.horizon, self.divergence_bound
-        )
+    def _obs(self, diverged: bool) -> np.ndarray:
+        # encode_observation for one state, without its batch machinery (the hot path)
+        model, bound = self.model, self.divergence_bound
+        obs = np.zeros(model.n + model.N + 1, dtype=np.float32)
+        obs[: model.n] = np.clip(self._x, -bound, bound) if diverged else self._x
+        obs[model.n + self._mode] = 1.0
+        obs[-1] = self._k / self.horizon
+        return obs
 
-    def _info(self, stage_cost: float) -> dict[str, Any]:
-        info = step_info(self.model, self._x, self._mode, self._k)
-        info["in_region"] = bool(info["in_region"])
-        info["cost"] = float(info["cost"])
-        info["stage_cost"] = float(stage_cost)
-        info["diverged"] = bool(np.max(np.abs(self._x)) > self.divergence_bound)
-        return info
+    def _info(self, stage_cost: float, values: np.ndarray | None = None) -> dict[str, Any]:
+        x = self._x
+        if values is None:
+            values = self.model.constraint_values_one(x, self._k)
+        self._inside = max(values.tolist()) <= 0.0  # x in C1: reused by the next step
+        return {
+            "state": x.copy(),
+            "mode": self._mode,
+            "k": self._k,
+            "in_region": self._inside,
+            "constraint_values": values,
+            "violations": values > 0.0,
+            "cost": 0.0 if self._inside else 1.0,
+            "stage_cost": stage_cost,
+            "diverged": max(map(abs, x.tolist())) > self.divergence_bound,
+        }
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(
@@ -339,39 +359,44 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         self._mode = self.model.sample_mode0(self.np_random) if mode0 is None else mode0
         self._k = 0
         self._history = [(self._x.copy(), self._mode)]
-        return self._obs(), self._info(0.0)
+        info = self._info(0.0)
+        return self._obs(info["diverged"]), info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._x is None:
             raise RuntimeError("call reset() before step()")
+        m = self.model.m
         try:
-            u = np.asarray(action, dtype=np.float64)
+            u = np.array(action, dtype=np.float64)
         except (TypeError, ValueError):
-            raise ValueError(
-                f"action = {action!r:.80}; expected {self.model.m} finite numbers"
-            ) from None
-        if u.size != self.model.m or u.ndim > 1:
-            raise ValueError(
-                f"action has shape {u.shape}; expected ({self.model.m},), the input u_k"
-            )
-        u = u.reshape(self.model.m)
-        if not np.all(np.isfinite(u)):
-            raise ValueError(f"action = {u} contains NaN or inf; expected finite numbers")
-        u = np.clip(u, self._low, self._high)
+            raise ValueError(f"action = {action!r:.80}; expected {m} finite numbers") from None
+        if u.shape != (m,):
+            if u.size != m or u.ndim > 1:
+                raise ValueError(f"action has shape {u.shape}; expected ({m},), the input u_k")
+            u = u.reshape(m)
+        # finiteness and bounds in plain Python: for a few numbers it beats numpy's reductions
+        inside_box = True
+        for v, lo, hi in zip(u.tolist(), self._low_list, self._high_list):
+            if not math.isfinite(v):
+                raise ValueError(f"action = {u} contains NaN or inf; expected finite numbers")
+            inside_box = inside_box and lo <= v <= hi
+        if not inside_box:
+            u = np.clip(u, self._low, self._high)  # finite actions outside the Box are clipped
 
         model, rng = self.model, self.np_random
-        stage_cost = float(model.stage_cost(self._x, self._mode, u))
-        w = model.sample_noise(rng)
-        self._x, mode = model.step(self._x, self._mode, u, self._k, w, rng.random())
-        self._mode = int(mode)
+        w = model.sample_noise_one(rng)
+        self._x, self._mode, stage_cost, values = model.step_one(
+            self._x, self._mode, u, self._k, w, rng.random(), self._inside
+        )
         self._k += 1
-        self._history.append((self._x.copy(), self._mode))
+        if self.render_mode is not None:
+            self._history.append((self._x, self._mode))
 
-        info = self._info(stage_cost)
+        info = self._info(stage_cost, values)
         info["u"] = u
         terminated = info["diverged"]
         truncated = self._k >= self.horizon
-        return self._obs(), -stage_cost, terminated, truncated, info
+        return self._obs(info["diverged"]), -stage_cost, terminated, truncated, info
 
     def render(self) -> np.ndarray | None:
         if self.render_mode is None:

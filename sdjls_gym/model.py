@@ -17,6 +17,7 @@ and the controllers all call these methods; nothing else re-implements the dynam
 
 from __future__ import annotations
 
+import bisect
 import json
 import math
 from dataclasses import MISSING, dataclass, field, fields
@@ -29,6 +30,13 @@ import numpy as np
 __all__ = ["SDJLSModel", "InvalidModelError", "load_model", "save_model", "draw_categorical"]
 
 _ROW_SUM_TOL = 1e-9
+
+
+def _stack_last(*arrays: Any) -> np.ndarray:
+    """Concatenate float64 arrays along the last axis, broadcasting the leading (batch) axes."""
+    arrs = [np.asarray(a, dtype=np.float64) for a in arrays]
+    batch = np.broadcast_shapes(*(a.shape[:-1] for a in arrs))
+    return np.concatenate([np.broadcast_to(a, (*batch, a.shape[-1])) for a in arrs], axis=-1)
 
 
 def draw_categorical(probs: np.ndarray, uniform: np.ndarray | float) -> np.ndarray:
@@ -448,15 +456,8 @@ class SDJLSModel:
         -------
         (..., n) array
         """
-        mode = np.asarray(mode)
-        x = np.asarray(x, dtype=np.float64)
-        u = np.asarray(u, dtype=np.float64)
-        w = np.asarray(w, dtype=np.float64)
-        return (
-            np.einsum("...ij,...j->...i", self.A[mode], x)
-            + np.einsum("...ij,...j->...i", self.B[mode], u)
-            + np.einsum("...ij,...j->...i", self.E[mode], w)
-        )
+        z = _stack_last(x, u, w)
+        return self._per_mode(self._tables["ABE_T"], self.n, mode, z)
 
     def next_mode(
         self,
@@ -475,7 +476,15 @@ class SDJLSModel:
         -------
         (...) int64 array (a 0-d array for a single state)
         """
-        return draw_categorical(self.transition_rows(x, mode, k), uniform)
+        return self._draw_next_mode(self.in_region(x, k), mode, uniform)
+
+    def _draw_next_mode(
+        self, inside: np.ndarray, mode: int | np.ndarray, uniform: np.ndarray | float
+    ) -> np.ndarray:
+        # draw_categorical with the normalized CDFs of P_in / P_out tabulated once
+        cdf = self._tables["cdf"][np.asarray(inside, dtype=np.intp), np.asarray(mode)]
+        u = np.asarray(uniform, dtype=np.float64)[..., None]
+        return np.sum(cdf <= u, axis=-1).astype(np.int64)
 
     def sample_noise(
         self, rng: np.random.Generator, batch_shape: tuple[int, ...] = ()
@@ -502,27 +511,123 @@ class SDJLSModel:
         k: int | np.ndarray,
         w: np.ndarray,
         uniform: np.ndarray | float,
+        inside: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """One transition ``(x_k, theta_k) -> (x_{k+1}, theta_{k+1})`` with given randomness.
 
         The next mode uses the region test on ``x_k`` at time ``k`` (eq. eq:p_tran). Deterministic
-        given ``w`` and ``uniform``, so that callers can replay the same noise.
+        given ``w`` and ``uniform``, so that callers can replay the same noise. ``inside``, the
+        region test of ``x`` at ``k``, may be passed when the caller already has it.
 
         Returns
         -------
         x_next : (..., n)
         mode_next : (...) int64
         """
-        return self.next_state(x, mode, u, w), self.next_mode(x, mode, k, uniform)
+        if inside is None:
+            inside = self.in_region(x, k)
+        return self.next_state(x, mode, u, w), self._draw_next_mode(inside, mode, uniform)
 
     def stage_cost(self, x: np.ndarray, mode: int | np.ndarray, u: np.ndarray) -> np.ndarray:
         """``x' Q_theta x + u' R_theta u``; shape ``(...)``."""
-        mode = np.asarray(mode)
-        x = np.asarray(x, dtype=np.float64)
-        u = np.asarray(u, dtype=np.float64)
-        return np.einsum("...i,...ij,...j->...", x, self.Q[mode], x) + np.einsum(
-            "...i,...ij,...j->...", u, self.R[mode], u
-        )
+        z = _stack_last(x, u)
+        return np.sum(self._per_mode(self._tables["QR_T"], self.n + self.m, mode, z) * z, axis=-1)
+
+    @cached_property
+    def _tables(self) -> dict[str, Any]:
+        """Per-mode matrices stacked for batched products (see :meth:`_per_mode`)."""
+        N, n, m = self.N, self.n, self.m
+        ABE = np.concatenate([self.A, self.B, self.E], axis=2)  # (N, n, n + m + p)
+        QR = np.zeros((N, n + m, n + m))
+        QR[:, :n, :n] = self.Q
+        QR[:, n:, n:] = self.R
+        cdf = np.stack([np.cumsum(self.P_out, axis=1), np.cumsum(self.P_in, axis=1)])
+        return {
+            "ABE": ABE,
+            "ABE_T": ABE.reshape(N * n, -1).T.copy(),
+            "QR": QR,
+            "QR_T": QR.reshape(N * (n + m), n + m).T.copy(),
+            "cdf": cdf / cdf[..., -1:],  # [inside, mode]: as in draw_categorical
+        }
+
+    def _per_mode(self, M_T: np.ndarray, rows: int, mode: Any, z: np.ndarray) -> np.ndarray:
+        """``M[mode] @ z`` over a batch, with ``M_T = M.reshape(N * rows, d).T`` (one BLAS product).
+
+        Computing all N products and keeping one is faster than gathering (B, rows, d) matrices.
+        """
+        batch = z.shape[:-1]
+        z2 = z.reshape(-1, z.shape[-1])
+        mode2 = np.broadcast_to(np.asarray(mode), batch).reshape(-1)
+        y = (z2 @ M_T).reshape(z2.shape[0], self.N, rows)[np.arange(z2.shape[0]), mode2]
+        return y.reshape(*batch, rows)
+
+    # ------------------------------------------------------------------ one state, fast
+    @cached_property
+    def _one(self) -> dict[str, Any]:
+        """Precomputed data of the unbatched hot path (:meth:`step_one` and friends)."""
+        t = self._tables
+        ABE = t["ABE"]
+        return {
+            # [x_next; G x_next] = [ABE; G ABE] [x; u; w]: one product gives both
+            "M": list(np.concatenate([ABE, self.G @ ABE], axis=1)),
+            "QR": list(t["QR"]),  # blkdiag(Q_i, R_i)
+            "n": self.n,
+            "n+m": self.n + self.m,
+            "cdf": {True: t["cdf"][1].tolist(), False: t["cdf"][0].tolist()},
+            "W_identity": bool(np.array_equal(self.W, np.eye(self.p))),
+            "H": {},  # k -> H_k, filled on demand
+        }
+
+    def sample_noise_one(self, rng: np.random.Generator) -> np.ndarray:
+        """One draw ``w ~ N(0, W)`` of shape ``(p,)``; the same law as :meth:`sample_noise`."""
+        z = rng.standard_normal(self.p)
+        return z if self._one["W_identity"] else self.W_sqrt @ z
+
+    def step_one(
+        self,
+        x: np.ndarray,
+        mode: int,
+        u: np.ndarray,
+        k: int,
+        w: np.ndarray,
+        uniform: float,
+        inside: bool | None = None,
+    ) -> tuple[np.ndarray, int, float, np.ndarray]:
+        """:meth:`step` for one state (``x`` (n,), ``u`` (m,), ``w`` (p,) float64), with few numpy calls.
+
+        The single environment's hot path. Same math as :meth:`step` and :meth:`stage_cost`
+        (the tests check that they agree): ``x' = [A B E]_theta [x; u; w]``, the next mode by
+        inverse CDF of the transition row chosen by the region test on ``x`` at time ``k``
+        (pass ``inside`` when it is already known, to skip the test).
+
+        Returns
+        -------
+        x_next : (n,)
+        mode_next : int
+        stage_cost : float, ``x' Q_theta x + u' R_theta u``
+        constraint_values : (r,), ``G x_next - H_{k+1}``
+        """
+        one = self._one
+        n = one["n"]
+        z = np.concatenate((x, u, w))
+        y = one["M"][mode] @ z  # [x_next; G x_next]
+        zxu = z[: one["n+m"]]
+        stage_cost = float(zxu @ one["QR"][mode] @ zxu)
+        if inside is None:
+            inside = max(self.constraint_values_one(x, k).tolist()) <= 0.0
+        mode_next = bisect.bisect_right(one["cdf"][inside][mode], uniform)
+        return y[:n], mode_next, stage_cost, y[n:] - self._H_one(k + 1)
+
+    def _H_one(self, k: int) -> np.ndarray:
+        cache = self._one["H"]
+        H = cache.get(k)
+        if H is None:
+            H = cache[k] = self.H0 + k * self.H_rate
+        return H
+
+    def constraint_values_one(self, x: np.ndarray, k: int) -> np.ndarray:
+        """:meth:`constraint_values` ``G x - H_k`` (r,) for one float64 state ``x`` (n,)."""
+        return self.G @ x - self._H_one(k)
 
     # ------------------------------------------------------------------ (de)serialization
     def to_dict(self) -> dict[str, Any]:

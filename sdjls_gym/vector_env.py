@@ -107,6 +107,7 @@ class SDJLSVectorEnv(VectorEnv):
     # ------------------------------------------------------------------ helpers
     def _infos(self, stage_cost: np.ndarray) -> dict[str, Any]:
         raw = step_info(self.model, self._x, self._mode.copy(), self._k.copy())
+        self._inside = raw["in_region"]  # region test of the current states, reused by step()
         raw["stage_cost"] = stage_cost
         raw["diverged"] = np.max(np.abs(self._x), axis=-1) > self.divergence_bound
         infos: dict[str, Any] = {}
@@ -149,14 +150,16 @@ class SDJLSVectorEnv(VectorEnv):
                 u = u.reshape(B, 1)
             else:
                 raise ValueError(f"actions have shape {u.shape}; expected ({B}, {model.m})")
-        if not np.all(np.isfinite(u)):
+        if not np.isfinite(u.sum()) and not np.isfinite(u).all():  # the sum first: cheaper
             raise ValueError("actions contain NaN or inf; expected finite numbers")
         u = np.clip(u, self._low, self._high)
 
         rng = self.np_random
         stage_cost = model.stage_cost(self._x, self._mode, u)
         w = model.sample_noise(rng, (B,))
-        x_new, mode_new = model.step(self._x, self._mode, u, self._k, w, rng.random(B))
+        x_new, mode_new = model.step(
+            self._x, self._mode, u, self._k, w, rng.random(B), inside=self._inside
+        )
         k_new = self._k + 1
 
         reset = self._prev_done

@@ -1,0 +1,1074 @@
+"""The receding-horizon controller against stable-baselines3 agents on cost and violation frequency.
+
+Run ``python -m benchmarks.compare_rl --help`` for the options. On ``SDJLS-Macro-v0`` it trains
+PPO, SAC and TD3 (``--algos``) with ``--seeds`` seeds each in six variants: on the reward alone
+(``reward``), with a violation penalty ``reward - beta * info["cost"]`` for three values of
+``beta`` (``beta100``, ``beta1000``, ``beta10000``), as residual agents choosing ``nu`` on top of
+the paper's gains (``residual``, reward alone), and with ``beta`` adapted by dual ascent to hold
+the violation frequency at ``1 - xi = 0.15`` (``lagrangian``). Every agent and every
+model-based controller (the paper's receding-horizon controller at xi = 0.85 with individual
+and joint constraints and over a sweep of xi, the unconstrained receding-horizon controller, the
+linear feedback ``u = K x`` and the MJLS LQ regulator) is then scored on the same
+``--eval-episodes`` episodes (the same noise: common random numbers).
+
+Outputs under ``--out`` (default ``results/rl/``): ``summary.csv``, ``summary.json``, the
+figures, ``REPORT.md``, and ``runs/*.json``, one small file per training run (its evaluation and
+learning curve, no checkpoint). A run whose file exists with the same configuration is not
+trained again, so an interrupted run resumes where it stopped (``--retrain`` trains anew).
+
+Compute: measured on the 2-core development machine with one torch thread per process, PPO
+trains at about 1700 env steps/s, SAC at about 210 and TD3 at about 340 (one process alone;
+two in parallel each run at about 85% of that). The default budgets of
+:data:`benchmarks.rl_hyperparams.TIMESTEPS` make the default run (3 x 3 x 6 = 54 trainings on
+``--workers 2``) take about an hour.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import csv
+import hashlib
+import json
+import os
+import sys
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from benchmarks import rl_hyperparams as HP
+from benchmarks.montecarlo import Rollouts, mean_ci, wilson
+from benchmarks.rl_eval import DecisionStates, SB3Policy, decision_time, evaluate, make_train_env
+from controllers import (
+    LinearFeedbackController,
+    MJLSLQRController,
+    RecedingHorizonController,
+    UnconstrainedRecedingHorizonController,
+)
+from sdjls_gym.systems.macro import ACTION_BOUND, HORIZON, PAPER_K, PAPER_RHC, macro
+
+ALGOS = ("ppo", "sac", "td3")
+VARIANTS = ("reward", *(f"beta{b:g}" for b in HP.BETAS), "residual", "lagrangian")
+XI_SWEEP = (0.3, 0.5, 0.7, 0.8, 0.85, 0.9, 0.95, 0.99)
+XI = PAPER_RHC["xi"]
+INCOME_TRAJECTORIES = 30  # incomes kept per controller for the trajectory figure
+TIMING_STATES = 1000
+
+
+@dataclass
+class Options:
+    algos: list[str] = field(
+        default_factory=lambda: list(ALGOS),
+        metadata={"help": "stable-baselines3 algorithms to train", "nargs": "+", "choices": ALGOS},
+    )
+    variants: list[str] = field(
+        default_factory=lambda: list(VARIANTS),
+        metadata={"help": "training variants", "nargs": "+", "choices": VARIANTS},
+    )
+    timesteps: int | None = field(
+        default=None,
+        metadata={
+            "help": "env steps per training run (default: per algorithm, "
+            + ", ".join(f"{a} {n}" for a, n in HP.TIMESTEPS.items())
+            + f"; {HP.QUICK_TIMESTEPS} with --quick)"
+        },
+    )
+    seeds: int = field(default=3, metadata={"help": "training seeds per algorithm and variant"})
+    eval_episodes: int = field(
+        default=1000,
+        metadata={
+            "help": "evaluation episodes per controller and per trained agent (one noise seed for all)"
+        },
+    )
+    seed: int = field(default=0, metadata={"help": "noise seed of the evaluation episodes"})
+    out: Path = field(
+        default=Path("results/rl"),
+        metadata={"help": "folder for figures, summary files, REPORT.md and runs/*.json"},
+    )
+    workers: int = field(
+        default=2, metadata={"help": "trainings run in parallel (one torch thread each)"}
+    )
+    quick: bool = field(
+        default=False,
+        metadata={
+            "help": f"smoke test: {HP.QUICK_TIMESTEPS} steps per run, 200 evaluation episodes, "
+            "3 learning-curve points of 20 episodes"
+        },
+    )
+    retrain: bool = field(
+        default=False, metadata={"help": "train again even when runs/*.json has the result"}
+    )
+    no_progress: bool = field(default=False, metadata={"help": "do not show the progress bar"})
+
+
+def parse_args(argv: list[str] | None = None) -> Options:
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.compare_rl",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    explicit: set[str] = set()
+
+    class Record(argparse.Action):
+        def __call__(self, parser, namespace, values, option_string=None):  # noqa: ANN001
+            explicit.add(self.dest)
+            setattr(namespace, self.dest, values)
+
+    for f in fields(Options):
+        flag = "--" + f.name.replace("_", "-")
+        meta = f.metadata
+        if f.type in ("bool", bool):
+            parser.add_argument(flag, action="store_true", help=meta["help"])
+        elif "nargs" in meta:
+            parser.add_argument(
+                flag,
+                nargs=meta["nargs"],
+                choices=meta["choices"],
+                default=f.default_factory(),
+                action=Record,
+                help=meta["help"],
+            )
+        else:
+            conv = Path if f.name == "out" else int
+            default = None if f.default is None else f.default
+            parser.add_argument(flag, type=conv, default=default, action=Record, help=meta["help"])
+    ns = parser.parse_args(argv)
+    opts = Options(**vars(ns))
+    if opts.quick and "eval_episodes" not in explicit:
+        opts.eval_episodes = 200
+    for name in ("seeds", "eval_episodes", "workers"):
+        if getattr(opts, name) < 1:
+            parser.error(
+                f"--{name.replace('_', '-')} = {getattr(opts, name)}; expected a positive integer"
+            )
+    if opts.timesteps is not None and opts.timesteps < 1:
+        parser.error(f"--timesteps = {opts.timesteps}; expected a positive integer")
+    opts.algos = list(dict.fromkeys(opts.algos))
+    opts.variants = list(dict.fromkeys(opts.variants))
+    return opts
+
+
+# ---------------------------------------------------------------------------- model-based
+def rhc(model, xi: float, constraint: str = "individual") -> RecedingHorizonController:
+    return RecedingHorizonController(
+        model,
+        PAPER_K,
+        PAPER_RHC["Psi"],
+        xi,
+        constraint=constraint,
+        alpha=PAPER_RHC["alpha"],
+        nu_bound=PAPER_RHC["nu_bound"],
+        horizon=HORIZON,
+    )
+
+
+def model_based_controllers(model) -> list[tuple[str, dict[str, Any], Any]]:
+    """``(name, description, controller)`` of every model-based controller, sweep included."""
+    out = []
+    for constraint in ("individual", "joint"):
+        for xi in XI_SWEEP:
+            out.append(
+                (
+                    f"RHC {constraint} xi={xi:g}",
+                    {"family": f"RHC {constraint}", "xi": xi, "constraint": constraint},
+                    rhc(model, xi, constraint),
+                )
+            )
+    out.append(
+        (
+            "RHC unconstrained",
+            {"family": "RHC unconstrained"},
+            UnconstrainedRecedingHorizonController(
+                model,
+                PAPER_K,
+                PAPER_RHC["Psi"],
+                alpha=PAPER_RHC["alpha"],
+                nu_bound=PAPER_RHC["nu_bound"],
+                horizon=HORIZON,
+            ),
+        )
+    )
+    out.append(
+        (
+            "Linear feedback (nu = 0)",
+            {"family": "Linear feedback"},
+            LinearFeedbackController(model, PAPER_K, horizon=HORIZON),
+        )
+    )
+    out.append(
+        ("MJLS LQR", {"family": "MJLS LQR"}, MJLSLQRController(model, "average", horizon=HORIZON))
+    )
+    return out
+
+
+def incomes(ro: Rollouts, count: int = INCOME_TRAJECTORIES) -> list[list[float]]:
+    """The first ``count`` income trajectories ``x_k(2)``, k = 0..T, rounded (for the figure)."""
+    return np.round(ro.x[:count, :, 1], 4).tolist()
+
+
+def evaluate_model_based(model, opts: Options) -> list[dict[str, Any]]:
+    rows = []
+    for name, desc, ctrl in model_based_controllers(model):
+        ro, stats = evaluate(model, ctrl, opts.eval_episodes, opts.seed, HORIZON, ACTION_BOUND)
+        states = DecisionStates.from_rollouts(ro, min(TIMING_STATES, ro.x.shape[0] * HORIZON))
+        rows.append(
+            {
+                "name": name,
+                "kind": "model-based",
+                **desc,
+                **stats,
+                "train_time_s": 0.0,
+                "decision_time_s": decision_time(ctrl, states.x, states.mode, states.k),
+                "incomes": incomes(ro),
+            }
+        )
+    return rows
+
+
+# ---------------------------------------------------------------------------- RL runs
+@dataclass(frozen=True)
+class RunSpec:
+    algo: str
+    variant: str
+    seed: int
+    timesteps: int
+    eval_episodes: int
+    eval_seed: int
+    curve_points: int
+    curve_episodes: int
+    curve_seed: int
+
+    @property
+    def name(self) -> str:
+        return f"{self.algo}_{self.variant}_s{self.seed}"
+
+    def config(self) -> dict[str, Any]:
+        """Everything the result depends on; a cached run is reused only if this matches."""
+        return {
+            **asdict(self),
+            "hyperparams": _jsonable(HP.HYPERPARAMS[self.algo]),
+            "env": HP.ENV,
+            "betas": list(HP.BETAS),
+            "lagrangian": HP.LAGRANGIAN,
+            "residual_nu_bound": HP.RESIDUAL_NU_BOUND,
+        }
+
+    def fingerprint(self) -> str:
+        text = json.dumps(self.config(), sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    return value
+
+
+def variant_setup(variant: str) -> tuple[str, float | None, bool]:
+    """``(action_kind, beta or None, lagrangian)`` of a variant."""
+    if variant == "reward":
+        return "u", None, False
+    if variant == "residual":
+        return "residual", None, False
+    if variant == "lagrangian":
+        return "u", float(HP.LAGRANGIAN["beta0"]), True
+    if variant.startswith("beta"):
+        return "u", float(variant[4:]), False
+    raise ValueError(f"variant = {variant!r}; expected one of {VARIANTS}")
+
+
+def build_agent(spec: RunSpec, env_fns: list) -> Any:
+    """The stable-baselines3 algorithm of ``spec`` with the hyperparameters of rl_hyperparams."""
+    from stable_baselines3 import PPO, SAC, TD3
+    from stable_baselines3.common.noise import NormalActionNoise
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    hp = copy.deepcopy(HP.HYPERPARAMS[spec.algo])
+    n_envs = hp.pop("n_envs")
+    venv = DummyVecEnv(env_fns * n_envs if len(env_fns) == 1 else env_fns)
+    if spec.algo == "td3":
+        std = hp.pop("noise_std")
+        hp["action_noise"] = NormalActionNoise(np.zeros(1), std * np.ones(1))
+    if isinstance(hp.get("train_freq"), list):
+        hp["train_freq"] = tuple(hp["train_freq"])
+    cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[spec.algo]
+    return cls("MlpPolicy", venv, seed=1000 + spec.seed, verbose=0, device="cpu", **hp)
+
+
+def _callbacks(spec: RunSpec, policy_factory, report) -> tuple[list, dict]:
+    """Learning-curve evaluation and (for ``lagrangian``) dual ascent on beta."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    model = macro()
+    log: dict[str, list] = {"curve": [], "dual": []}
+    _, beta0, lagrangian = variant_setup(spec.variant)
+    state = {"beta": beta0}
+    t_start = time.perf_counter()
+    points = max(1, spec.curve_points)
+    marks = [int(round(spec.timesteps * (i + 1) / points)) for i in range(points)]
+
+    class Curve(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.next = 0
+
+        def _record(self) -> None:
+            _, stats = evaluate(
+                model, policy_factory(self.model), spec.curve_episodes, spec.curve_seed
+            )
+            log["curve"].append(
+                {
+                    "timesteps": int(self.num_timesteps),
+                    "wall_s": time.perf_counter() - t_start,
+                    "episode_cost_mean": stats["episode_cost"]["mean"],
+                    "episode_cost_median": stats["episode_cost"]["median"],
+                    "violation": stats["violation"]["freq"],
+                    "diverged": stats["diverged"],
+                    "beta": state["beta"],
+                }
+            )
+            if report is not None:
+                report(spec.name, int(self.num_timesteps))
+
+        def _on_training_start(self) -> None:
+            self._record_at_zero = True
+
+        def _on_step(self) -> bool:
+            if self._record_at_zero:
+                self._record_at_zero = False
+                # the untrained policy, at the first step
+                saved = self.num_timesteps
+                self.num_timesteps = 0
+                self._record()
+                self.num_timesteps = saved
+            while self.next < len(marks) and self.num_timesteps >= marks[self.next]:
+                self.next += 1
+                self._record()
+            return True
+
+    class DualAscent(BaseCallback):
+        """beta <- max(0, beta + lr_dual * (violation frequency - (1 - xi)))."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.violations = 0.0
+            self.steps = 0
+            period = HP.LAGRANGIAN["period"]
+            self.period = int(period[spec.algo] if isinstance(period, dict) else period)
+
+        def _on_step(self) -> bool:
+            for info in self.locals["infos"]:
+                self.violations += float(info["cost"])
+                self.steps += 1
+            return True
+
+        def _on_rollout_end(self) -> None:
+            if self.steps < self.period:
+                return
+            freq = self.violations / self.steps
+            target = 1.0 - HP.LAGRANGIAN["xi"]
+            beta = max(0.0, state["beta"] + HP.LAGRANGIAN["lr_dual"] * (freq - target))
+            self.training_env.env_method("set_wrapper_attr", "beta", beta)
+            seen = self.training_env.get_attr("beta")
+            if not np.allclose(seen, beta):
+                raise RuntimeError(f"beta was not set on the ViolationPenalty wrappers: {seen}")
+            state["beta"] = beta
+            log["dual"].append({"timesteps": int(self.num_timesteps), "freq": freq, "beta": beta})
+            self.logger.record("lagrangian/beta", beta)
+            self.logger.record("lagrangian/violation_freq", freq)
+            self.violations, self.steps = 0.0, 0
+
+    cbs = [Curve()]
+    if lagrangian:
+        cbs.insert(0, DualAscent())
+    return cbs, log | {"state": state}
+
+
+def train_run(spec: RunSpec, path: str | None, report=None) -> dict[str, Any]:
+    """Train one agent, score it, write ``path`` (JSON) and return the result.
+
+    Runs in a worker process: one torch thread, everything it needs rebuilt from ``spec``.
+    """
+    import torch
+    from stable_baselines3.common.monitor import Monitor
+
+    torch.set_num_threads(1)
+    model = macro()
+    kind, beta, _ = variant_setup(spec.variant)
+    K = PAPER_K if kind == "residual" else None
+
+    def make_env():
+        return Monitor(make_train_env(kind, beta, HP.ENV, K, HP.RESIDUAL_NU_BOUND))
+
+    def policy_factory(agent):
+        return SB3Policy(agent, model, kind, ACTION_BOUND, HP.ENV, K, HP.RESIDUAL_NU_BOUND, HORIZON)
+
+    agent = build_agent(spec, [make_env])
+    callbacks, log = _callbacks(spec, policy_factory, report)
+    t0 = time.perf_counter()
+    agent.learn(total_timesteps=spec.timesteps, callback=callbacks)
+    wall = time.perf_counter() - t0
+    curve_time = sum(0.0 for _ in log["curve"])  # evaluation time is inside wall; see below
+    policy = policy_factory(agent)
+    ro, stats = evaluate(model, policy, spec.eval_episodes, spec.eval_seed, HORIZON, ACTION_BOUND)
+    states = DecisionStates.from_rollouts(ro, min(TIMING_STATES, ro.x.shape[0] * HORIZON))
+    result = {
+        "name": spec.name,
+        "kind": "rl-seed",
+        "algo": spec.algo,
+        "variant": spec.variant,
+        "seed": spec.seed,
+        "fingerprint": spec.fingerprint(),
+        "config": spec.config(),
+        **stats,
+        "timesteps": int(agent.num_timesteps),
+        "train_time_s": wall - curve_time,
+        "decision_time_s": decision_time(policy, states.x, states.mode, states.k),
+        "final_beta": log["state"]["beta"],
+        "learning_curve": log["curve"],
+        "dual_ascent": log["dual"],
+        "incomes": incomes(ro),
+    }
+    if path is not None:
+        tmp = Path(path).with_suffix(".tmp")
+        tmp.write_text(json.dumps(_jsonable(result)) + "\n")
+        os.replace(tmp, path)
+    return result
+
+
+def _worker(spec: RunSpec, path: str, queue) -> dict[str, Any]:
+    def report(name: str, steps: int) -> None:
+        queue.put((name, steps))
+
+    return train_run(spec, path, report)
+
+
+def run_specs(opts: Options) -> list[RunSpec]:
+    lc = HP.LEARNING_CURVE
+    specs = []
+    for algo in opts.algos:
+        steps = opts.timesteps or (HP.QUICK_TIMESTEPS if opts.quick else HP.TIMESTEPS[algo])
+        for variant in opts.variants:
+            for seed in range(opts.seeds):
+                specs.append(
+                    RunSpec(
+                        algo=algo,
+                        variant=variant,
+                        seed=seed,
+                        timesteps=steps,
+                        eval_episodes=opts.eval_episodes,
+                        eval_seed=opts.seed,
+                        curve_points=3 if opts.quick else lc["points"],
+                        curve_episodes=20 if opts.quick else lc["episodes"],
+                        curve_seed=lc["seed"],
+                    )
+                )
+    return specs
+
+
+def train_all(opts: Options, specs: list[RunSpec], log) -> list[dict[str, Any]]:
+    """Train every run not already in ``out/runs/`` (in ``opts.workers`` processes)."""
+    run_dir = opts.out / "runs"
+    run_dir.mkdir(parents=True, exist_ok=True)
+    results: dict[str, dict] = {}
+    todo = []
+    for spec in specs:
+        path = run_dir / f"{spec.name}.json"
+        if path.exists() and not opts.retrain:
+            try:
+                cached = json.loads(path.read_text())
+            except json.JSONDecodeError:
+                cached = {}
+            if cached.get("fingerprint") == spec.fingerprint():
+                results[spec.name] = cached
+                continue
+        todo.append(spec)
+    if results:
+        log(f"reusing {len(results)} finished run(s) from {run_dir} (--retrain to train again)")
+    total = sum(s.timesteps for s in todo)
+    bar = tqdm(total=total, desc="training", unit="step", disable=opts.no_progress or not todo)
+    progress: dict[str, int] = {}
+
+    def on_progress(name: str, steps: int) -> None:
+        bar.update(max(0, steps - progress.get(name, 0)))
+        progress[name] = max(steps, progress.get(name, 0))
+
+    def finished(res: dict[str, Any], spec: RunSpec) -> None:
+        on_progress(spec.name, spec.timesteps)
+        results[spec.name] = res
+        log(
+            f"[done] {spec.name}: {res['timesteps']} steps in {res['train_time_s']:.0f} s; "
+            f"cost {res['episode_cost']['mean']:.4g}, violations {res['violation']['freq']:.3f}, "
+            f"diverged {res['diverged']}/{res['episodes']}"
+        )
+
+    if opts.workers == 1 or len(todo) <= 1:
+        for spec in todo:
+            log(f"[train] {spec.name} ({spec.timesteps} steps)")
+            finished(train_run(spec, str(run_dir / f"{spec.name}.json"), on_progress), spec)
+    else:
+        import multiprocessing as mp
+
+        ctx = mp.get_context("spawn")
+        with ctx.Manager() as manager, ProcessPoolExecutor(opts.workers, mp_context=ctx) as pool:
+            queue = manager.Queue()
+            pending = {}
+            for spec in todo:
+                fut = pool.submit(_worker, spec, str(run_dir / f"{spec.name}.json"), queue)
+                pending[fut] = spec
+            started: set[str] = set()
+            while pending:
+                done, _ = wait(pending, timeout=2.0, return_when=FIRST_COMPLETED)
+                while not queue.empty():
+                    name, steps = queue.get()
+                    if name not in started:
+                        started.add(name)
+                        log(f"[train] {name}")
+                    on_progress(name, steps)
+                for fut in done:
+                    spec = pending.pop(fut)
+                    finished(fut.result(), spec)
+    bar.close()
+    return [results[s.name] for s in specs]
+
+
+# ---------------------------------------------------------------------------- aggregation
+def aggregate(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per (algorithm, variant): seeds pooled.
+
+    ``episode_cost`` is the mean over seeds of each seed's mean, with a Student-t 95% interval
+    over seeds (the spread between trainings, which dominates); ``violation`` is the pooled
+    per-step frequency with its Wilson interval over all pooled steps; ``violation_seed_range``
+    shows the spread between seeds.
+    """
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for r in runs:
+        groups.setdefault((r["algo"], r["variant"]), []).append(r)
+    rows = []
+    for (algo, variant), rs in groups.items():
+        means = np.array([r["episode_cost"]["mean"] for r in rs])
+        mean, lo, hi = mean_ci(means)
+        steps = sum(r["episodes"] * r["steps"] for r in rs)
+        count = int(round(sum(r["violation"]["freq"] * r["episodes"] * r["steps"] for r in rs)))
+        vlo, vhi = wilson(count, steps)
+        freqs = [r["violation"]["freq"] for r in rs]
+        rows.append(
+            {
+                "name": f"{algo.upper()} {variant}",
+                "kind": "rl-aggregate",
+                "algo": algo,
+                "variant": variant,
+                "seeds": len(rs),
+                "episodes": int(sum(r["episodes"] for r in rs)),
+                "steps": rs[0]["steps"],
+                "episode_cost": {
+                    "mean": mean,
+                    "ci95": [lo, hi],
+                    "median": float(np.median([r["episode_cost"]["median"] for r in rs])),
+                },
+                "violation": {"freq": count / steps, "wilson95": [float(vlo), float(vhi)]},
+                "violation_seed_range": [min(freqs), max(freqs)],
+                "diverged": int(sum(r["diverged"] for r in rs)),
+                "timesteps": int(np.mean([r["timesteps"] for r in rs])),
+                "train_time_s": float(np.mean([r["train_time_s"] for r in rs])),
+                "decision_time_s": {
+                    key: float(np.mean([r["decision_time_s"][key] for r in rs]))
+                    for key in ("batched", "single")
+                },
+                "final_beta": (
+                    float(np.mean([r["final_beta"] for r in rs]))
+                    if rs[0]["final_beta"] is not None
+                    else None
+                ),
+            }
+        )
+    return rows
+
+
+def best_agent(runs: list[dict[str, Any]], target: float) -> dict[str, Any] | None:
+    """The trained run with the lowest mean cost among those whose violation frequency is at most
+    ``target`` + 0.05 and that never diverged; if there is none, the one with the fewest
+    violations."""
+    if not runs:
+        return None
+    ok = [r for r in runs if r["violation"]["freq"] <= target + 0.05 and r["diverged"] == 0]
+    if ok:
+        return min(ok, key=lambda r: r["episode_cost"]["mean"])
+    return min(runs, key=lambda r: (r["diverged"], r["violation"]["freq"]))
+
+
+def curve_status(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Has the learning curve flattened? Per (algo, variant), seeds averaged: the relative change
+    of the median episode cost and the change of the violation frequency over the last 30% of
+    training. Flat when both are small (< 10% and < 0.02)."""
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for r in runs:
+        groups.setdefault((r["algo"], r["variant"]), []).append(r)
+    out = []
+    for (algo, variant), rs in groups.items():
+        curves = [r["learning_curve"] for r in rs if len(r["learning_curve"]) >= 3]
+        if not curves:
+            continue
+        n = min(len(c) for c in curves)
+        cost = np.mean([[p["episode_cost_median"] for p in c[:n]] for c in curves], axis=0)
+        viol = np.mean([[p["violation"] for p in c[:n]] for c in curves], axis=0)
+        steps = np.array([p["timesteps"] for p in curves[0][:n]])
+        ref = int(np.argmin(np.abs(steps - 0.7 * steps[-1])))
+        ref = min(ref, n - 2)
+        dc = float(abs(cost[-1] - cost[ref]) / max(abs(cost[-1]), 1e-9))
+        dv = float(abs(viol[-1] - viol[ref]))
+        out.append(
+            {
+                "algo": algo,
+                "variant": variant,
+                "cost_rel_change_last30": dc,
+                "violation_change_last30": dv,
+                "flat": bool(dc < 0.1 and dv < 0.02),
+            }
+        )
+    return out
+
+
+# ---------------------------------------------------------------------------- figures
+def make_figures(
+    out: Path, mb: list[dict], aggs: list[dict], runs: list[dict], best: dict | None
+) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = []
+    model = macro()
+
+    def save(fig, name: str) -> None:
+        fig.tight_layout()
+        fig.savefig(out / name, dpi=110)
+        plt.close(fig)
+        names.append(name)
+
+    def errbars(ax, row, **kw) -> None:
+        v, c = row["violation"], row["episode_cost"]
+        ax.errorbar(
+            v["freq"],
+            c["mean"],
+            xerr=[[v["freq"] - v["wilson95"][0]], [v["wilson95"][1] - v["freq"]]],
+            yerr=[[max(c["mean"] - c["ci95"][0], 0.0)], [max(c["ci95"][1] - c["mean"], 0.0)]],
+            capsize=2,
+            **kw,
+        )
+
+    # cost against violation frequency
+    fig, ax = plt.subplots(figsize=(8.5, 6))
+    for family, color in (("RHC individual", "k"), ("RHC joint", "0.45")):
+        pts = sorted((r for r in mb if r["family"] == family), key=lambda r: r["xi"])
+        ax.plot(
+            [r["violation"]["freq"] for r in pts],
+            [r["episode_cost"]["mean"] for r in pts],
+            "-",
+            color=color,
+            lw=1.2,
+            label=f"{family}, xi = {pts[0]['xi']:g}..{pts[-1]['xi']:g}",
+        )
+        for r in pts:
+            errbars(ax, r, fmt="o", color=color, ms=4)
+            if family == "RHC individual":
+                ax.annotate(f"{r['xi']:g}", (r["violation"]["freq"], r["episode_cost"]["mean"]),
+                            textcoords="offset points", xytext=(4, 4), fontsize=7)  # fmt: skip
+    markers = {"RHC unconstrained": "s", "Linear feedback": "D", "MJLS LQR": "P"}
+    for r in mb:
+        if r["family"] in markers:
+            errbars(ax, r, fmt=markers[r["family"]], color="C7", ms=7, label=r["name"])
+    colors = {"ppo": "C0", "sac": "C1", "td3": "C2"}
+    vmarks = dict(zip(VARIANTS, ("o", "v", "^", "<", "*", "X"), strict=True))
+    for r in aggs:
+        errbars(
+            ax,
+            r,
+            fmt=vmarks.get(r["variant"], "o"),
+            color=colors.get(r["algo"], "C3"),
+            ms=7,
+            mfc="none",
+            label=r["name"],
+        )
+    ax.axvline(1 - XI, color="r", ls=":", lw=1, label=f"1 - xi = {1 - XI:.2f}")
+    ax.set_yscale("log")
+    ax.set_xlim(-0.02, 1.02)
+    ax.set_xlabel("per-step violation frequency (95% Wilson interval)")
+    ax.set_ylabel("mean episode cost (95% interval), log scale")
+    ax.set_title("Cost against violations: RHC over xi, one point per other controller")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=6.5, ncol=2, loc="best")
+    save(fig, "fig_cost_violation.png")
+
+    # learning curves
+    algos = list(dict.fromkeys(r["algo"] for r in runs))
+    if algos:
+        fig, axes = plt.subplots(2, len(algos), figsize=(4.6 * len(algos), 7), squeeze=False)
+        rhc_ref = next((r for r in mb if r["name"] == f"RHC individual xi={XI:g}"), None)
+        for j, algo in enumerate(algos):
+            for variant in VARIANTS:
+                rs = [r for r in runs if r["algo"] == algo and r["variant"] == variant]
+                curves = [r["learning_curve"] for r in rs if r["learning_curve"]]
+                if not curves:
+                    continue
+                n = min(len(c) for c in curves)
+                steps = np.array([p["timesteps"] for p in curves[0][:n]])
+                for i, key in enumerate(("episode_cost_median", "violation")):
+                    vals = np.array([[p[key] for p in c[:n]] for c in curves])
+                    ax = axes[i, j]
+                    (line,) = ax.plot(steps, vals.mean(axis=0), "-o", ms=3, label=variant)
+                    ax.fill_between(
+                        steps,
+                        vals.min(axis=0),
+                        vals.max(axis=0),
+                        color=line.get_color(),
+                        alpha=0.15,
+                    )
+            if rhc_ref is not None:
+                axes[0, j].axhline(rhc_ref["episode_cost"]["median"], color="k", ls="--", lw=1,
+                                   label="RHC xi=0.85")  # fmt: skip
+                axes[1, j].axhline(rhc_ref["violation"]["freq"], color="k", ls="--", lw=1,
+                                   label="RHC xi=0.85")  # fmt: skip
+            axes[0, j].set_yscale("log")
+            axes[0, j].set_title(f"{algo.upper()}: median episode cost (eval)")
+            axes[1, j].set_title(f"{algo.upper()}: violation frequency (eval)")
+            axes[1, j].set_ylim(-0.02, 1.02)
+            for i in range(2):
+                axes[i, j].set_xlabel("training env steps")
+                axes[i, j].grid(alpha=0.3, which="both")
+            axes[0, j].legend(fontsize=7)
+        save(fig, "fig_learning_curves.png")
+
+    lag = [r for r in runs if r["variant"] == "lagrangian" and r["dual_ascent"]]
+    if lag:
+        fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+        for r in lag:
+            d = r["dual_ascent"]
+            steps = [p["timesteps"] for p in d]
+            color = colors.get(r["algo"], "C3")
+            label = f"{r['algo'].upper()} seed {r['seed']}"
+            axes[0].plot(steps, [p["beta"] for p in d], color=color, alpha=0.8, label=label)
+            axes[1].plot(steps, [p["freq"] for p in d], color=color, alpha=0.8, label=label)
+        axes[1].axhline(1 - XI, color="r", ls=":", label="target 1 - xi")
+        axes[0].set_ylabel("beta")
+        axes[1].set_ylabel("training violation frequency")
+        for ax in axes:
+            ax.set_xlabel("training env steps")
+            ax.grid(alpha=0.3)
+        axes[1].legend(fontsize=7)
+        fig.suptitle("Lagrangian variant: dual ascent on beta")
+        save(fig, "fig_lagrangian_beta.png")
+
+    # incomes: the best agent next to the RHC
+    rhc_ref = next((r for r in mb if r["name"] == f"RHC individual xi={XI:g}"), None)
+    panels = [(f"RHC individual, xi = {XI:g}", rhc_ref)]
+    if best is not None:
+        panels.append((f"best agent: {best['name']}", best))
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 3.8), sharey=True,
+                             squeeze=False)  # fmt: skip
+    T = HORIZON
+    ks = np.arange(T + 1)
+    H = model.H(ks)
+    for ax, (title, row) in zip(axes[0], panels, strict=True):
+        for i, traj in enumerate(row["incomes"]):
+            ax.plot(
+                ks, traj, color="C0", lw=0.6, alpha=0.6, label="income $x_k(2)$" if i == 0 else None
+            )
+        ax.plot(ks, -H[:, 0], "r-", lw=1.5, label="target band")
+        ax.plot(ks, H[:, 1], "r-", lw=1.5)
+        v = row["violation"]["freq"]
+        ax.set_title(
+            f"{title}\nviolations {v:.3f}, cost {row['episode_cost']['mean']:.4g}", fontsize=9
+        )
+        ax.set_xlabel("k (quarters)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+    axes[0, 0].set_ylabel("national income $x_k(2)$")
+    lo = min(-5.0, float(np.min(H[:, 1])) - 10)
+    axes[0, 0].set_ylim(lo, float(H[-1, 1]) + 10)
+    save(fig, "fig_income.png")
+    return names
+
+
+# ---------------------------------------------------------------------------- outputs
+CSV_HEADER = [
+    "name", "kind", "algo", "variant", "seed", "xi", "episodes", "episode_cost_mean",
+    "episode_cost_lo", "episode_cost_hi", "episode_cost_median", "violation", "violation_lo",
+    "violation_hi", "diverged", "timesteps", "train_time_s", "decision_time_batched_s",
+    "decision_time_single_s", "final_beta",
+]  # fmt: skip
+
+
+def csv_row(r: dict[str, Any]) -> list[Any]:
+    c, v, d = r["episode_cost"], r["violation"], r["decision_time_s"]
+    beta = r.get("final_beta")
+    return [
+        r["name"], r["kind"], r.get("algo", ""), r.get("variant", ""), r.get("seed", ""),
+        r.get("xi", ""), r["episodes"], f"{c['mean']:.6g}", f"{c['ci95'][0]:.6g}",
+        f"{c['ci95'][1]:.6g}", f"{c['median']:.6g}", f"{v['freq']:.6f}", f"{v['wilson95'][0]:.6f}",
+        f"{v['wilson95'][1]:.6f}", r["diverged"], r.get("timesteps", 0), f"{r['train_time_s']:.1f}",
+        f"{d['batched']:.3g}", f"{d['single']:.3g}", "" if beta is None else f"{beta:.6g}",
+    ]  # fmt: skip
+
+
+def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(CSV_HEADER)
+        for r in rows:
+            w.writerow(csv_row(r))
+
+
+def _fmt_cost(c: dict) -> str:
+    return f"{c['mean']:.4g} ({c['ci95'][0]:.4g} to {c['ci95'][1]:.4g})"
+
+
+def _fmt_v(v: dict) -> str:
+    return f"{v['freq']:.3f} ({v['wilson95'][0]:.3f}-{v['wilson95'][1]:.3f})"
+
+
+def _fmt_time(seconds: float) -> str:
+    return f"{seconds * 1e6:.1f}" if seconds < 1 else f"{seconds:.3g} s"
+
+
+def table(rows: list[dict[str, Any]]) -> list[str]:
+    lines = [
+        "| controller | episodes | mean episode cost (95% CI) | median cost | violation frequency "
+        "(95% Wilson) | diverged | training time (s) | decision time per state, batched / "
+        "single (us) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        d = r["decision_time_s"]
+        lines.append(
+            f"| {r['name']} | {r['episodes']} | {_fmt_cost(r['episode_cost'])} | "
+            f"{r['episode_cost']['median']:.4g} | {_fmt_v(r['violation'])} | {r['diverged']} | "
+            f"{r['train_time_s']:.0f} | {_fmt_time(d['batched'])} / {_fmt_time(d['single'])} |"
+        )
+    return lines
+
+
+def reading(summary: dict[str, Any]) -> list[str]:
+    """A short reading of the numbers, every sentence computed from them."""
+    mb = {r["name"]: r for r in summary["model_based"]}
+    ref = mb[f"RHC individual xi={XI:g}"]
+    joint = mb[f"RHC joint xi={XI:g}"]
+    aggs = summary["rl_aggregates"]
+    v_ref, c_ref = ref["violation"]["freq"], ref["episode_cost"]["mean"]
+    lines = [
+        f"* The paper's controller (individual constraints, xi = {XI:g}) violates the band at "
+        f"{v_ref:.3f} of the steps for a mean episode cost of {c_ref:.4g}; with joint constraints "
+        f"{joint['violation']['freq']:.3f} for {joint['episode_cost']['mean']:.4g}. The linear "
+        f"feedback and the MJLS LQR ignore the band: they are cheaper "
+        f"({mb['Linear feedback (nu = 0)']['episode_cost']['mean']:.4g}, "
+        f"{mb['MJLS LQR']['episode_cost']['mean']:.4g}) and violate at almost every step "
+        f"({mb['Linear feedback (nu = 0)']['violation']['freq']:.3f}, "
+        f"{mb['MJLS LQR']['violation']['freq']:.3f}).",
+    ]
+    if not aggs:
+        return lines
+    rhc_curve = sorted(
+        (r for r in summary["model_based"] if r["family"] == "RHC individual"),
+        key=lambda r: r["violation"]["freq"],
+    )
+
+    def rhc_cost_at(v: float) -> float:
+        xs = [r["violation"]["freq"] for r in rhc_curve]
+        ys = [r["episode_cost"]["mean"] for r in rhc_curve]
+        return float(np.interp(v, xs, ys))
+
+    dominated, better = [], []
+    for a in aggs:
+        v, c = a["violation"]["freq"], a["episode_cost"]["mean"]
+        if a["diverged"] > 0 or c > rhc_cost_at(v):
+            dominated.append(a["name"])
+        else:
+            better.append(f"{a['name']} (violations {v:.3f}, cost {c:.4g})")
+    lines.append(
+        f"* Against the RHC curve over xi (individual constraints, interpolated at the agent's "
+        f"violation frequency): {len(dominated)} of {len(aggs)} trained configurations cost more "
+        "at the same violation frequency, or diverged in some episode"
+        + (f"; below the curve: {', '.join(better)}." if better else ".")
+    )
+    div = [a for a in aggs if a["diverged"] > 0]
+    if div:
+        lines.append(
+            "* Diverged evaluation episodes (|x| > 1e6, the episode terminated and its cost is "
+            "astronomical, which dominates the mean): "
+            + ", ".join(f"{a['name']} {a['diverged']}/{a['episodes']}" for a in div)
+            + ". The median cost is the readable number for those."
+        )
+    comparable = [a for a in aggs if a["violation"]["wilson95"][0] <= 1 - XI + 0.05]
+    if comparable:
+        cheapest = min(comparable, key=lambda a: a["episode_cost"]["mean"])
+        lines.append(
+            f"* At a comparable risk level (violation frequency's lower limit <= {1 - XI + 0.05:.2f})"
+            f" the cheapest trained configuration is {cheapest['name']}: cost "
+            f"{_fmt_cost(cheapest['episode_cost'])}, violations {_fmt_v(cheapest['violation'])}, "
+            f"against the RHC's {c_ref:.4g} and {v_ref:.3f}."
+        )
+    lag = [a for a in aggs if a["variant"] == "lagrangian"]
+    for a in lag:
+        lines.append(
+            f"* Lagrangian {a['algo'].upper()}: beta ended at {a['final_beta']:.4g} (mean over "
+            f"seeds); evaluation violation frequency {_fmt_v(a['violation'])} against the target "
+            f"1 - xi = {1 - XI:.2f} (seeds range {a['violation_seed_range'][0]:.3f}-"
+            f"{a['violation_seed_range'][1]:.3f})."
+        )
+    status = summary["learning_curves"]
+    flat = [f"{s['algo'].upper()} {s['variant']}" for s in status if s["flat"]]
+    moving = [f"{s['algo'].upper()} {s['variant']}" for s in status if not s["flat"]]
+    lines.append(
+        "* Learning curves (median evaluation cost changed by < 10% and violation frequency by "
+        "< 0.02 over the last 30% of training): flat for "
+        + (", ".join(flat) if flat else "none")
+        + "; **still changing** for "
+        + (", ".join(moving) if moving else "none")
+        + ". Where they still change, the budget was too small to call the result converged, "
+        "and more training might move those points."
+    )
+    train = {a["algo"]: a["train_time_s"] for a in aggs}
+    lines.append(
+        "* Price: the RHC needs no training and decides in "
+        f"{_fmt_time(ref['decision_time_s']['single'])} us per state on its own "
+        f"({_fmt_time(ref['decision_time_s']['batched'])} us batched); each agent trained for "
+        + ", ".join(f"{k.upper()} {v:.0f} s" for k, v in train.items())
+        + " (mean per run, one CPU thread), and decides in "
+        + ", ".join(
+            f"{a['name']} {_fmt_time(a['decision_time_s']['single'])} us"
+            for a in aggs
+            if a["variant"] == "reward"
+        )
+        + " per state."
+    )
+    return lines
+
+
+def write_report(opts: Options, summary: dict[str, Any]) -> str:
+    cmd = summary["command"]
+    mb_rows = summary["model_based"]
+    main_mb = [r for r in mb_rows if r.get("xi") in (None, XI)]
+    lines = [
+        "# The receding-horizon controller against RL agents (SDJLS-Macro-v0)",
+        "",
+        f"Generated by `{cmd}`; every number below is computed by that command.",
+        "",
+        f"Every controller is scored on the same {opts.eval_episodes} episodes of 20 steps "
+        f"(noise seed {opts.seed}, common random numbers). Episode cost: the sum of "
+        "x'Qx + u'Ru over the episode, mean with a 95% Student-t interval (over episodes; for the "
+        "aggregate of trained seeds, over the seeds' means). Violation frequency: the share of "
+        "steps k = 1..20 whose state leaves the band G x <= H_k (any row), with a 95% Wilson "
+        "interval (pooled over seeds for the aggregates). Diverged: episodes in which |x| "
+        "exceeded 1e6. Decision time: per state, over a batch of 1000 visited states and for one "
+        "state at a time. Training time: mean wall time per run on one CPU thread, learning-curve "
+        "evaluations included.",
+        "",
+        f"Agents act on u (rescaled to [-1, 1]) or, for `residual`, on nu with u = K x + nu, "
+        f"|nu| <= {HP.RESIDUAL_NU_BOUND:g}; `beta<b>` trains on reward - b * info['cost']; "
+        f"`lagrangian` adapts beta by dual ascent towards a violation frequency of 1 - xi = "
+        f"{1 - XI:.2f} (start {HP.LAGRANGIAN['beta0']:g}, step {HP.LAGRANGIAN['lr_dual']:g}). "
+        "Budgets: "
+        + ", ".join(f"{k.upper()} {v} steps" for k, v in summary["timesteps"].items())
+        + f" per run, {opts.seeds} seed(s). Hyperparameters: `benchmarks/rl_hyperparams.py` "
+        "(from rl-zoo3's Pendulum-v1 entries).",
+        "",
+        "## Results",
+        "",
+        *table(main_mb + summary["rl_aggregates"]),
+        "",
+        "## Reading",
+        "",
+        *reading(summary),
+        "",
+        "## Figures",
+        "",
+    ]
+    captions = {
+        "fig_cost_violation.png": "Mean episode cost against violation frequency: the RHC over "
+        "xi (individual and joint constraints), one point per other controller (trained agents: "
+        "seeds aggregated), 95% interval bars",
+        "fig_learning_curves.png": "Learning curves: median evaluation cost and violation "
+        "frequency against training steps (mean over seeds, band from min to max), "
+        f"{HP.LEARNING_CURVE['episodes']} fixed evaluation episodes per point",
+        "fig_lagrangian_beta.png": "Lagrangian variant: beta and the training violation frequency",
+        "fig_income.png": "Incomes under the RHC (xi = 0.85) and under the best trained agent "
+        "(lowest cost among runs with violation frequency <= 0.20 and no divergence)",
+    }
+    for name in summary["figures"]:
+        lines += [f"![{captions[name]}]({name})", "", f"*{captions[name]}*", ""]
+    lines += [
+        "## The RHC over xi",
+        "",
+        *table(mb_rows),
+        "",
+        "## Every trained run",
+        "",
+        *table(summary["rl_runs"]),
+        "",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    opts = parse_args(argv)
+    opts.out.mkdir(parents=True, exist_ok=True)
+    cmd = "python -m benchmarks.compare_rl" + ("" if not argv else " " + " ".join(argv))
+
+    def log(msg: str) -> None:
+        tqdm.write(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr)
+
+    model = macro()
+    log(f"evaluating the model-based controllers on {opts.eval_episodes} episodes")
+    mb = evaluate_model_based(model, opts)
+    specs = run_specs(opts)
+    log(
+        f"{len(specs)} training runs: {', '.join(opts.algos)} x {', '.join(opts.variants)} x "
+        f"{opts.seeds} seed(s)"
+    )
+    runs = train_all(opts, specs, log)
+    aggs = aggregate(runs)
+    best = best_agent(runs, 1 - XI)
+    summary: dict[str, Any] = {
+        "command": cmd,
+        "options": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(opts).items()},
+        "timesteps": {a: next(s.timesteps for s in specs if s.algo == a) for a in opts.algos},
+        "hyperparams": _jsonable(
+            {
+                "algorithms": {a: HP.HYPERPARAMS[a] for a in opts.algos},
+                "env": HP.ENV,
+                "betas": HP.BETAS,
+                "lagrangian": HP.LAGRANGIAN,
+                "residual_nu_bound": HP.RESIDUAL_NU_BOUND,
+                "learning_curve": HP.LEARNING_CURVE,
+            }
+        ),
+        "model_based": mb,
+        "rl_aggregates": aggs,
+        "rl_runs": [{k: v for k, v in r.items() if k != "config"} for r in runs],
+        "learning_curves": curve_status(runs),
+        "best_agent": None if best is None else best["name"],
+    }
+    summary["figures"] = make_figures(opts.out, mb, aggs, runs, best)
+    summary = _jsonable(summary)
+    (opts.out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    write_csv(opts.out / "summary.csv", mb + aggs + summary["rl_runs"])
+    (opts.out / "REPORT.md").write_text(write_report(opts, summary))
+    log(f"wrote {opts.out}/REPORT.md")
+    for line in reading(summary):
+        print(line)
+    return summary
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,192 @@
+"""The batched paths agree with the single-state ones (issue: performance).
+
+* ``act_batch`` returns the same decisions as ``act`` (OSQP) on the same states;
+* ``SDJLSModel.step_one`` (the single env's hot path) equals the batched ``step``;
+* the vector env driven by ``act_batch`` gives the same trajectories as stepping one
+  sub-environment alone, with ``act``, on the same noise (replayed through a recording RNG).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import sdjls_gym
+from controllers import (
+    LinearFeedbackController,
+    MJLSLQRController,
+    RecedingHorizonController,
+    UnconstrainedRecedingHorizonController,
+)
+from sdjls_gym import SDJLSModel, SDJLSVectorEnv
+from sdjls_gym.systems.macro import PAPER_K, PAPER_RHC
+
+KINDS = ("individual", "joint", "bonferroni")
+
+
+def random_system(seed: int) -> tuple[SDJLSModel, np.ndarray, np.ndarray]:
+    """A random system with E != I, W != I, and random gains and terminal weights."""
+    rng = np.random.default_rng(seed)
+    N, n, m, p, r = 3, 3, 2, 2, 3
+    P_in = rng.random((N, N)) + 0.1
+    P_out = rng.random((N, N)) + 0.1
+    L = rng.standard_normal((p, p))
+    model = SDJLSModel(
+        A=0.6 * rng.standard_normal((N, n, n)),
+        B=rng.standard_normal((N, n, m)),
+        E=rng.standard_normal((N, n, p)),
+        W=L @ L.T + 0.1 * np.eye(p),
+        P_in=P_in / P_in.sum(1, keepdims=True),
+        P_out=P_out / P_out.sum(1, keepdims=True),
+        G=rng.standard_normal((r, n)),
+        H0=rng.uniform(0.5, 3.0, r),
+        H_rate=rng.uniform(-0.1, 0.1, r),
+        Q=np.eye(n),
+        R=np.eye(m),
+        x0=rng.standard_normal(n),
+    )
+    K = 0.3 * rng.standard_normal((N, m, n))
+    Psi = np.array([np.eye(n) * (1 + i) for i in range(N)])
+    return model, K, Psi
+
+
+def random_states(model: SDJLSModel, size: int, seed: int, scale: float = 5.0):
+    rng = np.random.default_rng(seed)
+    x = rng.normal(0.0, scale, (size, model.n))
+    return x, rng.integers(0, model.N, size), rng.integers(0, 20, size)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("xi", [0.3, 0.85, 0.97])
+def test_act_batch_equals_act_on_the_example(kind, xi):
+    model = sdjls_gym.macro()
+    ctrl = RecedingHorizonController(model, PAPER_K, PAPER_RHC["Psi"], xi, constraint=kind)
+    x, mode, k = random_states(model, 60, seed=int(xi * 100))
+    u_b, info_b = ctrl.act_batch(x, mode, k)
+    for i in range(len(x)):
+        u, info = ctrl.act(x[i], int(mode[i]), int(k[i]))
+        assert info["status"] == "solved"
+        np.testing.assert_allclose(u_b[i], u, atol=1e-6, rtol=0)
+        assert info_b["rho"][i] == pytest.approx(info["rho"], abs=1e-6)
+        assert info_b["cost"][i] == pytest.approx(info["cost"], rel=1e-9, abs=1e-6)
+    assert info_b["ok"].all()
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("kind", KINDS)
+def test_act_batch_equals_act_on_random_systems(seed, kind):
+    model, K, Psi = random_system(seed)
+    ctrl = RecedingHorizonController(model, K, Psi, 0.9, constraint=kind, nu_bound=2.0)
+    x, mode, k = random_states(model, 40, seed=seed + 10)
+    u_b, info_b = ctrl.act_batch(x, mode, k)
+    for i in range(len(x)):
+        u, info = ctrl.act(x[i], int(mode[i]), int(k[i]))
+        np.testing.assert_allclose(u_b[i], u, atol=1e-6, rtol=0)
+        assert info_b["rho"][i] == pytest.approx(info["rho"], abs=1e-6)
+        assert info_b["cost"][i] == pytest.approx(info["cost"], rel=1e-8, abs=1e-6)
+
+
+def test_act_batch_of_the_other_controllers_equals_act():
+    model, K, Psi = random_system(7)
+    x, mode, k = random_states(model, 30, seed=3)
+    for ctrl in (
+        UnconstrainedRecedingHorizonController(model, K, Psi, nu_bound=1.5),
+        LinearFeedbackController(model, K),
+        LinearFeedbackController(model, -K),
+    ):
+        u_b, info_b = ctrl.act_batch(x, mode, k)
+        for i in range(len(x)):
+            u, info = ctrl.act(x[i], int(mode[i]), int(k[i]))
+            np.testing.assert_allclose(u_b[i], u, atol=1e-6, rtol=0)
+            assert info_b["cost"][i] == pytest.approx(info["cost"], rel=1e-9)
+    lqr = MJLSLQRController(sdjls_gym.macro())
+    xm, mm, km = random_states(sdjls_gym.macro(), 20, seed=4)
+    u_b, _ = lqr.act_batch(xm, mm, km)
+    for i in range(len(xm)):
+        np.testing.assert_allclose(u_b[i], lqr.act(xm[i], int(mm[i]), int(km[i]))[0], atol=1e-9)
+
+
+def test_step_one_equals_the_batched_step():
+    model, _, _ = random_system(11)
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        x = rng.normal(0, 2, model.n)
+        mode = int(rng.integers(model.N))
+        u = rng.normal(0, 1, model.m)
+        k = int(rng.integers(0, 30))
+        w = rng.normal(0, 1, model.p)
+        v = float(rng.random())
+        x1, m1, cost1, values1 = model.step_one(x, mode, u, k, w, v)
+        x2, m2 = model.step(x[None], np.array([mode]), u[None], np.array([k]), w[None], [v])
+        np.testing.assert_allclose(x1, x2[0], rtol=1e-12, atol=1e-12)
+        assert m1 == m2[0]
+        assert cost1 == pytest.approx(float(model.stage_cost(x, mode, u)), rel=1e-12)
+        np.testing.assert_allclose(values1, model.constraint_values(x2[0], k + 1), atol=1e-12)
+
+
+class RecordingRNG:
+    """Delegates to a Generator and records what ``standard_normal`` and ``random`` return."""
+
+    def __init__(self, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)
+        self.normals: list[np.ndarray] = []
+        self.uniforms: list[np.ndarray] = []
+
+    def standard_normal(self, size):
+        out = self.rng.standard_normal(size)
+        self.normals.append(out)
+        return out
+
+    def random(self, size=None):
+        out = self.rng.random(size)
+        self.uniforms.append(np.asarray(out))
+        return out
+
+
+class ReplayRNG:
+    """Returns, in order, given noise vectors and uniforms (one sub-environment's share)."""
+
+    def __init__(self, normals: list[np.ndarray], uniforms: list[float]) -> None:
+        self.normals, self.uniforms = list(normals), list(uniforms)
+
+    def standard_normal(self, size):
+        out = self.normals.pop(0)
+        assert out.shape == (size,) if np.ndim(size) == 0 else tuple(size)
+        return out.copy()
+
+    def random(self, size=None):
+        assert size is None
+        return float(self.uniforms.pop(0))
+
+
+@pytest.mark.parametrize("which", ["macro", "random"])
+def test_vector_env_with_act_batch_equals_single_env_with_act_on_the_same_noise(which):
+    if which == "macro":
+        model, K, Psi = sdjls_gym.macro(), PAPER_K, PAPER_RHC["Psi"]
+    else:
+        model, K, Psi = random_system(5)
+        model = SDJLSModel(**{**model.to_dict(), "W": np.eye(model.p)})  # W = I: same draws
+    ctrl = RecedingHorizonController(model, K, Psi, 0.85, nu_bound=100.0)
+    B, T = 6, 20
+    venv = SDJLSVectorEnv(num_envs=B, model=model, horizon=T)
+    _, info = venv.reset(seed=0)  # x0 and an int mode0: the reset draws nothing
+    rec = RecordingRNG(123)
+    venv.np_random = rec
+    xs, us = [info["state"].copy()], []
+    for _ in range(T):
+        u, _ = ctrl.act_batch(info["state"], info["mode"], info["k"])
+        _, _, _, _, info = venv.step(u)
+        xs.append(info["state"].copy())
+        us.append(info["u"].copy())
+    xs = np.array(xs)
+    for i in range(B):
+        env = sdjls_gym.SDJLSEnv(model, horizon=T)
+        _, sinfo = env.reset(seed=1)
+        env.np_random = ReplayRNG(
+            [nrm[i] for nrm in rec.normals], [float(uni[i]) for uni in rec.uniforms]
+        )
+        for t in range(T):
+            u, _ = ctrl.act(sinfo["state"], sinfo["mode"], sinfo["k"])
+            np.testing.assert_allclose(u, us[t][i], atol=1e-6)
+            _, _, _, _, sinfo = env.step(u)
+            np.testing.assert_allclose(sinfo["state"], xs[t + 1, i], atol=1e-6)
