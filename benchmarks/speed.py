@@ -28,8 +28,9 @@ import resource
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -249,7 +250,7 @@ def measure_scaling(opts) -> dict[str, Any]:
             ctrl = RecedingHorizonController(model, K, np.array([np.eye(n)] * N), 0.9)
             xs = np.random.default_rng(0).normal(0, 1, (50, n))
             it = iter(range(10**7))
-            t_act = median_time(lambda: ctrl.act(xs[next(it) % 50], 0, 1), 3, 30)
+            t_act = median_time(lambda c=ctrl, s=xs, i=it: c.act(s[next(i) % 50], 0, 1), 3, 30)
             rows.append(
                 {"N": N, "n": n, "synthesize_s": t_syn, "status": status, "act_us": 1e6 * t_act}
             )

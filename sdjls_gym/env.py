@@ -376,7 +376,7 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
             u = u.reshape(m)
         # finiteness and bounds in plain Python: for a few numbers it beats numpy's reductions
         inside_box = True
-        for v, lo, hi in zip(u.tolist(), self._low_list, self._high_list):
+        for v, lo, hi in zip(u.tolist(), self._low_list, self._high_list, strict=True):
             if not math.isfinite(v):
                 raise ValueError(f"action = {u} contains NaN or inf; expected finite numbers")
             inside_box = inside_box and lo <= v <= hi
