@@ -4,7 +4,7 @@ Run ``python -m benchmarks.compare_rl --help`` for the options. On ``SDJLS-Macro
 PPO, SAC and TD3 (``--algos``) with ``--seeds`` seeds each in six variants: on the reward alone
 (``reward``), with a violation penalty ``reward - beta * info["cost"]`` for three values of
 ``beta`` (``beta100``, ``beta1000``, ``beta10000``), as residual agents choosing ``nu`` on top of
-the paper's gains (``residual``, reward alone), and with ``beta`` adapted by dual ascent to hold
+the paper's gains (``residual``, with the middle penalty beta = 1000), and with ``beta`` adapted by dual ascent to hold
 the violation frequency at ``1 - xi = 0.15`` (``lagrangian``). Every agent and every
 model-based controller (the paper's receding-horizon controller at xi = 0.85 with individual
 and joint constraints and over a sweep of xi, the unconstrained receding-horizon controller, the
@@ -256,6 +256,7 @@ class RunSpec:
             "betas": list(HP.BETAS),
             "lagrangian": HP.LAGRANGIAN,
             "residual_nu_bound": HP.RESIDUAL_NU_BOUND,
+            "residual_beta": HP.RESIDUAL_BETA,
         }
 
     def fingerprint(self) -> str:
@@ -278,7 +279,7 @@ def variant_setup(variant: str) -> tuple[str, float | None, bool]:
     if variant == "reward":
         return "u", None, False
     if variant == "residual":
-        return "residual", None, False
+        return "residual", float(HP.RESIDUAL_BETA), False
     if variant == "lagrangian":
         return "u", float(HP.LAGRANGIAN["beta0"]), True
     if variant.startswith("beta"):
@@ -309,7 +310,7 @@ def _callbacks(spec: RunSpec, policy_factory, report) -> tuple[list, dict]:
     from stable_baselines3.common.callbacks import BaseCallback
 
     model = macro()
-    log: dict[str, list] = {"curve": [], "dual": []}
+    log: dict[str, Any] = {"curve": [], "dual": [], "eval_time": 0.0}
     _, beta0, lagrangian = variant_setup(spec.variant)
     state = {"beta": beta0}
     t_start = time.perf_counter()
@@ -317,14 +318,18 @@ def _callbacks(spec: RunSpec, policy_factory, report) -> tuple[list, dict]:
     marks = [int(round(spec.timesteps * (i + 1) / points)) for i in range(points)]
 
     class Curve(BaseCallback):
+        """Evaluate the deterministic policy at 0 steps and at every mark."""
+
         def __init__(self) -> None:
             super().__init__()
             self.next = 0
 
         def _record(self) -> None:
+            t0 = time.perf_counter()
             _, stats = evaluate(
                 model, policy_factory(self.model), spec.curve_episodes, spec.curve_seed
             )
+            log["eval_time"] += time.perf_counter() - t0
             log["curve"].append(
                 {
                     "timesteps": int(self.num_timesteps),
@@ -340,16 +345,9 @@ def _callbacks(spec: RunSpec, policy_factory, report) -> tuple[list, dict]:
                 report(spec.name, int(self.num_timesteps))
 
         def _on_training_start(self) -> None:
-            self._record_at_zero = True
+            self._record()  # the untrained policy
 
         def _on_step(self) -> bool:
-            if self._record_at_zero:
-                self._record_at_zero = False
-                # the untrained policy, at the first step
-                saved = self.num_timesteps
-                self.num_timesteps = 0
-                self._record()
-                self.num_timesteps = saved
             while self.next < len(marks) and self.num_timesteps >= marks[self.next]:
                 self.next += 1
                 self._record()
@@ -417,7 +415,6 @@ def train_run(spec: RunSpec, path: str | None, report=None) -> dict[str, Any]:
     t0 = time.perf_counter()
     agent.learn(total_timesteps=spec.timesteps, callback=callbacks)
     wall = time.perf_counter() - t0
-    curve_time = sum(0.0 for _ in log["curve"])  # evaluation time is inside wall; see below
     policy = policy_factory(agent)
     ro, stats = evaluate(model, policy, spec.eval_episodes, spec.eval_seed, HORIZON, ACTION_BOUND)
     states = DecisionStates.from_rollouts(ro, min(TIMING_STATES, ro.x.shape[0] * HORIZON))
@@ -431,7 +428,8 @@ def train_run(spec: RunSpec, path: str | None, report=None) -> dict[str, Any]:
         "config": spec.config(),
         **stats,
         "timesteps": int(agent.num_timesteps),
-        "train_time_s": wall - curve_time,
+        "train_time_s": wall - log["eval_time"],
+        "wall_time_s": wall,
         "decision_time_s": decision_time(policy, states.x, states.mode, states.k),
         "final_beta": log["state"]["beta"],
         "learning_curve": log["curve"],
@@ -970,11 +968,14 @@ def write_report(opts: Options, summary: dict[str, Any]) -> str:
         "steps k = 1..20 whose state leaves the band G x <= H_k (any row), with a 95% Wilson "
         "interval (pooled over seeds for the aggregates). Diverged: episodes in which |x| "
         "exceeded 1e6. Decision time: per state, over a batch of 1000 visited states and for one "
-        "state at a time. Training time: mean wall time per run on one CPU thread, learning-curve "
-        "evaluations included.",
+        "state at a time. Training time: mean wall time per run on one CPU thread, without the "
+        "learning-curve evaluations. Agents learn from a transformed reward, -log(1 + c / 100) "
+        "of the penalized per-step cost c (see `benchmarks/rl_hyperparams.py`); every number here "
+        "is the true cost.",
         "",
         f"Agents act on u (rescaled to [-1, 1]) or, for `residual`, on nu with u = K x + nu, "
         f"|nu| <= {HP.RESIDUAL_NU_BOUND:g}; `beta<b>` trains on reward - b * info['cost']; "
+        f"`residual` trains on reward - {HP.RESIDUAL_BETA:g} * info['cost']; "
         f"`lagrangian` adapts beta by dual ascent towards a violation frequency of 1 - xi = "
         f"{1 - XI:.2f} (start {HP.LAGRANGIAN['beta0']:g}, step {HP.LAGRANGIAN['lr_dual']:g}). "
         "Budgets: "

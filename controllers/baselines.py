@@ -18,7 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from sdjls_gym.model import SDJLSModel
+from sdjls_gym.env import decode_observation
+from sdjls_gym.model import SDJLSModel, _fmt
 
 __all__ = [
     "LinearFeedbackController",
@@ -30,12 +31,6 @@ __all__ = [
 
 class RiccatiConvergenceError(RuntimeError):
     """The coupled Riccati iteration did not converge (subclass of :class:`RuntimeError`)."""
-
-
-def _fmt(value: Any) -> str:
-    text = np.array2string(np.asarray(value), precision=4, threshold=12, separator=", ")
-    text = " ".join(text.split())  # one line, so that messages stay greppable
-    return text if len(text) < 160 else text[:157] + "..."
 
 
 def _check_model(model: Any) -> SDJLSModel:
@@ -251,10 +246,7 @@ class _FeedbackPolicy:
             )
         if not np.all(np.isfinite(obs)):
             raise ValueError("observation has a non-finite entry; every entry must be finite")
-        obs = obs.reshape(-1, size)
-        x = obs[:, : model.n]
-        mode = np.argmax(obs[:, model.n : model.n + model.N], axis=1).astype(np.int64)
-        k = np.rint(obs[:, -1] * self.horizon).astype(np.int64)
+        x, mode, k = decode_observation(model, obs.reshape(-1, size), self.horizon)
         if np.any(k < 0):
             raise ValueError(
                 f"observation's time entry k / horizon = {obs[:, -1].min():.6g} decodes to a "

@@ -34,19 +34,12 @@ from scipy import special, stats
 
 from sdjls_gym.model import SDJLSModel
 
+from .baselines import _check_model
+
 __all__ = ["CONSTRAINT_KINDS", "tightening", "row_satisfaction_probability"]
 
 #: The kinds of chance constraint understood by :func:`tightening`.
 CONSTRAINT_KINDS = ("individual", "joint", "bonferroni")
-
-
-def _check_model(model: Any) -> SDJLSModel:
-    if not isinstance(model, SDJLSModel):
-        raise TypeError(
-            f"model must be an sdjls_gym.SDJLSModel, got {type(model).__name__}; build one with "
-            "SDJLSModel(...) or a preset such as sdjls_gym.systems.macro()"
-        )
-    return model
 
 
 def _check_xi(xi: Any) -> float:

@@ -30,6 +30,8 @@ import numpy as np
 
 from sdjls_gym import SDJLSModel
 
+from .baselines import _check_model
+
 __all__ = [
     "GainSynthesisResult",
     "LMIError",
@@ -197,12 +199,6 @@ class MeanSquareCertificate:
 
 
 # ---------------------------------------------------------------------------------- helpers
-def _check_model(model: object) -> SDJLSModel:
-    if not isinstance(model, SDJLSModel):
-        raise TypeError(f"model must be an SDJLSModel, got {type(model).__name__}")
-    return model
-
-
 def _check_scalar(name: str, value: object, *, positive: bool, what: str) -> float:
     """``value`` as a finite float that is > 0 (``positive``) or >= 0; else ValueError."""
     bad = isinstance(value, (bool, np.bool_))

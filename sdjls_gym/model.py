@@ -67,6 +67,7 @@ class InvalidModelError(ValueError):
 def _fmt(value: Any) -> str:
     """Short printable form of a (possibly large) value for error messages."""
     text = np.array2string(np.asarray(value), precision=4, threshold=12, separator=", ")
+    text = " ".join(text.split())  # one line, so that messages stay greppable
     return text if len(text) < 160 else text[:157] + "..."
 
 

@@ -60,9 +60,10 @@ def controller(**overrides) -> RecedingHorizonController:
 def nu_zero_answer(x, mode, k, xi=PAPER_RHC["xi"]):
     """rho and J of P3 at nu = 0 for the macro example, from the paper's formulas.
 
-    E = W = I, |G_j| = 1: the tightening of every row is Phi^{-1}(xi) (eq. constraint:det_univariate);
-    rho is the smallest slack that makes nu = 0 feasible (eq. constraint:feasibility) and J the
-    objective of P3 with tr(Pi) for the noise (eq. eq:exp_noise).
+    E = W = I, |G_j| = 1: the tightening of every row is Phi^{-1}(xi), eq.
+    (constraint:det_univariate); rho is the smallest slack that makes nu = 0 feasible, eq.
+    (constraint:feasibility); J is the objective of P3 with tr(Pi) for the noise, eq.
+    (eq:exp_noise).
     """
     model, Psi, alpha = macro(), PAPER_RHC["Psi"], PAPER_RHC["alpha"]
     x = np.asarray(x, dtype=np.float64)

@@ -394,7 +394,7 @@ def test_bad_solver(model: SDJLSModel) -> None:
 
 
 def test_not_a_model() -> None:
-    with pytest.raises(TypeError, match="model must be an SDJLSModel, got dict"):
+    with pytest.raises(TypeError, match="model must be an sdjls_gym.SDJLSModel, got dict"):
         synthesize_gains({})
     with pytest.raises(TypeError, match="SDJLSModel"):
         verify_mean_square_bound(None, PAPER_K)

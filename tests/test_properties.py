@@ -2,9 +2,10 @@
 
 For each kind of chance constraint (individual, joint, Bonferroni), hypothesis draws the sizes
 (N <= 4 modes, n <= 4 states, m <= 2 inputs, p <= 4 noise inputs, so p != n often, r <= 4
-constraint rows), ``xi``, ``alpha``, ``nu_bound`` and a seed; the seed fills a ``numpy.random.Generator`` that draws the matrices:
-``E`` and ``W`` are never the identity, ``P_in`` and ``P_out`` are random row-stochastic (with
-some exact zeros), and ``K`` is random, often destabilising. The properties:
+constraint rows), ``xi``, ``alpha``, ``nu_bound`` and a seed; the seed fills a
+``numpy.random.Generator`` that draws the matrices: ``E`` and ``W`` are never the identity,
+``P_in`` and ``P_out`` are random row-stochastic (with some exact zeros), and ``K`` is random,
+often destabilising. The properties:
 
 * the answer of the OSQP fast path is feasible and satisfies the KKT conditions of P3, which the
   test builds itself from the paper (section 5): the multipliers of the active constraints are
@@ -106,7 +107,7 @@ class QP:
     """P3 at one (x_k, theta_k, k) in z = (nu, rho): f(z) and the rows ``C z <= d``."""
 
     f: object  # z -> J
-    grad: object  # z -> dJ/dz
+    grad: object  # z -> (dJ/dz, size of the terms summed in each entry of dJ/dz)
     C: np.ndarray
     d: np.ndarray
     mean: object  # nu -> E[x_{k+1} | F_k]
@@ -151,15 +152,15 @@ def paper_qp(prob: Problem, x: np.ndarray, mode: int, k: int) -> QP:
 
     def grad(z):
         nu = z[:m]
-        g = 2.0 * R @ (K[mode] @ x + nu) + 2.0 * B.T @ Pi @ (a + B @ nu)
-        return np.concatenate([g, [alpha]])
+        g_u, g_mean = 2.0 * R @ (K[mode] @ x + nu), 2.0 * B.T @ Pi @ (a + B @ nu)
+        return np.append(g_u + g_mean, alpha), np.append(np.abs(g_u) + np.abs(g_mean), alpha)
 
-    I = np.eye(m)
+    eye = np.eye(m)
     C = np.vstack(
         [
             np.hstack([model.G @ B, -np.ones((r, 1))]),  # eq. (constraint:feasibility)
-            np.hstack([I, np.zeros((m, 1))]),  # nu <= nu_bound
-            np.hstack([-I, np.zeros((m, 1))]),  # -nu <= nu_bound
+            np.hstack([eye, np.zeros((m, 1))]),  # nu <= nu_bound
+            np.hstack([-eye, np.zeros((m, 1))]),  # -nu <= nu_bound
             np.concatenate([np.zeros(m), [-1.0]])[None],  # rho >= 0
         ]
     )
@@ -168,17 +169,19 @@ def paper_qp(prob: Problem, x: np.ndarray, mode: int, k: int) -> QP:
 
 
 def assert_kkt(qp: QP, nu: np.ndarray, rho: float, tol: float = 1e-6) -> None:
-    z = np.concatenate([nu, [rho]])
+    """Primal feasibility, and stationarity with nonnegative multipliers on the active rows:
+    ``grad J + C_act' lam = 0`` with ``lam >= 0`` found by NNLS, each entry to ``tol`` relative
+    to the size of the terms it sums."""
+    z = np.append(nu, rho)
     slack = qp.C @ z - qp.d  # <= 0 when feasible
     scale = np.maximum(1.0, np.abs(qp.d) + np.abs(qp.C) @ np.abs(z))
     assert np.all(slack <= 1e-8 * scale), f"infeasible: {slack}"
-    active = np.flatnonzero(slack >= -1e-7 * scale)
-    g = qp.grad(z)
-    if active.size:
-        lam, residual = optimize.nnls(qp.C[active].T, -g)
-    else:
-        residual = float(np.linalg.norm(g))
-    assert residual <= tol * max(1.0, float(np.linalg.norm(g))), (residual, g, active)
+    active = np.flatnonzero(slack >= -1e-7 * scale)  # complementary slackness: lam = 0 elsewhere
+    g, size = qp.grad(z)
+    lam = optimize.nnls(qp.C[active].T, -g)[0] if active.size else np.zeros(0)
+    residual = g + qp.C[active].T @ lam
+    bound = tol * (1.0 + size + np.abs(qp.C[active].T) @ lam)
+    assert np.all(np.abs(residual) <= bound), (residual, bound, active)
 
 
 # ----------------------------------------------------------------------------- the properties
