@@ -665,47 +665,56 @@ def make_figures(
             **kw,
         )
 
-    # cost against violation frequency
-    fig, ax = plt.subplots(figsize=(8.5, 6))
-    for family, color in (("RHC individual", "k"), ("RHC joint", "0.45")):
-        pts = sorted((r for r in mb if r["family"] == family), key=lambda r: r["xi"])
-        ax.plot(
-            [r["violation"]["freq"] for r in pts],
-            [r["episode_cost"]["mean"] for r in pts],
-            "-",
-            color=color,
-            lw=1.2,
-            label=f"{family}, xi = {pts[0]['xi']:g}..{pts[-1]['xi']:g}",
-        )
-        for r in pts:
-            errbars(ax, r, fmt="o", color=color, ms=4)
-            if family == "RHC individual":
-                ax.annotate(f"{r['xi']:g}", (r["violation"]["freq"], r["episode_cost"]["mean"]),
-                            textcoords="offset points", xytext=(4, 4), fontsize=7)  # fmt: skip
-    markers = {"RHC unconstrained": "s", "Linear feedback": "D", "MJLS LQR": "P"}
-    for r in mb:
-        if r["family"] in markers:
-            errbars(ax, r, fmt=markers[r["family"]], color="C7", ms=7, label=r["name"])
+    # cost against violation frequency: everything (log scale), and a zoom on the stable ones
     colors = {"ppo": "C0", "sac": "C1", "td3": "C2"}
     vmarks = dict(zip(VARIANTS, ("o", "v", "^", "<", "*", "X"), strict=True))
-    for r in aggs:
-        errbars(
-            ax,
-            r,
-            fmt=vmarks.get(r["variant"], "o"),
-            color=colors.get(r["algo"], "C3"),
-            ms=7,
-            mfc="none",
-            label=r["name"],
-        )
-    ax.axvline(1 - XI, color="r", ls=":", lw=1, label=f"1 - xi = {1 - XI:.2f}")
-    ax.set_yscale("log")
-    ax.set_xlim(-0.02, 1.02)
-    ax.set_xlabel("per-step violation frequency (95% Wilson interval)")
-    ax.set_ylabel("mean episode cost (95% interval), log scale")
-    ax.set_title("Cost against violations: RHC over xi, one point per other controller")
-    ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=6.5, ncol=2, loc="best")
+    markers = {"RHC unconstrained": "s", "Linear feedback": "D", "MJLS LQR": "P"}
+    rhc_costs = [r["episode_cost"]["mean"] for r in mb if r["family"].startswith("RHC")]
+    zoom_max = 3.0 * max(rhc_costs)
+    fig, axes = plt.subplots(1, 2, figsize=(14, 6))
+    for panel, ax in enumerate(axes):
+        keep = (lambda r: True) if panel == 0 else (lambda r: r["episode_cost"]["mean"] <= zoom_max)
+        for family, color in (("RHC individual", "k"), ("RHC joint", "0.45")):
+            pts = sorted((r for r in mb if r["family"] == family), key=lambda r: r["xi"])
+            ax.plot(
+                [r["violation"]["freq"] for r in pts],
+                [r["episode_cost"]["mean"] for r in pts],
+                "-",
+                color=color,
+                lw=1.2,
+                label=f"{family}, xi = {pts[0]['xi']:g}..{pts[-1]['xi']:g}",
+            )
+            for r in pts:
+                errbars(ax, r, fmt="o", color=color, ms=4)
+                if family == "RHC individual" and r["xi"] in (0.3, 0.5, 0.7, 0.85, 0.99):
+                    ax.annotate(f"xi={r['xi']:g}", (r["violation"]["freq"], r["episode_cost"]["mean"]),
+                                textcoords="offset points", xytext=(3, 6), fontsize=7)  # fmt: skip
+        for r in mb:
+            if r["family"] in markers and keep(r):
+                errbars(ax, r, fmt=markers[r["family"]], color="C7", ms=7, label=r["name"])
+        for r in aggs:
+            if keep(r):
+                errbars(
+                    ax,
+                    r,
+                    fmt=vmarks.get(r["variant"], "o"),
+                    color=colors.get(r["algo"], "C3"),
+                    ms=8,
+                    label=r["name"],
+                )
+        ax.axvline(1 - XI, color="r", ls=":", lw=1, label=f"1 - xi = {1 - XI:.2f}")
+        ax.set_xlim(-0.02, 1.02)
+        ax.set_xlabel("per-step violation frequency (95% Wilson interval)")
+        ax.grid(alpha=0.3, which="both")
+        if panel == 0:
+            ax.set_yscale("log")
+            ax.set_ylabel("mean episode cost (95% interval), log scale")
+            ax.set_title("All controllers (trained agents: seeds pooled)")
+        else:
+            ax.set_ylabel("mean episode cost (95% interval)")
+            ax.set_title(f"Zoom: mean episode cost <= {zoom_max:.3g}")
+            ax.legend(fontsize=6.5, ncol=2, loc="best")
+    fig.suptitle("Cost against violations: the RHC over xi, one point per other controller")
     save(fig, "fig_cost_violation.png")
 
     # learning curves
@@ -885,18 +894,33 @@ def reading(summary: dict[str, Any]) -> list[str]:
         ys = [r["episode_cost"]["mean"] for r in rhc_curve]
         return float(np.interp(v, xs, ys))
 
-    dominated, better = [], []
+    v_lo = rhc_curve[0]["violation"]["freq"]
+    v_hi = rhc_curve[-1]["violation"]["freq"]
+    dominated, better, outside = [], [], []
     for a in aggs:
         v, c = a["violation"]["freq"], a["episode_cost"]["mean"]
-        if a["diverged"] > 0 or c > rhc_cost_at(v):
+        text = f"{a['name']} (violations {v:.3f}, cost {c:.4g})"
+        if a["diverged"] > 0:
+            dominated.append(a["name"])
+        elif not v_lo <= v <= v_hi:
+            outside.append(text)
+        elif c > rhc_cost_at(v):
             dominated.append(a["name"])
         else:
-            better.append(f"{a['name']} (violations {v:.3f}, cost {c:.4g})")
+            better.append(text)
     lines.append(
-        f"* Against the RHC curve over xi (individual constraints, interpolated at the agent's "
-        f"violation frequency): {len(dominated)} of {len(aggs)} trained configurations cost more "
-        "at the same violation frequency, or diverged in some episode"
-        + (f"; below the curve: {', '.join(better)}." if better else ".")
+        f"* Against the RHC curve over xi (individual constraints, violation frequencies "
+        f"{v_lo:.3f}..{v_hi:.3f}, interpolated at the agent's frequency): {len(dominated)} of "
+        f"{len(aggs)} trained configurations diverged in some episode or cost more at the same "
+        "violation frequency"
+        + (f"; below the curve: {', '.join(better)}" if better else "; none is below it")
+        + (
+            f"; outside the curve's range of violation frequencies (compare them with the "
+            f"linear feedback and the LQR instead): {', '.join(outside)}"
+            if outside
+            else ""
+        )
+        + "."
     )
     div = [a for a in aggs if a["diverged"] > 0]
     if div:

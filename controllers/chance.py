@@ -48,6 +48,10 @@ def _check_xi(xi: Any) -> float:
         raise ValueError(
             f"xi = {xi!r} is a bool; xi is a probability level strictly between 0 and 1"
         )
+    if isinstance(xi, (str, bytes)):
+        raise ValueError(
+            f"xi = {xi!r} is a string; xi is a probability level strictly between 0 and 1"
+        )
     try:
         value = float(xi)
     except (TypeError, ValueError):

@@ -91,7 +91,10 @@ def parse_reset_options(
 
 
 def _action_bounds(model: SDJLSModel, action_bound: float | np.ndarray) -> np.ndarray:
-    bound = np.broadcast_to(np.asarray(action_bound, dtype=np.float64), (model.m,)).copy()
+    try:
+        bound = np.broadcast_to(np.asarray(action_bound, dtype=np.float64), (model.m,)).copy()
+    except (TypeError, ValueError):
+        bound = np.full(model.m, np.nan)  # reported below, naming action_bound
     if not np.all(np.isfinite(bound)) or np.any(bound <= 0):
         raise ValueError(
             f"action_bound = {action_bound!r}; expected finite positive bound(s) on |u_i|, a float "

@@ -144,7 +144,12 @@ class SDJLSVectorEnv(VectorEnv):
         if not self._started:
             raise RuntimeError("call reset() before step()")
         B, model = self.num_envs, self.model
-        u = np.asarray(actions, dtype=np.float64)
+        try:
+            u = np.asarray(actions, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"actions = {actions!r:.80}; expected a ({B}, {model.m}) array of finite numbers"
+            ) from None
         if u.shape != (B, model.m):
             if u.size == B * model.m and model.m == 1 and u.shape == (B,):
                 u = u.reshape(B, 1)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numbers
 from typing import Any
 
 import gymnasium as gym
@@ -11,6 +12,13 @@ from gymnasium import spaces
 from sdjls_gym.env import SDJLSEnv
 
 __all__ = ["ViolationPenalty", "ResidualAction"]
+
+
+def _is_real(value: Any) -> bool:
+    """A real number (not a bool, a string or None)."""
+    return isinstance(value, (numbers.Real, np.floating, np.integer)) and not isinstance(
+        value, (bool, np.bool_)
+    )
 
 
 class ViolationPenalty(gym.Wrapper):
@@ -37,7 +45,7 @@ class ViolationPenalty(gym.Wrapper):
 
     @beta.setter
     def beta(self, value: float) -> None:
-        if not (np.isfinite(value) and value >= 0):
+        if not (_is_real(value) and np.isfinite(value) and value >= 0):
             raise ValueError(f"beta = {value!r}; expected a finite penalty >= 0")
         self._beta = float(value)
 
@@ -72,12 +80,17 @@ class ResidualAction(gym.ActionWrapper):
                 f"ResidualAction needs an SDJLSEnv underneath, got {type(base).__name__}"
             )
         model = base.model
-        K = np.asarray(K, dtype=np.float64)
+        try:
+            K = np.asarray(K, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"K = {K!r:.60}; expected an ({model.N}, {model.m}, {model.n}) array of gains"
+            ) from None
         if K.shape != (model.N, model.m, model.n):
             raise ValueError(f"K has shape {K.shape}; expected ({model.N}, {model.m}, {model.n})")
         if not np.all(np.isfinite(K)):
             raise ValueError("K contains NaN or inf; expected finite gains")
-        if not (np.isfinite(nu_bound) and nu_bound > 0):
+        if not (_is_real(nu_bound) and np.isfinite(nu_bound) and nu_bound > 0):
             raise ValueError(f"nu_bound = {nu_bound!r}; expected a finite positive float")
         self.K = K
         bound = np.full(model.m, nu_bound, dtype=np.float32)

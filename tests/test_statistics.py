@@ -271,12 +271,14 @@ def test_global_random_generators_are_never_touched():
     env = ViolationPenalty(env, beta=10.0)
     env.action_space.seed(0)
     env.reset(seed=0)
-    env.reset()  # unseeded reset: the env's own generator, seeded from OS entropy at first use
     for _ in range(5):
         env.step(env.action_space.sample())
     envs = gym.make_vec("SDJLS-Macro-v0", num_envs=4, vectorization_mode="vector_entry_point")
     envs.reset(seed=0)
     envs.step(np.zeros((4, 1)))
+    # unseeded resets: each env seeds its own generator from OS entropy, not from np.random
+    gym.make("SDJLS-v0", model=statistical_model()).reset()
+    SDJLSVectorEnv(3, model=statistical_model()).reset()
     for solver in ("osqp", "cvxpy"):
         ctrl = RecedingHorizonController(model, PAPER_K, **PAPER_RHC, solver=solver, horizon=20)
         ctrl.act([2.0, 2.0], 0, 0)
