@@ -87,6 +87,28 @@ class ScaleObservationReward(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
 
+class TerminateOutside(gym.Wrapper):
+    """End a training episode once ``max |x| > bound`` (the observation is saturated there and a
+    bounded input can no longer bring the state back), charging the remaining steps of the horizon
+    at the reward of this step, so that ending early is never better than going on.
+
+    Only for training: without it most of a beginner's experience is spent in diverged states
+    that teach nothing. Evaluation runs the plain environment.
+    """
+
+    def __init__(self, env: gym.Env, bound: float) -> None:
+        super().__init__(env)
+        self.bound = float(bound)
+        self.horizon = int(env.unwrapped.horizon)
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        if not (terminated or truncated) and np.max(np.abs(info["state"])) > self.bound:
+            reward = reward * (1 + self.horizon - int(info["k"]))
+            terminated = True
+        return obs, reward, terminated, truncated, info
+
+
 class FiniteHorizon(gym.Wrapper):
     """The end of the 20-step horizon is a true end of the task: report it as a termination.
 
@@ -135,10 +157,14 @@ def make_train_env(
         if K is None:
             raise ValueError("a residual agent needs the gains K (N, m, n)")
         env = ResidualAction(env, K, nu_bound)
-    env = RescaleAction(env, -1.0, 1.0)
+    one = np.ones(env.action_space.shape, dtype=np.float32)
+    env = RescaleAction(env, -one, one)
     if beta is not None:
         env = ViolationPenalty(env, beta)
-    env = ScaleObservationReward(env, **env_hp)
+    scale = {k: v for k, v in env_hp.items() if k != "terminate_bound"}
+    env = ScaleObservationReward(env, **scale)
+    if env_hp.get("terminate_bound") is not None:
+        env = TerminateOutside(env, env_hp["terminate_bound"])
     return FiniteHorizon(env)
 
 

@@ -31,6 +31,8 @@ __all__ = ["ActiveSetQP"]
 def _max_over_middle(a: np.ndarray) -> np.ndarray:
     """``a.max(axis=1)`` for ``a`` (B, j, k) with small ``j``, as ``j - 1`` elementwise maxima
     (numpy's reductions over short axes are slow)."""
+    if a.shape[0] < 64:  # few rows: one reduction call is cheaper than j - 1 maxima
+        return a.max(axis=1)
     out = a[:, 0].copy()
     for j in range(1, a.shape[1]):
         np.maximum(out, a[:, j], out=out)
