@@ -43,7 +43,7 @@ import numpy as np
 from tqdm import tqdm
 
 from benchmarks import rl_hyperparams as HP
-from benchmarks.montecarlo import Rollouts, mean_ci, wilson
+from benchmarks.montecarlo import Rollouts, mean_ci, paper_rhc, wilson
 from benchmarks.rl_eval import DecisionStates, SB3Policy, decision_time, evaluate, make_train_env
 from controllers import (
     LinearFeedbackController,
@@ -156,16 +156,7 @@ def parse_args(argv: list[str] | None = None) -> Options:
 
 # ---------------------------------------------------------------------------- model-based
 def rhc(model, xi: float, constraint: str = "individual") -> RecedingHorizonController:
-    return RecedingHorizonController(
-        model,
-        PAPER_K,
-        PAPER_RHC["Psi"],
-        xi,
-        constraint=constraint,
-        alpha=PAPER_RHC["alpha"],
-        nu_bound=PAPER_RHC["nu_bound"],
-        horizon=HORIZON,
-    )
+    return paper_rhc(model, xi, constraint)
 
 
 def model_based_controllers(model) -> list[tuple[str, dict[str, Any], Any]]:

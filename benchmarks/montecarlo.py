@@ -10,7 +10,18 @@ from scipy import stats
 
 from sdjls_gym import SDJLSModel, SDJLSVectorEnv
 
-__all__ = ["Rollouts", "rollout", "wilson", "mean_ci", "decide_batch"]
+__all__ = ["Rollouts", "rollout", "wilson", "mean_ci", "decide_batch", "paper_rhc"]
+
+
+def paper_rhc(model: SDJLSModel, xi: float, constraint: str = "individual"):
+    """The paper's receding-horizon controller (section 6: PAPER_K, Psi, alpha, |nu| <= 100)."""
+    from controllers import RecedingHorizonController
+    from sdjls_gym.systems.macro import HORIZON, PAPER_K, PAPER_RHC
+
+    kw = {key: PAPER_RHC[key] for key in ("Psi", "alpha", "nu_bound")}
+    return RecedingHorizonController(
+        model, PAPER_K, xi=xi, constraint=constraint, horizon=HORIZON, **kw
+    )
 
 
 @dataclass

@@ -27,8 +27,8 @@ import numpy as np
 from scipy import stats
 from tqdm import tqdm
 
-from benchmarks.montecarlo import Rollouts, mean_ci, rollout, wilson
-from controllers import RecedingHorizonController, verify_mean_square_bound
+from benchmarks.montecarlo import Rollouts, mean_ci, paper_rhc, rollout, wilson
+from controllers import verify_mean_square_bound
 from sdjls_gym.systems.macro import ACTION_BOUND, HORIZON, PAPER_K, PAPER_RHC, macro
 
 RHO_TOL = 1e-7  # rho below this counts as zero (solver round-off)
@@ -98,19 +98,6 @@ PAPER_CONFIGS = [
     Config("individual_0.5", "individual", 0.5),
     Config("individual_0.3", "individual", 0.3),
 ]
-
-
-def controller_for(model, constraint: str, xi: float) -> RecedingHorizonController:
-    return RecedingHorizonController(
-        model,
-        PAPER_K,
-        PAPER_RHC["Psi"],
-        xi,
-        constraint=constraint,
-        alpha=PAPER_RHC["alpha"],
-        nu_bound=PAPER_RHC["nu_bound"],
-        horizon=HORIZON,
-    )
 
 
 def summarize(cfg: Config, ro: Rollouts) -> dict[str, Any]:
@@ -505,7 +492,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         runs = max(opts.runs, opts.stat_runs)
         ro[cfg.name] = rollout(
             model,
-            controller_for(model, cfg.constraint, cfg.xi),
+            paper_rhc(model, cfg.xi, cfg.constraint),
             runs,
             T,
             opts.seed,
@@ -522,7 +509,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             cfg = Config(f"{kind}_{xi}", kind, xi)
             r = rollout(
                 model,
-                controller_for(model, kind, xi),
+                paper_rhc(model, xi, kind),
                 opts.stat_runs,
                 T,
                 opts.seed + 1,

@@ -44,10 +44,10 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from sdjls_gym.model import SDJLSModel
+from sdjls_gym.model import SDJLSModel, _check_psd
 
 from .active_set import ActiveSetQP
-from .baselines import _check_gain, _check_positive, _FeedbackPolicy, _fmt
+from .baselines import _check_gain, _check_positive, _FeedbackPolicy
 from .chance import _check_constraint, _check_xi, tightening
 
 __all__ = ["RecedingHorizonController", "UnconstrainedRecedingHorizonController"]
@@ -96,20 +96,7 @@ def _check_Psi(model: SDJLSModel, Psi: Any) -> np.ndarray:
         )
     if not np.all(np.isfinite(Psi)):
         raise ValueError("Psi has a non-finite entry; every entry must be finite")
-    for i, M in enumerate(Psi):
-        scale = max(1.0, float(np.max(np.abs(M))))
-        asym = float(np.max(np.abs(M - M.T)))
-        if asym > 1e-9 * scale:
-            raise ValueError(
-                f"Psi[{i}] is not symmetric (max |M - M'| = {asym:.3g}); each Psi_i must be "
-                f"symmetric positive definite, got {_fmt(M)}"
-            )
-        eig_min = float(np.linalg.eigvalsh(M)[0])
-        if eig_min <= 1e-12 * scale:
-            raise ValueError(
-                f"Psi[{i}] is not positive definite (smallest eigenvalue {eig_min:.3g}); each "
-                f"Psi_i must be symmetric positive definite, got {_fmt(M)}"
-            )
+    _check_psd("Psi", Psi, strict=True)  # the model's own check: "Psi[i] is not ..."
     Psi = 0.5 * (Psi + Psi.transpose(0, 2, 1))
     Psi.setflags(write=False)
     return Psi
