@@ -25,18 +25,14 @@ from itertools import combinations
 
 import numpy as np
 
+from sdjls_gym.model import max_last
+
 __all__ = ["ActiveSetQP"]
 
 
 def _max_over_middle(a: np.ndarray) -> np.ndarray:
-    """``a.max(axis=1)`` for ``a`` (B, j, k) with small ``j``, as ``j - 1`` elementwise maxima
-    (numpy's reductions over short axes are slow)."""
-    if a.shape[0] < 64:  # few rows: one reduction call is cheaper than j - 1 maxima
-        return a.max(axis=1)
-    out = a[:, 0].copy()
-    for j in range(1, a.shape[1]):
-        np.maximum(out, a[:, j], out=out)
-    return out
+    """``a.max(axis=1)`` for ``a`` (B, j, k) with a short axis 1."""
+    return max_last(np.moveaxis(a, 1, -1))
 
 
 class ActiveSetQP:
@@ -84,7 +80,9 @@ class ActiveSetQP:
         # matrix product evaluates every candidate for a whole batch.
         n_rows = self.C.shape[0]
         z_maps, lam_maps, rows_list = [], [], []
-        for size in range(0, min(max_active, d) + 1):
+        # largest active sets first: the usual optima of P3 (rows or bounds active and rho = 0),
+        # so that the lowest-index rule of solve() finds them early
+        for size in range(min(max_active, d), -1, -1):
             for rows in combinations(range(n_rows), size):
                 rows_arr = np.array(rows, dtype=np.int64)
                 CS = self.C[rows_arr]
@@ -105,7 +103,6 @@ class ActiveSetQP:
                 rows_list.append(rows_arr)
         self.n_candidates = len(z_maps)
         self.active_sets = rows_list
-        self._Z = np.vstack(z_maps)  # (ncand * d, d + n_rows): every candidate's z
         # KKT residuals as linear maps of w too: C z_c - h (primal) and -lam_c (dual), all <= 0
         # at a KKT point; stacked so that one product gives every residual of every candidate.
         h_part = np.hstack([np.zeros((n_rows, d)), np.eye(n_rows)])
@@ -117,12 +114,24 @@ class ActiveSetQP:
         )  # (ncand, 2 n_rows, d + n_rows)
         # ordered residual-major (column j * ncand + candidate) so that the worst residual of every
         # candidate is an elementwise maximum of 2 n_rows slices, not a reduction over a short axis
-        self._kkt_T = kkt.transpose(1, 0, 2).reshape(-1, d + n_rows).T.copy()
-        self._Z_T = self._Z.T.copy()
+        self._kkt = kkt
+        self._Zc = np.stack(z_maps)  # (ncand, d, d + n_rows)
+        self._ranges: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self._guess = self.n_candidates - 1  # first call: one pass over every candidate
 
     def one_sided_bounds(self, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
         """``h`` of the one-sided form ``C z <= h`` for bounds ``l, u`` of shape ``(B, c)``."""
         return np.concatenate([upper[:, self._upper_idx], -lower[:, self._lower_idx]], axis=1)
+
+    def _range(self, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+        """KKT-residual and solution maps of candidates ``lo .. hi-1`` (cached)."""
+        key = (lo, hi)
+        if key not in self._ranges:
+            k = self._kkt[lo:hi]  # (h, 2c, d + c), stored residual-major for _max_over_middle
+            kkt_T = k.transpose(1, 0, 2).reshape(-1, k.shape[2]).T.copy()
+            Z_T = self._Zc[lo:hi].reshape(-1, k.shape[2]).T.copy()
+            self._ranges[key] = (kkt_T, Z_T)
+        return self._ranges[key]
 
     def solve(
         self, q: np.ndarray, lower: np.ndarray, upper: np.ndarray
@@ -143,14 +152,31 @@ class ActiveSetQP:
         h = self.one_sided_bounds(np.atleast_2d(lower), np.atleast_2d(upper))
         B, d, nc = q.shape[0], self.d, self.n_candidates
         w = np.concatenate([q, h], axis=1)  # (B, d + c)
-        residual = (w @ self._kkt_T).reshape(B, -1, nc)  # (B, 2c, nc)
-        worst = _max_over_middle(residual)  # (B, nc) largest KKT residual of each candidate
-        tol = self.tol * (1.0 + _max_over_middle(np.abs(w)[:, :, None])[:, 0])
-        ok = worst <= tol[:, None]  # (B, nc): the KKT conditions hold
-        # a convex QP: every KKT point is optimal; take the first candidate that passes
-        best = np.argmax(ok, axis=1)
-        rows = np.arange(B)
-        found = ok[rows, best]
-        z = (w @ self._Z_T).reshape(B, nc, d)[rows, best]
-        z[~found] = np.nan
+        tol = self.tol * (1.0 + max_last(np.abs(w)))
+        z = np.full((B, d), np.nan)
+        found = np.zeros(B, dtype=bool)
+        # The answer is always the lowest-index candidate that passes the KKT test (any KKT
+        # point is optimal; the rule makes the choice, and its rounding, independent of
+        # history). For speed the candidates are tried in two ranges: up to the one that won
+        # most often in the previous call, then the rest for the states not settled yet.
+        g = self._guess
+        todo = np.arange(B)
+        winners = []
+        for lo, hi in ((0, g + 1), (g + 1, nc)):
+            if hi <= lo or todo.size == 0:
+                continue
+            kkt_T, Z_T = self._range(lo, hi)
+            wr = w[todo]
+            residual = (wr @ kkt_T).reshape(todo.size, -1, hi - lo)  # (R, 2c, hi - lo)
+            ok = _max_over_middle(residual) <= tol[todo, None]  # KKT holds
+            best = np.argmax(ok, axis=1)
+            rows = np.arange(todo.size)
+            hit = ok[rows, best]
+            z[todo[hit]] = (wr[hit] @ Z_T).reshape(-1, hi - lo, d)[rows[: hit.sum()], best[hit]]
+            found[todo[hit]] = True
+            winners.append(lo + best[hit])
+            todo = todo[~hit]
+        if winners:
+            counts = np.bincount(np.concatenate(winners), minlength=nc)
+            self._guess = int(counts.argmax()) if counts.any() else self._guess
         return z, found

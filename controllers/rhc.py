@@ -44,7 +44,7 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from sdjls_gym.model import SDJLSModel, _check_psd
+from sdjls_gym.model import SDJLSModel, _check_psd, max_last
 
 from .active_set import ActiveSetQP
 from .baselines import _check_gain, _check_positive, _FeedbackPolicy
@@ -386,9 +386,9 @@ class RecedingHorizonController(_FeedbackPolicy):
         """Smallest ``rho >= 0`` (B,) that makes ``nu`` (B, m) feasible in eq. (constraint:feasibility)."""
         if not self._chance_constrained:
             return np.zeros(nu.shape[0])
-        excess = np.max(d.GAx + nu @ d.fam.GB.T - d.hbar, axis=1)
+        excess = max_last(d.GAx + nu @ d.fam.GB.T - d.hbar)
         # round-off on an active row (|excess| ~ 1e-15) is not a use of the slack: report 0
-        zero = excess <= _RHO_ZERO_TOL * np.maximum(1.0, np.max(np.abs(d.hbar), axis=1))
+        zero = excess <= _RHO_ZERO_TOL * np.maximum(1.0, max_last(np.abs(d.hbar)))
         return np.where(zero, 0.0, excess)
 
     def _objective(self, d: _Step, nu: np.ndarray, rho: np.ndarray) -> np.ndarray:

@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from sdjls_gym.model import SDJLSModel
+from sdjls_gym.model import SDJLSModel, max_last
 
 __all__ = ["SDJLSEnv", "resolve_model", "observation_space", "action_space", "decode_observation"]
 
@@ -162,15 +162,15 @@ def decode_observation(
 def step_info(model: SDJLSModel, x: np.ndarray, mode: Any, k: Any) -> dict[str, Any]:
     """The info entries that describe a state ``(x, mode, k)``; batched over a leading axis."""
     values = model.constraint_values(x, k)
-    violations = values > 0.0
+    inside = max_last(values) <= 0.0
     return {
         "state": np.array(x, dtype=np.float64),
         "mode": mode,
         "k": k,
-        "in_region": ~np.any(violations, axis=-1),
+        "in_region": inside,
         "constraint_values": values,
-        "violations": violations,
-        "cost": np.any(violations, axis=-1).astype(np.float64),
+        "violations": values > 0.0,
+        "cost": np.where(inside, 0.0, 1.0),
     }
 
 

@@ -18,7 +18,7 @@ from sdjls_gym.env import (
     resolve_model,
     step_info,
 )
-from sdjls_gym.model import SDJLSModel
+from sdjls_gym.model import SDJLSModel, max_last
 
 __all__ = ["SDJLSVectorEnv"]
 
@@ -109,7 +109,7 @@ class SDJLSVectorEnv(VectorEnv):
         raw = step_info(self.model, self._x, self._mode.copy(), self._k.copy())
         self._inside = raw["in_region"]  # region test of the current states, reused by step()
         raw["stage_cost"] = stage_cost
-        raw["diverged"] = np.max(np.abs(self._x), axis=-1) > self.divergence_bound
+        raw["diverged"] = max_last(np.abs(self._x)) > self.divergence_bound
         infos: dict[str, Any] = {}
         everyone = np.ones(self.num_envs, dtype=bool)
         for key, value in raw.items():
