@@ -260,7 +260,10 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
     ## Arguments
 
     * `model`: an `SDJLSModel`, a preset name (`"macro"`) or a `to_dict()` dict.
-    * `horizon`: episode length T (default 20).
+    * `horizon`: episode length T (default 20). `SDJLS-Macro-v0` registers `max_episode_steps=20`,
+      whose `TimeLimit` wrapper ends episodes after 20 steps whatever `horizon` says (the
+      environment cannot see that wrapper): to change its horizon pass both,
+      `gym.make("SDJLS-Macro-v0", horizon=40, max_episode_steps=40)`.
     * `action_bound`: bound on |u_i|, float or (m,) (default 200.0).
     * `divergence_bound`: termination threshold on max |x| (default 1e6).
     * `render_mode`: `None` or `"rgb_array"` (a matplotlib picture of the episode so far).
@@ -369,6 +372,10 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         if self._x is None:
             raise RuntimeError("call reset() before step()")
         m = self.model.m
+        if action is None or isinstance(action, (str, bytes)):
+            raise ValueError(
+                f"action = {action!r:.80}; expected the input u_k, {m} finite number(s)"
+            )
         try:
             u = np.array(action, dtype=np.float64)
         except (TypeError, ValueError):

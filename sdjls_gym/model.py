@@ -92,6 +92,23 @@ def _fmt(value: Any) -> str:
 
 
 def _as_float_array(name: str, value: Any) -> np.ndarray:
+    if value is None:
+        raise InvalidModelError(f"{name} is missing (None, or null in a file); expected numbers")
+    try:  # a first look without conversion, for complex and missing entries
+        raw = np.asarray(value) if isinstance(value, (list, tuple, np.ndarray)) else None
+    except (TypeError, ValueError):
+        raw = None  # ragged or unreadable: reported below
+    if raw is not None and raw.dtype.kind == "c":
+        raise InvalidModelError(
+            f"{name} has complex entries (dtype {raw.dtype}); every entry must be a real number"
+        )
+    if raw is not None and raw.dtype == object:
+        missing = [i for i, v in np.ndenumerate(raw) if v is None]
+        if missing:
+            raise InvalidModelError(
+                f"{name} has a missing entry (None, or null in a file) at index "
+                f"{tuple(int(j) for j in missing[0])}; every entry must be a finite number"
+            )
     try:
         arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -498,6 +515,35 @@ class SDJLSModel:
         (...) int64 array (a 0-d array for a single state)
         """
         return self._draw_next_mode(self.in_region(x, k), mode, uniform)
+
+    def sample_next_mode(
+        self,
+        x: np.ndarray,
+        mode: int | np.ndarray,
+        k: int | np.ndarray,
+        rng: np.random.Generator,
+    ) -> np.ndarray:
+        """Draw ``theta_{k+1}`` from row ``pi_{theta_k .}(x_k)`` of eq. (eq:p_tran) with ``rng``.
+
+        The same law as :meth:`next_mode`, which takes the uniforms instead (for replaying a
+        trajectory); this draws one uniform per state with ``rng.random``.
+
+        Parameters
+        ----------
+        x : (..., n)
+        mode : int or (...) int array
+        k : int or (...) int array
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        (...) int64 array (a 0-d array for a single state)
+        """
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"rng = {rng!r:.80}; expected a numpy.random.Generator")
+        inside = self.in_region(x, k)
+        shape = np.broadcast_shapes(np.shape(inside), np.shape(mode))
+        return self._draw_next_mode(inside, mode, rng.random(shape))
 
     def _draw_next_mode(
         self, inside: np.ndarray, mode: int | np.ndarray, uniform: np.ndarray | float

@@ -159,6 +159,9 @@ class SDJLSVectorEnv(VectorEnv):
             raise ValueError("actions contain NaN or inf; expected finite numbers")
         u = np.clip(u, self._low, self._high)
 
+        reset = self._prev_done
+        if reset.any():  # these rows restart below; keep a diverged state out of the arithmetic
+            self._x[reset] = model.x0
         rng = self.np_random
         stage_cost = model.stage_cost(self._x, self._mode, u)
         w = model.sample_noise(rng, (B,))
@@ -167,7 +170,6 @@ class SDJLSVectorEnv(VectorEnv):
         )
         k_new = self._k + 1
 
-        reset = self._prev_done
         if np.any(reset):
             count = int(reset.sum())
             # autoreset starts from the model's x0 and mode0, as a reset without options

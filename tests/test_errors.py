@@ -220,6 +220,19 @@ CASES = [
         "mode0-N",
     ),
     case(lambda c: model(c, mode0=-1), M, r"^mode0 = -1 is out of range", "mode0-negative"),
+    case(lambda c: model(c, G=None), M, r"^G is missing \(None, or null in a file\)", "G-none"),
+    case(
+        lambda c: model(c, H0=[None, 1.0]),
+        M,
+        r"^H0 has a missing entry \(None, or null in a file\) at index \(0,\)",
+        "H0-null-entry",
+    ),
+    case(
+        lambda c: model(c, Q=np.eye(2) * (1 + 1j)),
+        M,
+        r"^Q has complex entries \(dtype complex128\); every entry must be a real number",
+        "Q-complex",
+    ),
     case(lambda c: model(c, mode0=True), M, r"^mode0 = True", "mode0-bool"),
     case(
         lambda c: model(c, mode0=[0.5, 0.6, -0.1]),
@@ -411,8 +424,14 @@ CASES = [
     case(
         lambda c: env_step("a"),
         ValueError,
-        r"action = 'a'; expected 1 finite numbers",
+        r"action = 'a'; expected the input u_k, 1 finite number\(s\)",
         "step-string",
+    ),
+    case(
+        lambda c: env_step(None),
+        ValueError,
+        r"action = None; expected the input u_k, 1 finite number\(s\)",
+        "step-none",
     ),
     # ---- vector environment
     case(

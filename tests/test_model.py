@@ -554,3 +554,33 @@ def test_zero_probability_mode_at_the_edges_of_the_uniform(row, uniform, forbidd
         x0=[0.0],
     )
     assert int(model.next_mode(np.array([0.0]), 0, 0, uniform)) != forbidden
+
+
+def test_sample_next_mode_draws_the_transition_rows_with_a_generator():
+    """Inside and outside the region, the drawn modes follow ``P_in`` / ``P_out``.
+
+    200,000 draws per (region, mode); each frequency is checked against its row entry with a
+    two-sided 99.99% binomial (normal) bound, 18 checks in all. Seeded, so it cannot flake.
+    """
+    model = sdjls_gym.macro()
+    rng = np.random.default_rng(123)
+    draws = 200_000
+    inside_x, outside_x = np.array([0.0, 3.0]), np.array([0.0, 0.0])  # band at k = 0: [2, 5]
+    for x, P in ((inside_x, model.P_in), (outside_x, model.P_out)):
+        for mode in range(model.N):
+            states = np.broadcast_to(x, (draws, model.n))
+            nxt = model.sample_next_mode(states, np.full(draws, mode), 0, rng)
+            freq = np.bincount(nxt, minlength=model.N) / draws
+            sd = np.sqrt(P[mode] * (1 - P[mode]) / draws)
+            assert np.all(np.abs(freq - P[mode]) <= 3.89 * sd), (mode, freq, P[mode])
+
+
+def test_sample_next_mode_is_next_mode_with_the_generator_uniforms():
+    model = sdjls_gym.macro()
+    x = np.random.default_rng(0).normal(size=(50, 2)) * 3
+    modes, k = np.arange(50) % 3, np.arange(50) % 20
+    drawn = model.sample_next_mode(x, modes, k, np.random.default_rng(5))
+    replayed = model.next_mode(x, modes, k, np.random.default_rng(5).random(50))
+    assert np.array_equal(drawn, replayed)
+    with pytest.raises(TypeError, match="expected a numpy.random.Generator"):
+        model.sample_next_mode(x, modes, k, 5)

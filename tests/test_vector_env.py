@@ -293,3 +293,30 @@ def test_vector_env_and_single_env_agree_in_distribution(paper_policy):
     assert np.all(np.abs(freq - p) / np.sqrt(p * (1 - p) / VECTOR_EPISODES) < Z_CRIT), freq
     # every mode is visited at T, so the mode comparison is not vacuous
     assert np.all(np.bincount(vec_modeT, minlength=3) > 500)
+
+
+def test_autoreset_after_a_huge_divergence_does_not_overflow():
+    """A state far past the divergence bound is restarted without any arithmetic on it.
+
+    With ``A = 1e200 I`` the first step diverges to ~1e200; squaring it in the stage cost or
+    multiplying it by ``A`` again in the autoreset step would overflow (a RuntimeWarning, an error
+    in this suite), and the reset rows must come back exactly at ``x0``.
+    """
+    huge = SDJLSModel(
+        A=[np.eye(2) * 1e200],
+        B=[[0.0], [1.0]],
+        P_in=[[1.0]],
+        P_out=[[1.0]],
+        G=[[0.0, 1.0]],
+        H0=[1.0],
+        Q=np.eye(2),
+        R=[[1.0]],
+        x0=[1.0, 1.0],
+    )
+    envs = SDJLSVectorEnv(2, model=huge, horizon=5)
+    envs.reset(seed=0)
+    _, _, terminated, _, infos = envs.step(np.zeros((2, 1)))
+    assert terminated.all() and infos["diverged"].all()
+    _, reward, terminated, truncated, infos = envs.step(np.zeros((2, 1)))
+    assert np.array_equal(infos["state"], np.ones((2, 2))) and np.all(infos["k"] == 0)
+    assert np.all(reward == 0.0) and not terminated.any() and not truncated.any()

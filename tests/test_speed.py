@@ -1,0 +1,50 @@
+"""The speed benchmark's quick mode runs end to end and its correctness checks hold.
+
+No timing is asserted here (the machines are shared and noisy); timings are read from the
+committed ``results/speed/`` run. What is asserted is what the benchmark must get right whatever
+the load: every section is written, and the decisions it times agree with the references.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from benchmarks import speed
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory):
+    out = tmp_path_factory.mktemp("speed")
+    result = speed.main(["--quick", "--out", str(out)])
+    return out, result
+
+
+def test_quick_run_writes_json_and_markdown(quick):
+    out, result = quick
+    data = json.loads((out / "speed.json").read_text())
+    assert data == json.loads(json.dumps(result))
+    assert {"command", "machine", "targets", "env_step", "act", "batched", "scaling"} <= set(data)
+    text = (out / "SPEED.md").read_text()
+    assert "python -m benchmarks.speed" in text
+    assert text.count("\n|") >= 8  # the targets table and the scaling tables
+
+
+def test_timed_decisions_agree_with_the_references(quick):
+    _, result = quick
+    tol = result["targets"]["agreement_tol"]
+    assert tol == 1e-6
+    diffs = result["act"]["max_abs_diff_u"]
+    assert set(diffs) >= {"rebuild", "parametric", "active_set"}
+    assert max(diffs.values()) <= tol, diffs
+    assert result["batched"]["max_abs_diff_act_batch_vs_act"] <= tol
+
+
+def test_every_measurement_is_a_positive_finite_number(quick):
+    _, result = quick
+    for section in ("env_step", "act", "batched"):
+        for key, value in result[section].items():
+            if isinstance(value, float):
+                assert 0.0 < value < float("inf") or key.startswith("max_abs_diff"), (key, value)
+    assert all(row["status"] == "ok" for row in result["scaling"]["synthesis_and_act"])
