@@ -4,8 +4,9 @@ Run ``python -m benchmarks.reproduce_paper --help`` for the options. With the de
 to ``results/paper/``: the paper's figures (a sample mode sequence, its optimal cost J*_k, the
 incomes of the Monte Carlo runs under individual and joint chance constraints and for
 xi = 0.95, 0.5, 0.3), two figures beyond the paper (calibration of the violation frequency
-against 1 - xi, and E||x_k||^2 against the Proposition 1 bound), ``summary.json``,
-``summary.csv`` and ``REPORT.md``, whose every number is computed here.
+against 1 - xi, and E||x_k||^2 against the Proposition 1 bound), ``summary.json`` (every
+statistic), ``summary.csv`` (one line per configuration), ``summary_per_step.csv`` (one line per
+configuration, step k and row) and ``REPORT.md``, whose every number is computed here.
 
 Two sample sizes are used: ``--runs`` trajectories are drawn in the income figures (the paper
 draws 50), and ``--stat-runs`` trajectories per configuration back every statistic and every
@@ -18,6 +19,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import re
 import sys
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -100,31 +102,79 @@ PAPER_CONFIGS = [
 ]
 
 
-def summarize(cfg: Config, ro: Rollouts) -> dict[str, Any]:
-    """The statistics of one configuration (see the module docstring of the report)."""
+def _interval(lo: float, hi: float) -> list[float]:
+    """A 95% interval for the files, rounded outwards to 6 decimals (the files stay small)."""
+    return [
+        float(np.clip(np.floor(lo * 1e6) / 1e6, 0.0, 1.0)),
+        float(np.clip(np.ceil(hi * 1e6) / 1e6, 0.0, 1.0)),
+    ]
+
+
+def row_labels(model) -> list[str]:
+    """What a violation of each row of ``G x <= H_k`` means, e.g. ``x(2) below the band``."""
+    labels = []
+    for g in np.asarray(model.G, dtype=np.float64):
+        (nz,) = np.nonzero(g)
+        if len(nz) == 1:
+            side = "below" if g[nz[0]] < 0 else "above"
+            labels.append(f"x({nz[0] + 1}) {side} the band")
+        else:
+            labels.append("row of G x <= H_k")
+    return labels
+
+
+SCHEMA = {
+    "rows": "what a violation of row j of G x <= H_k means (row indices are 0-based)",
+    "paper_configs, calibration.<kind>[]": "one configuration each; overall statistics pool "
+    "runs x steps states, per_step[] holds one entry per checked state x_k (k = k_next = 1..steps)",
+    "violation_any": "overall: count, freq and 95% Wilson interval (wilson95) of any-row violations",
+    "violation_rows[j]": "overall: count, freq and wilson95 of row j",
+    "per_step[].violation_any, .violation_any_count, .wilson95": "any-row frequency, count and "
+    "its 95% Wilson interval over the runs at that step",
+    "per_step[].violation_rows, .violation_rows_count, .violation_rows_wilson95": "per-row "
+    "frequencies, counts and [low, high] 95% Wilson intervals at that step (lists over rows)",
+    "rho_positive_share, rho_max": f"share of steps with rho_k > {RHO_TOL:g} and the largest rho_k",
+    "episode_cost": "mean episode cost with a 95% Student-t interval (ci95)",
+}
+
+
+def summarize(cfg: Config, ro: Rollouts, seed: int) -> dict[str, Any]:
+    """The statistics of one configuration.
+
+    Overall frequencies pool the ``runs x T`` checked states (their Wilson intervals treat the
+    steps as independent samples); per-step frequencies are over the ``runs`` independent
+    episodes, so their Wilson intervals are exact binomial intervals.
+    """
     runs, T = ro.rho.shape
     r = ro.violations.shape[-1]
-    per_step_any = ro.any_violation.sum(axis=0)
+    per_step_any = ro.any_violation.sum(axis=0)  # (T,)
     per_step_rows = ro.violations.sum(axis=0)  # (T, r)
-    lo, hi = wilson(per_step_any, runs)
+    any_lo, any_hi = wilson(per_step_any, runs)
+    step_rows_lo, step_rows_hi = wilson(per_step_rows, runs)  # (T, r) each
     total = runs * T
     overall_any = int(ro.any_violation.sum())
     overall_rows = ro.violations.sum(axis=(0, 1))
     cost_mean, cost_lo, cost_hi = mean_ci(ro.episode_cost)
     rows_lo, rows_hi = wilson(overall_rows, total)
-    any_lo, any_hi = wilson(overall_any, total)
+    all_lo, all_hi = wilson(overall_any, total)
     return {
         "name": cfg.name,
         "constraint": cfg.constraint,
         "xi": cfg.xi,
+        "seed": seed,
         "runs": runs,
         "steps": T,
-        "violation_any": {"freq": overall_any / total, "wilson95": [float(any_lo), float(any_hi)]},
+        "violation_any": {
+            "count": overall_any,
+            "freq": overall_any / total,
+            "wilson95": _interval(all_lo, all_hi),
+        },
         "violation_rows": [
             {
                 "row": j,
+                "count": int(overall_rows[j]),
                 "freq": float(overall_rows[j] / total),
-                "wilson95": [float(rows_lo[j]), float(rows_hi[j])],
+                "wilson95": _interval(rows_lo[j], rows_hi[j]),
             }
             for j in range(r)
         ],
@@ -132,8 +182,13 @@ def summarize(cfg: Config, ro: Rollouts) -> dict[str, Any]:
             {
                 "k_next": k + 1,
                 "violation_any": float(per_step_any[k] / runs),
-                "wilson95": [float(lo[k]), float(hi[k])],
+                "wilson95": _interval(any_lo[k], any_hi[k]),
+                "violation_any_count": int(per_step_any[k]),
                 "violation_rows": (per_step_rows[k] / runs).tolist(),
+                "violation_rows_count": per_step_rows[k].tolist(),
+                "violation_rows_wilson95": [
+                    _interval(step_rows_lo[k, j], step_rows_hi[k, j]) for j in range(r)
+                ],
             }
             for k in range(T)
         ],
@@ -150,6 +205,11 @@ def two_proportion_p(s1: int, n1: int, s2: int, n2: int) -> float:
     p = (s1 + s2) / (n1 + n2)
     se = np.sqrt(p * (1 - p) * (1 / n1 + 1 / n2))
     return float(stats.norm.sf((s1 / n1 - s2 / n2) / se)) if se > 0 else float(s1 / n1 <= s2 / n2)
+
+
+def format_p(p: float) -> str:
+    """A p-value for the report; one that underflows the float range reads ``p < 1e-300``."""
+    return "p < 1e-300" if p < 1e-300 else f"p = {p:.2g}"
 
 
 def check_claims(s: dict[str, dict], ro: dict[str, Rollouts]) -> list[dict[str, Any]]:
@@ -193,7 +253,7 @@ def check_claims(s: dict[str, dict], ro: dict[str, Rollouts]) -> list[dict[str, 
             "paper": "more constraint violations with individual probabilistic constraints",
             "measured": (
                 f"any-row frequency individual {pct(ind['violation_any']['freq'])}, joint "
-                f"{pct(joint['violation_any']['freq'])} (one-sided two-proportion test p = {p_value:.2g})"
+                f"{pct(joint['violation_any']['freq'])} (one-sided two-proportion test {format_p(p_value)})"
             ),
             "agree": joint["violation_any"]["freq"] < ind["violation_any"]["freq"]
             and p_value < 0.05,
@@ -216,8 +276,8 @@ def check_claims(s: dict[str, dict], ro: dict[str, Rollouts]) -> list[dict[str, 
             "paper": "the larger the level of constraint satisfaction xi, the better the incomes meet the required target",
             "measured": "any-row violation frequency at xi = 0.3, 0.5, 0.85, 0.95: "
             + ", ".join(pct(f) for f in freqs)
-            + " (one-sided tests of each decrease: p = "
-            + ", ".join(f"{p:.2g}" for p in pairs_p)
+            + " (one-sided tests of each decrease: "
+            + ", ".join(format_p(p) for p in pairs_p)
             + ")",
             "agree": all(a > b for a, b in zip(freqs, freqs[1:], strict=False))
             and max(pairs_p) < 0.05,
@@ -247,7 +307,17 @@ def _band(ax, model, T: int) -> None:
     ax.plot(ks, H[:, 1], "r-", lw=1.5)
 
 
-def _incomes(ax, model, ro: Rollouts, runs: int, title: str) -> None:
+def _time_axis(ax) -> None:
+    """k is an integer (quarters): integer ticks only, preferably whole years (steps of 4)."""
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True, steps=[1, 2, 4, 5, 10]))
+    ax.set_xlabel("k (quarters)")
+
+
+def _incomes(
+    ax, model, ro: Rollouts, runs: int, title: str, legend: bool = True, ylabel: bool = True
+) -> None:
     T = ro.x.shape[1] - 1
     ks = np.arange(T + 1)
     for i in range(min(runs, ro.runs)):
@@ -260,11 +330,94 @@ def _incomes(ax, model, ro: Rollouts, runs: int, title: str) -> None:
             label="income $x_k(2)$" if i == 0 else None,
         )
     _band(ax, model, T)
-    ax.set_xlabel("k (quarters)")
-    ax.set_ylabel("national income $x_k(2)$")
+    _time_axis(ax)
+    if ylabel:
+        ax.set_ylabel("national income $x_k(2)$")
     ax.set_title(title)
-    ax.legend(loc="upper left", fontsize=8)
+    if legend:
+        ax.legend(loc="upper left")
     ax.grid(alpha=0.3)
+
+
+def _calibration(fig, calib: dict, labels: list[str], T: int) -> None:
+    """(a) each row's violation frequency, (b) the any-row frequency, against 1 - xi."""
+    from matplotlib.lines import Line2D
+
+    colors = dict(zip(KINDS, ("C0", "C1", "C2"), strict=True))
+    row_style = (("o", "-"), ("^", ":"))
+    axes = fig.subplots(1, 2)
+    for ax in axes:
+        ax.plot([0, 1], [0, 1], "k--", lw=1)
+        ax.set_xlim(0, 1)
+        ax.set_ylim(0, 1)
+        ax.set_aspect("equal")
+        ax.set_xlabel("allowed violation probability $1 - \\xi$")
+        ax.grid(alpha=0.3)
+
+    def draw(ax, x, y, lo, hi, feasible, color, marker, ls, alpha=1.0) -> None:
+        ax.plot(x, y, ls, color=color, lw=1, alpha=0.6 * alpha)
+        ax.errorbar(x, y, yerr=[y - lo, hi - y], fmt="none", ecolor=color, alpha=alpha)
+        ax.plot(x[feasible], y[feasible], marker, color=color, alpha=alpha, ms=6)
+        ax.plot(x[~feasible], y[~feasible], marker, mfc="white", color=color, alpha=alpha, ms=6)
+
+    for kind in KINDS:
+        pts = calib[kind]
+        x = np.array([1 - p["xi"] for p in pts])
+        feasible = np.array([p["rho_positive_share"] == 0 for p in pts])
+        for j, (marker, ls) in enumerate(row_style[: len(pts[0]["violation_rows"])]):
+            rows = [p["violation_rows"][j] for p in pts]
+            y = np.array([row["freq"] for row in rows])
+            lo, hi = np.array([row["wilson95"] for row in rows]).T
+            draw(axes[0], x, y, lo, hi, feasible, colors[kind], marker, ls)
+        y = np.array([p["violation_any"]["freq"] for p in pts])
+        lo, hi = np.array([p["violation_any"]["wilson95"] for p in pts]).T
+        draw(
+            axes[1],
+            x,
+            y,
+            lo,
+            hi,
+            feasible,
+            colors[kind],
+            "s",
+            "-",
+            0.35 if kind == "individual" else 1.0,
+        )
+
+    guarantee = Line2D([], [], color="k", ls="--", lw=1, label="$y = 1 - \\xi$ (the guarantee)")
+    hollow = Line2D(
+        [],
+        [],
+        ls="none",
+        marker="o",
+        mfc="white",
+        color="gray",
+        label="hollow: $\\rho_k > 0$ (no guarantee)",
+    )
+    kind_handles = [Line2D([], [], color=colors[k], lw=2, label=k) for k in KINDS]
+    row_handles = [
+        Line2D([], [], color="k", marker=m, ls=ls, label=f"row {j}: {labels[j]}")
+        for j, (m, ls) in enumerate(row_style[: len(labels)])
+    ]
+    axes[0].set_ylabel("observed per-row violation frequency")
+    axes[0].set_title("(a) each row (guaranteed for all three kinds)")
+    axes[0].legend(
+        handles=[guarantee, *kind_handles, *row_handles, hollow], loc="upper left", fontsize=9
+    )
+    any_handles = [
+        Line2D([], [], color=colors["joint"], marker="s", label="joint: any row"),
+        Line2D([], [], color=colors["bonferroni"], marker="s", label="bonferroni: any row"),
+        Line2D(
+            [], [], color=colors["individual"], marker="s", alpha=0.35,
+            label="individual: any row\n(not guaranteed, shown for reference)",
+        ),
+    ]  # fmt: skip
+    axes[1].set_ylabel("observed any-row violation frequency")
+    axes[1].set_title("(b) any row (guaranteed for joint, Bonferroni)")
+    axes[1].legend(handles=[guarantee, *any_handles, hollow], loc="upper left", fontsize=9)
+    fig.suptitle(
+        f"Calibration: {calib['runs']} runs x {T} steps per point, bars are 95% Wilson intervals"
+    )
 
 
 def make_figures(
@@ -277,126 +430,154 @@ def make_figures(
 
     out = opts.out
     names = []
+    style = {
+        "font.size": 11,
+        "axes.titlesize": 12,
+        "axes.labelsize": 11,
+        "legend.fontsize": 10,
+        "xtick.labelsize": 10,
+        "ytick.labelsize": 10,
+    }
 
     def save(fig, name: str) -> None:
-        fig.tight_layout()
-        fig.savefig(out / name, dpi=110)
+        fig.savefig(out / name, dpi=100)
         plt.close(fig)
         names.append(name)
 
-    sample = ro_fig["individual_0.85"]
-    T = sample.x.shape[1] - 1
-    fig, ax = plt.subplots(figsize=(5.5, 3.2))
-    ax.step(np.arange(T + 1), sample.mode[0] + 1, where="post", color="k")
-    ax.set_yticks([1, 2, 3], [f"{i + 1}: {nm}" for i, nm in enumerate(model.mode_names)])
-    ax.set_xlabel("k (quarters)")
-    ax.set_ylabel(r"mode $\theta_k$")
-    ax.set_title("A sample evolution of $\\theta_k$ (fig. ex_mode)")
-    ax.grid(alpha=0.3)
-    save(fig, "fig_mode.png")
+    with plt.rc_context(style):
+        sample = ro_fig["individual_0.85"]
+        T = sample.x.shape[1] - 1
+        fig, ax = plt.subplots(figsize=(6, 3.4), layout="constrained")
+        ax.step(np.arange(T + 1), sample.mode[0] + 1, where="post", color="k")
+        ax.set_yticks([1, 2, 3], [f"{i + 1}: {nm}" for i, nm in enumerate(model.mode_names)])
+        _time_axis(ax)
+        ax.set_ylabel(r"mode $\theta_k$")
+        ax.set_title("A sample evolution of $\\theta_k$ (fig. ex_mode)")
+        ax.grid(alpha=0.3)
+        save(fig, "fig_mode.png")
 
-    fig, ax = plt.subplots(figsize=(5.5, 3.2))
-    ax.plot(np.arange(T), sample.J[0], "o-", color="C1")
-    ax.set_xlabel("k (quarters)")
-    ax.set_ylabel("$J_k^*$")
-    ax.set_title("Optimal cost $J_k^*$ of the same sample (fig. ex_input)")
-    ax.grid(alpha=0.3)
-    save(fig, "fig_cost.png")
+        fig, ax = plt.subplots(figsize=(6, 3.4), layout="constrained")
+        ax.plot(np.arange(T), sample.J[0], "o-", color="C1")
+        _time_axis(ax)
+        ax.set_ylabel("$J_k^*$")
+        ax.set_title("Optimal cost $J_k^*$ of the same sample (fig. ex_input)")
+        ax.grid(alpha=0.3)
+        save(fig, "fig_cost.png")
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
-    _incomes(
-        axes[0],
-        model,
-        ro_fig["individual_0.85"],
-        opts.runs,
-        "Individual constraints, $\\xi=0.85$ (fig. ex_stateMC)",
-    )
-    _incomes(
-        axes[1],
-        model,
-        ro_fig["joint_0.85"],
-        opts.runs,
-        "Joint constraints, $\\xi=0.85$ (fig. ex_state_joint)",
-    )
-    save(fig, "fig_income_individual_joint.png")
+        fig, axes = plt.subplots(1, 2, figsize=(10, 3.9), sharey=True, layout="constrained")
+        _incomes(
+            axes[0],
+            model,
+            ro_fig["individual_0.85"],
+            opts.runs,
+            "Individual, $\\xi=0.85$ (fig. ex_stateMC)",
+        )
+        _incomes(
+            axes[1],
+            model,
+            ro_fig["joint_0.85"],
+            opts.runs,
+            "Joint, $\\xi=0.85$ (fig. ex_state_joint)",
+            legend=False,
+            ylabel=False,
+        )
+        save(fig, "fig_income_individual_joint.png")
 
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6), sharey=True)
-    for ax, xi in zip(axes, (0.95, 0.5, 0.3), strict=True):
-        _incomes(ax, model, ro_fig[f"individual_{xi}"], opts.runs, f"$\\xi = {xi}$")
-    fig.suptitle("Individual constraints with different $\\xi$ (fig. eco_income_compare)")
-    save(fig, "fig_income_xi.png")
+        fig, axes = plt.subplots(1, 3, figsize=(10, 3.9), sharey=True, layout="constrained")
+        for i, (ax, xi) in enumerate(zip(axes, (0.95, 0.5, 0.3), strict=True)):
+            _incomes(
+                ax,
+                model,
+                ro_fig[f"individual_{xi}"],
+                opts.runs,
+                f"$\\xi = {xi}$",
+                legend=i == 0,
+                ylabel=i == 0,
+            )
+        fig.suptitle("Individual constraints with different $\\xi$ (fig. eco_income_compare)")
+        save(fig, "fig_income_xi.png")
 
-    fig, ax = plt.subplots(figsize=(6, 5))
-    ax.plot([0, 1], [0, 1], "k--", lw=1, label="$y = 1 - \\xi$ (the guarantee)")
-    for kind, color in zip(KINDS, ("C0", "C1", "C2"), strict=True):
-        pts = calib[kind]
-        x = np.array([1 - p["xi"] for p in pts])
-        if kind == "individual":
-            y = np.array([max(row["freq"] for row in p["violation_rows"]) for p in pts])
-            label = "individual: largest per-row frequency"
-        else:
-            y = np.array([p["violation_any"]["freq"] for p in pts])
-            label = f"{kind}: any-row frequency"
-        feasible = np.array([p["rho_positive_share"] == 0 for p in pts])
-        ax.plot(x, y, "-", color=color, lw=1, alpha=0.6)
-        ax.plot(x[feasible], y[feasible], "o", color=color, label=label)
-        ax.plot(x[~feasible], y[~feasible], "o", mfc="none", color=color)
-    ax.plot(
-        [],
-        [],
-        "o",
-        mfc="none",
-        color="gray",
-        label="hollow: $\\rho_k > 0$ at some step (no guarantee)",
-    )
-    ax.set_xlabel("allowed violation probability $1 - \\xi$")
-    ax.set_ylabel("observed violation frequency")
-    ax.set_title(f"Calibration ({calib['runs']} runs x {T} steps per point)")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    save(fig, "fig_calibration.png")
+        fig = plt.figure(figsize=(11, 6), layout="constrained")
+        _calibration(fig, calib, row_labels(model), T)
+        save(fig, "fig_calibration.png")
 
-    fig, ax = plt.subplots(figsize=(6, 4))
-    ks = np.arange(T + 1)
-    ax.semilogy(ks, ms["empirical"], "o-", label=f"Monte Carlo $E\\|x_k\\|^2$ ({ms['runs']} runs)")
-    ax.semilogy(
-        ks,
-        ms["bound"],
-        "-",
-        color="C3",
-        label="Proposition 1 bound $\\beta_1\\|x_0\\|^2 q^k + \\beta_2$",
-    )
-    ax.set_xlabel("k (quarters)")
-    ax.set_ylabel("$E\\|x_k\\|^2$")
-    ax.set_title("Mean-square bound (xi = 0.85, individual)")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3, which="both")
-    save(fig, "fig_mean_square.png")
+        fig, ax = plt.subplots(figsize=(6, 4), layout="constrained")
+        ks = np.arange(T + 1)
+        ax.semilogy(
+            ks, ms["empirical"], "o-", label=f"Monte Carlo $E\\|x_k\\|^2$ ({ms['runs']} runs)"
+        )
+        ax.semilogy(
+            ks,
+            ms["bound"],
+            "-",
+            color="C3",
+            label="Proposition 1 bound $\\beta_1\\|x_0\\|^2 q^k + \\beta_2$",
+        )
+        _time_axis(ax)
+        ax.set_ylabel("$E\\|x_k\\|^2$")
+        ax.set_title("Mean-square bound ($\\xi = 0.85$, individual)")
+        ax.legend(fontsize=9)
+        ax.grid(alpha=0.3, which="both")
+        save(fig, "fig_mean_square.png")
     return names
 
 
 # ---------------------------------------------------------------------------- outputs
-def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+_NUMBER_LIST = re.compile(r"\[\s*(-?[0-9][-+.eE0-9]*(?:,\s*-?[0-9][-+.eE0-9]*)*)\s*\]")
+
+
+def dump_json(data: Any) -> str:
+    """Indented JSON with each list of numbers on one line (the file stays small and readable)."""
+
+    def one_line(m: re.Match) -> str:
+        return "[" + ", ".join(item.strip() for item in m.group(1).split(",")) + "]"
+
+    return _NUMBER_LIST.sub(one_line, json.dumps(data, indent=1)) + "\n"
+
+
+def _configurations(summary: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    """``(study, configuration summary)`` for the paper's runs, then the calibration grid."""
+    calib = summary["calibration"]
+    return [("paper", s) for s in summary["paper_configs"]] + [
+        ("calibration", p) for kind in KINDS for p in calib[kind]
+    ]
+
+
+def write_csv(path: Path, summary: dict[str, Any]) -> int:
+    """``summary.csv``: one line per configuration (overall statistics); returns the line count.
+
+    ``study`` is ``paper`` (the five configurations of section 6, seed ``--seed``) or
+    ``calibration`` (the grid of the calibration figure, seed ``--seed + 1``): both hold a
+    configuration named e.g. ``individual_0.85``.
+    """
+    configs = _configurations(summary)
+    r = len(configs[0][1]["violation_rows"])
+    per_row = [f"violation_row{j}{end}" for j in range(r) for end in ("", "_lo", "_hi")]
     header = [
-        "name", "constraint", "xi", "runs", "steps", "violation_any", "violation_any_lo", "violation_any_hi",
-        "violation_row_max", "rho_positive_share", "rho_max", "episode_cost_mean", "episode_cost_lo",
-        "episode_cost_hi", "solver_fallbacks",
+        "study", "configuration", "constraint", "xi", "seed", "runs", "steps",
+        "violation_any", "violation_any_lo", "violation_any_hi", *per_row, "violation_row_max",
+        "rho_positive_share", "rho_max", "episode_cost_mean", "episode_cost_lo", "episode_cost_hi",
+        "solver_fallbacks",
     ]  # fmt: skip
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(header)
-        for s in rows:
+        for study, s in configs:
+            rows = s["violation_rows"]
             w.writerow(
                 [
+                    study,
                     s["name"],
                     s["constraint"],
                     s["xi"],
+                    s["seed"],
                     s["runs"],
                     s["steps"],
                     f"{s['violation_any']['freq']:.6f}",
                     f"{s['violation_any']['wilson95'][0]:.6f}",
                     f"{s['violation_any']['wilson95'][1]:.6f}",
-                    f"{max(row['freq'] for row in s['violation_rows']):.6f}",
+                    *(f"{v:.6f}" for row in rows for v in (row["freq"], *row["wilson95"])),
+                    f"{max(row['freq'] for row in rows):.6f}",
                     f"{s['rho_positive_share']:.6f}",
                     f"{s['rho_max']:.6g}",
                     f"{s['episode_cost']['mean']:.6g}",
@@ -405,10 +586,54 @@ def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
                     s["solver_fallbacks"],
                 ]  # fmt: skip
             )
+    return len(configs)
+
+
+PER_STEP_HEADER = [
+    "study", "configuration", "constraint", "xi", "runs", "k", "row", "violations", "frequency",
+    "wilson95_lo", "wilson95_hi",
+]  # fmt: skip
+
+
+def write_per_step_csv(path: Path, summary: dict[str, Any]) -> int:
+    """``summary_per_step.csv``, long format: one line per (configuration, k, row or ``any``).
+
+    ``k`` is the time of the checked state x_k (1..T, ``k_next`` in summary.json); ``row`` is the
+    row of ``G x <= H_k`` (0-based, as in summary.json) or ``any``; ``violations`` counts the
+    runs whose x_k violates it, ``frequency = violations / runs``, with its 95% Wilson interval
+    over the independent runs. Returns the number of lines written (without the header).
+    """
+    n = 0
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(PER_STEP_HEADER)
+        for study, s in _configurations(summary):
+            head = [study, s["name"], s["constraint"], s["xi"], s["runs"]]
+            for step in s["per_step"]:
+                by_row = (
+                    step["violation_rows_count"],
+                    step["violation_rows"],
+                    step["violation_rows_wilson95"],
+                )
+                cells = [(j, *cell) for j, cell in enumerate(zip(*by_row, strict=True))]
+                cells.append(
+                    ("any", step["violation_any_count"], step["violation_any"], step["wilson95"])
+                )
+                for row, count, freq, (lo, hi) in cells:
+                    w.writerow(
+                        [*head, step["k_next"], row, count, f"{freq:.6f}", f"{lo:.6f}", f"{hi:.6f}"]
+                    )
+                    n += 1
+    return n
 
 
 def write_report(
-    opts: Options, argv: list[str], summary: dict[str, Any], figures: list[str]
+    opts: Options,
+    argv: list[str],
+    summary: dict[str, Any],
+    figures: list[str],
+    n_configs: int,
+    n_per_step: int,
 ) -> str:
     cmd = "python -m benchmarks.reproduce_paper" + ("" if not argv else " " + " ".join(argv))
     lines = [
@@ -418,7 +643,8 @@ def write_report(
         f"Statistics use {opts.stat_runs} runs x {HORIZON} steps per configuration (seed {opts.seed}); "
         f"the income figures draw the first {opts.runs} runs, as the paper draws 50.",
         "Violation frequencies count the states x_1 .. x_20 against the band H_k of their own time; "
-        "overall intervals are 95% Wilson intervals that treat the steps as independent samples.",
+        "overall intervals are 95% Wilson intervals that treat the steps as independent samples, "
+        "per-step intervals are 95% Wilson intervals over the independent runs.",
         "",
         "## The paper's claims",
         "",
@@ -458,6 +684,21 @@ def write_report(
         f"beta1 = {ms['beta1']:.4g}, beta2 = {ms['beta2']:.4g}. Largest ratio of the Monte Carlo E||x_k||^2 "
         f"(upper 95% limit) to the bound over k: {ms['max_ratio']:.3g} (below 1 means the bound holds).",
         "",
+        "## Files",
+        "",
+        "- `summary.json`: every statistic; `schema` explains the keys. Per configuration: "
+        "`violation_any` and `violation_rows[j]` (count, freq, wilson95), `per_step[]` with "
+        "`violation_any`, `violation_any_count`, `wilson95` (any row) and `violation_rows`, "
+        "`violation_rows_count`, `violation_rows_wilson95` (each row), `rho_positive_share`, "
+        "`rho_max`, `episode_cost` (mean, ci95), `runs`.",
+        f"- `summary.csv`: one line per configuration ({n_configs} lines and a header): overall any-row and "
+        "per-row violation frequencies with Wilson bounds, rho, episode cost. `study` is `paper` "
+        "(section 6 configurations) or `calibration` (the grid of the calibration figure).",
+        f"- `summary_per_step.csv`: long format, one line per (configuration, k, row) "
+        f"({n_per_step} lines and a header): `k` is the time of the checked state x_k, `row` is "
+        + ", ".join(f"`{j}` ({label})" for j, label in enumerate(summary["rows"]))
+        + " or `any`; `violations`, `frequency`, `wilson95_lo`, `wilson95_hi`.",
+        "",
         "## Figures",
         "",
     ]
@@ -466,7 +707,7 @@ def write_report(
         "fig_cost.png": "The optimal cost J*_k of the same sample (paper fig. ex_input)",
         "fig_income_individual_joint.png": "Incomes under individual and joint constraints (figs. ex_stateMC, ex_state_joint)",
         "fig_income_xi.png": "Incomes for xi = 0.95, 0.5, 0.3 (fig. eco_income_compare)",
-        "fig_calibration.png": "Observed violation frequency against 1 - xi (beyond the paper)",
+        "fig_calibration.png": "Observed per-row (a) and any-row (b) violation frequency against 1 - xi (beyond the paper)",
         "fig_mean_square.png": "E||x_k||^2 against the Proposition 1 bound (beyond the paper)",
     }
     for name in figures:
@@ -499,7 +740,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             ACTION_BOUND,
             bar,
         )
-        summaries[cfg.name] = summarize(cfg, ro[cfg.name])
+        summaries[cfg.name] = summarize(cfg, ro[cfg.name], opts.seed)
 
     calib: dict[str, Any] = {"runs": opts.stat_runs}
     for kind in KINDS:
@@ -516,7 +757,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 ACTION_BOUND,
                 bar,
             )
-            calib[kind].append(summarize(cfg, r))
+            calib[kind].append(summarize(cfg, r, opts.seed + 1))
     bar.close()
 
     cert = verify_mean_square_bound(model, PAPER_K, nu_bound=PAPER_RHC["nu_bound"])
@@ -542,18 +783,20 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "command": "python -m benchmarks.reproduce_paper"
         + ("" if not argv else " " + " ".join(argv)),
         "options": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(opts).items()},
+        "rows": row_labels(model),
+        "schema": SCHEMA,
         "paper_configs": [summaries[c.name] for c in PAPER_CONFIGS],
         "calibration": calib,
         "mean_square": mean_square,
         "claims": check_claims(summaries, ro),
         "figures": figures,
     }
-    (opts.out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
-    write_csv(
-        opts.out / "summary.csv",
-        summary["paper_configs"] + [p for kind in KINDS for p in calib[kind]],
+    (opts.out / "summary.json").write_text(dump_json(summary))
+    n_configs = write_csv(opts.out / "summary.csv", summary)
+    n_per_step = write_per_step_csv(opts.out / "summary_per_step.csv", summary)
+    (opts.out / "REPORT.md").write_text(
+        write_report(opts, argv, summary, figures, n_configs, n_per_step)
     )
-    (opts.out / "REPORT.md").write_text(write_report(opts, argv, summary, figures))
     agree = sum(c["agree"] for c in summary["claims"])
     print(f"{agree}/{len(summary['claims'])} claims of section 6 agree; wrote {opts.out}/REPORT.md")
     for c in summary["claims"]:

@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 
 import pytest
 
 from benchmarks import reproduce_paper
 
+STAT_RUNS = 1500
 FIGURES = {
     "fig_mode.png",
     "fig_cost.png",
@@ -28,17 +30,45 @@ FIGURES = {
 def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("paper")
     summary = reproduce_paper.main(
-        ["--runs", "10", "--stat-runs", "1500", "--seed", "7", "--out", str(out), "--no-progress"]
+        [
+            "--runs",
+            "10",
+            "--stat-runs",
+            str(STAT_RUNS),
+            "--seed",
+            "7",
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
     )
     return out, summary
+
+
+def _configs(data):
+    """(study, configuration) for the paper's runs and the calibration grid."""
+    return [("paper", c) for c in data["paper_configs"]] + [
+        ("calibration", p)
+        for k in ("individual", "joint", "bonferroni")
+        for p in data["calibration"][k]
+    ]
+
+
+def _brackets(freq, interval):
+    lo, hi = interval
+    return 0.0 <= lo <= freq <= hi <= 1.0 and lo < hi
 
 
 def test_files_are_written(run):
     out, _ = run
     names = {p.name for p in out.iterdir()}
-    assert FIGURES | {"summary.json", "summary.csv", "REPORT.md"} <= names
+    assert FIGURES | {"summary.json", "summary.csv", "summary_per_step.csv", "REPORT.md"} <= names
     for fig in FIGURES:
-        assert (out / fig).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        png = (out / fig).read_bytes()
+        assert png[:8] == b"\x89PNG\r\n\x1a\n"
+        width = int.from_bytes(png[16:20], "big")
+        assert width <= 1200, (fig, width)  # readable at README page width
+        assert len(png) < 300_000, (fig, len(png))
 
 
 def test_summary_schema(run):
@@ -48,11 +78,14 @@ def test_summary_schema(run):
     assert set(data) >= {
         "command",
         "options",
+        "rows",
+        "schema",
         "paper_configs",
         "calibration",
         "mean_square",
         "claims",
     }
+    assert len(data["rows"]) == 2
     names = [c["name"] for c in data["paper_configs"]]
     assert names == [
         "individual_0.85",
@@ -61,19 +94,127 @@ def test_summary_schema(run):
         "individual_0.5",
         "individual_0.3",
     ]
-    for cfg in data["paper_configs"] + [
-        p for k in ("individual", "joint", "bonferroni") for p in data["calibration"][k]
-    ]:
-        assert cfg["runs"] == 1500 and cfg["steps"] == 20
-        lo, hi = cfg["violation_any"]["wilson95"]
-        assert 0.0 <= lo <= cfg["violation_any"]["freq"] <= hi <= 1.0
+    for _, cfg in _configs(data):
+        runs, steps = cfg["runs"], cfg["steps"]
+        assert runs == STAT_RUNS and steps == 20
+        va = cfg["violation_any"]
+        assert _brackets(va["freq"], va["wilson95"])
+        assert va["freq"] == pytest.approx(va["count"] / (runs * steps))
         assert len(cfg["violation_rows"]) == 2 and len(cfg["per_step"]) == 20
+        for j, row in enumerate(cfg["violation_rows"]):
+            assert row["row"] == j
+            assert _brackets(row["freq"], row["wilson95"]), (cfg["name"], row)
+            assert row["freq"] == pytest.approx(row["count"] / (runs * steps))
+        # a state violating any row violates at least the most violated row, at most the sum
+        row_counts = [row["count"] for row in cfg["violation_rows"]]
+        assert max(row_counts) <= va["count"] <= sum(row_counts)
+        assert [st["k_next"] for st in cfg["per_step"]] == list(range(1, 21))
+        for st in cfg["per_step"]:
+            assert len(st["violation_rows"]) == 2
+            assert len(st["violation_rows_count"]) == 2
+            assert len(st["violation_rows_wilson95"]) == 2
+            assert _brackets(st["violation_any"], st["wilson95"])
+            assert st["violation_any"] == pytest.approx(st["violation_any_count"] / runs)
+            for freq, count, ci in zip(
+                st["violation_rows"],
+                st["violation_rows_count"],
+                st["violation_rows_wilson95"],
+                strict=True,
+            ):
+                assert _brackets(freq, ci), (cfg["name"], st["k_next"], freq, ci)
+                assert freq == pytest.approx(count / runs)
+            assert max(st["violation_rows_count"]) <= st["violation_any_count"]
+            assert st["violation_any_count"] <= sum(st["violation_rows_count"])
+        # the per-step counts add up to the overall counts
+        assert sum(st["violation_any_count"] for st in cfg["per_step"]) == va["count"]
+        for j in range(2):
+            assert sum(st["violation_rows_count"][j] for st in cfg["per_step"]) == row_counts[j]
         assert 0.0 <= cfg["rho_positive_share"] <= 1.0 and cfg["rho_max"] >= 0.0
         c = cfg["episode_cost"]
         assert c["ci95"][0] <= c["mean"] <= c["ci95"][1]
         assert cfg["solver_fallbacks"] == 0
-    rows = list(csv.DictReader((out / "summary.csv").open()))
+
+
+def test_summary_csv_has_one_line_per_configuration(run):
+    out, summary = run
+    with (out / "summary.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
     assert len(rows) == 5 + 3 * len(reproduce_paper.CALIBRATION_XIS)
+    assert set(rows[0]) >= {
+        "study",
+        "configuration",
+        "constraint",
+        "xi",
+        "runs",
+        "violation_any",
+        "violation_any_lo",
+        "violation_any_hi",
+        "violation_row0",
+        "violation_row0_lo",
+        "violation_row0_hi",
+        "violation_row1",
+        "violation_row1_lo",
+        "violation_row1_hi",
+        "rho_positive_share",
+        "rho_max",
+        "episode_cost_mean",
+        "episode_cost_lo",
+        "episode_cost_hi",
+    }
+    assert [(r["study"], r["configuration"]) for r in rows] == [
+        (study, c["name"]) for study, c in _configs(summary)
+    ]
+    for r in rows:
+        for col in ("violation_any", "violation_row0", "violation_row1"):
+            f, lo, hi = (float(r[col + end]) for end in ("", "_lo", "_hi"))
+            assert _brackets(f, (lo, hi)), (r["configuration"], col)
+        assert float(r["episode_cost_lo"]) <= float(r["episode_cost_mean"])
+        assert float(r["episode_cost_mean"]) <= float(r["episode_cost_hi"])
+
+
+def test_per_step_csv_is_long_format(run):
+    out, summary = run
+    with (out / "summary_per_step.csv").open() as fh:
+        header = next(csv.reader(fh))
+    assert header == [
+        "study",
+        "configuration",
+        "constraint",
+        "xi",
+        "runs",
+        "k",
+        "row",
+        "violations",
+        "frequency",
+        "wilson95_lo",
+        "wilson95_hi",
+    ]
+    with (out / "summary_per_step.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    configs = _configs(summary)
+    assert len(rows) == len(configs) * 20 * 3  # rows 0, 1 and "any" at k = 1..20
+    keys = {(r["study"], r["configuration"], int(r["k"]), r["row"]) for r in rows}
+    assert len(keys) == len(rows)
+    assert keys == {
+        (study, c["name"], k, row)
+        for study, c in configs
+        for k in range(1, 21)
+        for row in ("0", "1", "any")
+    }
+    for r in rows:
+        runs, count, freq = int(r["runs"]), int(r["violations"]), float(r["frequency"])
+        assert runs == STAT_RUNS and 0 <= count <= runs
+        assert freq == pytest.approx(count / runs, abs=1e-6)
+        assert _brackets(freq, (float(r["wilson95_lo"]), float(r["wilson95_hi"])))
+    assert (out / "summary_per_step.csv").stat().st_size < 400_000
+
+
+def test_p_values_that_underflow_are_not_printed_as_zero(run):
+    out, _ = run
+    assert reproduce_paper.format_p(0.0) == "p < 1e-300"
+    assert reproduce_paper.format_p(0.012) == "p = 0.012"
+    text = (out / "REPORT.md").read_text()
+    assert not re.search(r"p = 0(?![.0-9])", text)
 
 
 def test_every_claim_of_section_6_agrees(run):
