@@ -17,10 +17,17 @@ sufficient for a convex QP). Ties (degenerate problems) are broken by the smalle
 Instances for which no candidate passes (which needs more than ``d`` active constraints with
 no linearly independent subset satisfying KKT: not expected for strictly convex problems in
 ``nu`` with independent constraint rows) are flagged, and the caller solves them otherwise.
+
+For one instance at a time (the controller's ``act``) the same maps serve a cheaper test:
+:meth:`ActiveSetQP.verify` evaluates a single candidate (e.g. the active set of the previous
+solution, or the one an iterative solver identified, :meth:`ActiveSetQP.candidate_from_duals`)
+and accepts it only if it passes the KKT test; :meth:`ActiveSetQP.solve_one` enumerates every
+candidate for one instance and returns the winner's index as well.
 """
 
 from __future__ import annotations
 
+import math
 from itertools import combinations
 
 import numpy as np
@@ -47,6 +54,8 @@ class ActiveSetQP:
         is False).
     max_active : int, optional
         Largest active set enumerated (default ``d``).
+    tol : float
+        KKT tolerance, relative to ``1 + max |[q; h]|`` of the instance.
 
     Notes
     -----
@@ -103,6 +112,9 @@ class ActiveSetQP:
                 rows_list.append(rows_arr)
         self.n_candidates = len(z_maps)
         self.active_sets = rows_list
+        #: candidate index of each enumerated active set (a sorted tuple of rows of ``C``)
+        self.index = {tuple(rows.tolist()): c for c, rows in enumerate(rows_list)}
+        self._n_rows = n_rows
         # KKT residuals as linear maps of w too: C z_c - h (primal) and -lam_c (dual), all <= 0
         # at a KKT point; stacked so that one product gives every residual of every candidate.
         h_part = np.hstack([np.zeros((n_rows, d)), np.eye(n_rows)])
@@ -115,7 +127,9 @@ class ActiveSetQP:
         # ordered residual-major (column j * ncand + candidate) so that the worst residual of every
         # candidate is an elementwise maximum of 2 n_rows slices, not a reduction over a short axis
         self._kkt = kkt
+        self._kkt_flat = kkt.reshape(-1, kkt.shape[2])  # (ncand * 2 n_rows, d + n_rows)
         self._Zc = np.stack(z_maps)  # (ncand, d, d + n_rows)
+        self._single: dict[int, np.ndarray] = {}  # candidate -> [KKT residual map; z map]
         self._ranges: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self._guess = self.n_candidates - 1  # first call: one pass over every candidate
 
@@ -180,3 +194,93 @@ class ActiveSetQP:
             counts = np.bincount(np.concatenate(winners), minlength=nc)
             self._guess = int(counts.argmax()) if counts.any() else self._guess
         return z, found
+
+    # ------------------------------------------------------------------ one instance
+    def _tolerance(self, w: np.ndarray) -> float:
+        """KKT tolerance of one instance ``w = [q; h]`` (d + c,), as in :meth:`solve`."""
+        return self.tol * (1.0 + max(map(abs, w.tolist())))
+
+    def verify(self, candidate: int, w: np.ndarray) -> list[float] | None:
+        """The solution of one instance from one candidate active set, if it is the optimum.
+
+        Solves the equality-constrained KKT system of the candidate (a precomputed linear map
+        of ``w``) and checks the rest of the KKT conditions: primal feasibility of every row
+        and nonnegative multipliers on the active ones (sufficient for a convex QP), with the
+        tolerance of :meth:`solve`. The result is a function of ``(candidate, w)`` only: the
+        same products, in the same order, whichever caller asks.
+
+        Parameters
+        ----------
+        candidate : int
+            Index into :attr:`active_sets`.
+        w : (d + c1,) float64 array
+            ``[q; h]``, with ``h = one_sided_bounds(l, u)`` of the instance.
+
+        Returns
+        -------
+        list of d floats, or None
+            ``z`` if the candidate passes the KKT test, None otherwise (also when anything is
+            not finite).
+        """
+        T = self._single.get(candidate)
+        if T is None:
+            T = np.vstack([self._kkt[candidate], self._Zc[candidate]])
+            self._single[candidate] = T
+        v = (T @ w).tolist()
+        tol = self._tolerance(w)
+        n2 = 2 * self._n_rows
+        if not math.isfinite(tol + sum(v)) or max(v[:n2], default=-math.inf) > tol:
+            return None
+        return v[n2:]
+
+    def solve_one(self, w: np.ndarray) -> tuple[int | None, list[float] | None]:
+        """Enumeration for one instance: the lowest-index candidate that passes the KKT test.
+
+        The rule of :meth:`solve` (all candidates' residuals from one product, independent of
+        any earlier call); the winner's ``z`` is then computed by :meth:`verify`, so that it is
+        bit-identical to what :meth:`verify` gives for that candidate.
+
+        Returns
+        -------
+        candidate : int or None
+        z : list of d floats, or None when no candidate passes
+        """
+        tol = self._tolerance(w)
+        worst = (self._kkt_flat @ w).reshape(self.n_candidates, -1).max(axis=1)
+        for candidate in np.flatnonzero(worst <= tol).tolist():
+            z = self.verify(candidate, w)  # the same test, on this candidate's own product
+            if z is not None:
+                return candidate, z
+        return None, None
+
+    def candidate_from_duals(
+        self, y: np.ndarray, lower: np.ndarray, upper: np.ndarray
+    ) -> int | None:
+        """The candidate whose active set is the rows with a nonzero multiplier in ``y``.
+
+        Parameters
+        ----------
+        y : (c,) array
+            Multipliers of ``l <= A z <= u`` in OSQP's convention (``y_i > 0``: upper bound
+            active, ``y_i < 0``: lower bound active). Entries below ``1e-9`` of the largest are
+            read as zero.
+        lower, upper : (c,) arrays
+            The bounds of the instance. An equality row (``l_i = u_i``) is always active: its
+            upper side unless its multiplier is clearly negative (the same side whatever the
+            round-off when the multiplier is zero).
+
+        Returns
+        -------
+        int or None
+            None if that set is not among the enumerated candidates (too many rows, or a
+            singular KKT matrix).
+        """
+        y = np.asarray(y, dtype=np.float64)
+        if y.size == 0:
+            return None
+        thr = 1e-9 * max(1.0, float(np.max(np.abs(y))))
+        equality = np.asarray(lower) == np.asarray(upper)
+        up = (y > thr) | (equality & (y >= -thr))
+        low = (y < -thr) & ~up
+        active = np.concatenate([up[self._upper_idx], low[self._lower_idx]])
+        return self.index.get(tuple(np.flatnonzero(active).tolist()))

@@ -17,18 +17,32 @@ Solvers
 -------
 ``solver="osqp"`` (default, fast path)
     The QP in ``z = (nu, rho)`` has a Hessian and a constraint matrix that depend only on the
-    mode and on whether ``x_k`` is in C1, so one ``osqp.OSQP`` object is set up per such pair on
-    first use and every later step only calls ``update(q=, l=, u=)`` and ``solve()`` (warm
-    started). With ``nu_set="ball"`` and ``m > 1`` OSQP cannot express ``||nu||_2 <= nu_bound``;
-    the controller then solves the second-order cone program with cvxpy + Clarabel instead.
+    mode and on whether ``x_k`` is in C1 (a *family*), and its data are affine in ``x_k``. Each
+    call first tries an *active-set warm start*: the active set of the family's last solution
+    is re-solved exactly (the equality-constrained KKT system, a precomputed linear map of
+    :class:`controllers.active_set.ActiveSetQP`) and accepted if the KKT conditions hold
+    (primal feasibility, nonnegative multipliers: sufficient for this convex QP);
+    ``info["solver"]`` is then ``"active_set_warm"``. Otherwise one ``osqp.OSQP`` object per
+    family (set up on first use; later only ``update(q=, l=, u=)`` and a warm-started
+    ``solve()``) finds the optimum, and the answer is recomputed exactly from the active set
+    OSQP identified (verified the same way; if it does not verify, by enumeration of every
+    candidate, ``info["solver"] == "active_set"``; only if that fails too is OSQP's own iterate
+    kept). That active set is remembered for the next call. Since every answer then comes from
+    the exact KKT solution of a verified active set, it does not depend on the call history
+    (except in degenerate problems, where several active sets verify, and on the fallback
+    paths below). Setting the private attribute ``_warm_start = False`` on a controller skips
+    the warm start (OSQP at every call, answers still recomputed exactly); the speed benchmark
+    uses it for comparison. With ``nu_set="ball"`` and ``m > 1`` OSQP cannot express
+    ``||nu||_2 <= nu_bound``; the controller then solves the second-order cone program with
+    cvxpy + Clarabel instead.
 ``solver="cvxpy"``
     The plain formulation written with cvxpy and solved by Clarabel, rebuilt at every call; a
     reference for checking the fast path.
 ``solver="active_set"``
     Exact solution by enumeration of the candidate active sets of the family's QP (see
-    :mod:`controllers.active_set`), set up once per family; OSQP takes over in the rare case
-    where no candidate satisfies the KKT conditions. The fastest single-state path for small
-    problems; :meth:`RecedingHorizonController.act_batch` always uses it for the box ``U``.
+    :mod:`controllers.active_set`), set up once per family, at every call (no warm start); OSQP
+    takes over in the rare case where no candidate satisfies the KKT conditions.
+    :meth:`RecedingHorizonController.act_batch` always uses the enumeration for the box ``U``.
 
 An episode never crashes on a solver failure: OSQP is retried once (cold, 10x the iterations),
 then the cvxpy reference is tried (unless ``cvxpy_fallback=False``), and as a last resort
@@ -37,7 +51,9 @@ then the cvxpy reference is tried (unless ``cvxpy_fallback=False``), and as a la
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
+from operator import mul
 from typing import Any
 
 import numpy as np
@@ -72,6 +88,16 @@ DEFAULT_OSQP_SETTINGS: dict[str, Any] = {
 #: A slack below this (relative to max |H_{k+1} - t|) is round-off on an active row and is
 #: reported as ``rho = 0``; the constraint then holds to within this tolerance.
 _RHO_ZERO_TOL = 1e-10
+
+#: Types accepted without conversion by the fast input check of ``act`` (bool is not among them).
+_INT_TYPES = frozenset([int] + [np.dtype(c).type for c in np.typecodes["AllInteger"]])
+_FLOAT64 = np.dtype(np.float64)
+
+#: OSQP's infinity: bounds beyond it are clipped.
+_OSQP_INFTY = float(osqp.constant("OSQP_INFTY"))
+
+#: Cached offsets ``w0(k)`` per family before the cache is cleared (k is unbounded).
+_MAX_OFFSETS = 4096
 
 #: Clarabel settings of the cvxpy reference.
 CLARABEL_SETTINGS: dict[str, Any] = {
@@ -140,6 +166,10 @@ class _Family:
         C = Q + K'RK + Atilde'Pi Atilde,   H_nu = R + B'Pi B,   g = 2 (R K + B'Pi Atilde) x
 
     and the constraint rows are ``G Atilde x + G B nu - rho <= H_{k+1} - t``.
+
+    For the single-state path the data ``w = [q; h]`` of :attr:`solver` (linear term and
+    one-sided bounds, see :meth:`ActiveSetQP.one_sided_bounds`) are affine in ``x``:
+    ``w = W x + w0(k)``; ``lin = [K; W; C]`` gives ``K x``, ``W x`` and ``C x`` in one product.
     """
 
     mode: int
@@ -153,6 +183,13 @@ class _Family:
     P: np.ndarray  # (m+1, m+1) Hessian of the QP in z = (nu, rho), OSQP's 1/2 z'Pz
     A: np.ndarray  # constraint matrix of the QP
     solver: ActiveSetQP | None  # exact batched solver (box U only)
+    lin: np.ndarray | None = None  # (m + len(w) + n, n): rows [K; W; C] (box U only)
+    w0: np.ndarray | None = None  # w at x = 0 without the band (H_{k+1} - t added per k)
+    lo: np.ndarray | None = None  # OSQP lower bounds (constant)
+    hi: np.ndarray | None = None  # OSQP upper bounds, the r constraint rows filled per call
+    H_list: list = field(default_factory=list)  # H_nu as nested lists (m x m)
+    GB_list: list = field(default_factory=list)  # G B as nested lists (r x m)
+    offsets: dict = field(default_factory=dict)  # k -> (w0(k), zero tolerance of rho)
 
 
 @dataclass(frozen=True)
@@ -227,6 +264,13 @@ class RecedingHorizonController(_FeedbackPolicy):
     TypeError
         If ``model`` is not an :class:`SDJLSModel`.
 
+    Notes
+    -----
+    With ``solver="osqp"`` most calls are answered by the active-set warm start (see the module
+    docstring). The private attribute ``_warm_start`` (default True) switches it off: OSQP then
+    runs at every call (its answer still re-solved exactly on its active set). The private dict
+    ``_path_counts`` counts the calls of :meth:`act` per ``info["solver"]`` value.
+
     Examples
     --------
     >>> from sdjls_gym.systems.macro import macro, PAPER_K, PAPER_RHC
@@ -291,6 +335,15 @@ class RecedingHorizonController(_FeedbackPolicy):
         self._osqp: dict[tuple[int, bool], osqp.OSQP] = {}
         self._families: dict[tuple[int, bool], _Family] = {}
         self.tightening: np.ndarray | None = None
+        # single-state QP path of act(): the box U (or m = 1), solved by OSQP or enumeration
+        self._qp_path = self.solver in ("osqp", "active_set") and not self._uses_socp
+        #: active-set warm start of the OSQP path (see the module docstring); False: OSQP at
+        #: every call
+        self._warm_start = True
+        self._warm: dict[tuple[int, bool], int] = {}  # family -> candidate of the last solution
+        #: how many act() calls each path (info["solver"]) answered
+        self._path_counts: dict[str, int] = {}
+        self._x_shape = (model.n,)
 
     # ------------------------------------------------------------------ problem data
     @property
@@ -321,6 +374,26 @@ class RecedingHorizonController(_FeedbackPolicy):
         rows.append(np.hstack([np.zeros((1, m)), np.ones((1, 1))]))  # rho >= 0
         A = np.vstack(rows)
         lo, hi = self._bounds(np.zeros((1, r)))
+        qp = None if self._uses_socp else ActiveSetQP(P, A, np.isfinite(lo[0]), np.isfinite(hi[0]))
+        fast: dict[str, Any] = {}
+        if qp is not None:
+            # w = [q; h] = W x + w0(k): q = (g, alpha) with g = grad x; the first r one-sided
+            # rows are the constraint rows, h = H_{k+1} - t - G Atilde x (the rest is constant)
+            d, n = m + 1, model.n
+            W = np.zeros((d + qp.C.shape[0], n))
+            W[:m] = grad
+            alpha = self.alpha if self._chance_constrained else 0.0
+            w0 = np.concatenate([np.zeros(m), [alpha], qp.one_sided_bounds(lo, hi)[0]])
+            if self._chance_constrained:
+                W[d : d + r] = -model.G @ At  # eq. (constraint:feasibility)
+            fast = {
+                "lin": np.vstack([K, W, C]),
+                "w0": w0,
+                "lo": lo[0],
+                "hi": hi[0],
+                "H_list": H_nu.tolist(),
+                "GB_list": (model.G @ Bm).tolist(),
+            }
         fam = _Family(
             mode=mode,
             inside=inside,
@@ -332,12 +405,26 @@ class RecedingHorizonController(_FeedbackPolicy):
             noise_term=float(np.trace(Pi @ model.noise_cov[mode])),  # Lemma 1, eq. (eq:lemm1)
             P=P,
             A=A,
-            solver=None
-            if self._uses_socp
-            else ActiveSetQP(P, A, np.isfinite(lo[0]), np.isfinite(hi[0])),
+            solver=qp,
+            **fast,
         )
         self._families[key] = fam
         return fam
+
+    def _offset(self, fam: _Family, k: int) -> tuple[np.ndarray, float]:
+        """``w0(k)`` of the family at time ``k`` and the zero tolerance of ``rho`` (cached)."""
+        if len(fam.offsets) >= _MAX_OFFSETS:
+            fam.offsets.clear()
+        w0, zero_tol = fam.w0.copy(), 0.0
+        if self._chance_constrained:
+            d, r = self.model.m + 1, self.model.r
+            # eq. (constraint:feasibility): the constraint is on x_{k+1}, band H_{k+1}
+            hbar = self.model.H(k + 1) - self.tightening[fam.mode]
+            w0[d : d + r] += hbar
+            zero_tol = _RHO_ZERO_TOL * max(1.0, float(np.max(np.abs(hbar))))
+        w0.setflags(write=False)
+        out = fam.offsets[k] = (w0, zero_tol)
+        return out
 
     def _data(self, fam: _Family, x: np.ndarray, k: np.ndarray) -> _Step:
         """P3's state-dependent data for states ``x`` (B, n) of one family at times ``k`` (B,)."""
@@ -409,33 +496,50 @@ class RecedingHorizonController(_FeedbackPolicy):
             return nu * np.minimum(1.0, self.nu_bound / np.maximum(norm, 1e-300))
         return np.clip(nu, -self.nu_bound, self.nu_bound)
 
-    def _run_osqp(self, step: _Step, retry: bool) -> tuple[np.ndarray | None, str]:
-        """Solve with OSQP; return ``(z, status)``, ``z`` None on failure."""
-        q, lo, hi = (v[0] for v in self._qp_vectors(step))
-        key = (step.mode, step.fam.inside)
+    def _osqp_vectors(
+        self, fam: _Family, w: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``q, l, u`` of the QP in OSQP form from the fast path's ``w = [q; h]`` (one state)."""
+        d, r = self.model.m + 1, self.model.r
+        hi = fam.hi
+        if self._chance_constrained:
+            hi = hi.copy()
+            hi[:r] = w[d : d + r]  # H_{k+1} - t - G Atilde x, eq. (constraint:feasibility)
+        return w[:d].copy(), fam.lo, hi
+
+    def _run_osqp(
+        self, fam: _Family, q: np.ndarray, lo: np.ndarray, hi: np.ndarray, retry: bool
+    ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+        """Solve with OSQP; return ``(z, y, status)`` (``y`` the multipliers), None on failure."""
+        key = (fam.mode, fam.inside)
         try:
             if retry or key not in self._osqp:
                 settings = dict(self.osqp_settings)
                 if retry:
                     settings["max_iter"] = 10 * int(settings["max_iter"])
                 solver = osqp.OSQP()
-                P, A = sp.csc_matrix(np.triu(step.fam.P)), sp.csc_matrix(step.fam.A)
+                P, A = sp.csc_matrix(np.triu(fam.P)), sp.csc_matrix(fam.A)
                 solver.setup(P, q, A, lo, hi, **settings)
                 if not retry:
                     self._osqp[key] = solver
             else:
+                # update() ignores data that OSQP's validation rejects (l > u once the bounds are
+                # clipped to +-OSQP_INFTY, e.g. for a huge state) and would then solve the
+                # previous problem again: fail as setup() does instead
+                if not np.all(np.maximum(lo, -_OSQP_INFTY) <= np.minimum(hi, _OSQP_INFTY)):
+                    raise ValueError("bounds rejected by OSQP (l > u after clipping)")
                 solver = self._osqp[key]
                 solver.update(q=q, l=lo, u=hi)
             res = solver.solve(raise_error=False)
         except Exception as exc:  # noqa: BLE001 - an episode must not crash on a solver error
             self._osqp.pop(key, None)
-            return None, f"error {type(exc).__name__}: {exc}"
+            return None, None, f"error {type(exc).__name__}: {exc}"
         z = np.asarray(res.x, dtype=np.float64)
         status = str(res.info.status)
         if res.info.status_val != osqp.SolverStatus.OSQP_SOLVED or not np.all(np.isfinite(z)):
             self._osqp.pop(key, None)  # do not warm start from a failed iterate
-            return None, status
-        return z, status
+            return None, None, status
+        return z, np.asarray(res.y, dtype=np.float64), status
 
     # ------------------------------------------------------------------ cvxpy reference
     def _run_cvxpy(self, step: _Step) -> tuple[np.ndarray | None, float, float, str]:
@@ -485,43 +589,31 @@ class RecedingHorizonController(_FeedbackPolicy):
 
     # ------------------------------------------------------------------ decision
     def _solve(self, step: _Step) -> tuple[np.ndarray, float, float, str, str]:
-        """``(nu, rho, cost, status, path)`` of P3, never raising, never NaN."""
-        notes: list[str] = []
+        """``(nu, rho, cost, status, path)`` of P3 with cvxpy (``solver="cvxpy"``, or the
+        second-order cone program of ``nu_set="ball"``), never raising, never NaN."""
         if self.solver == "cvxpy":
             nu, rho, value, status = self._run_cvxpy(step)
             if nu is not None:  # the plain reference: values exactly as the solver returned them
                 return nu, rho, value, "solved", "cvxpy"
+            return self._nu_zero(step, [f"cvxpy status {status!r}"])
+        return self._rescue(step, [])
+
+    def _rescue(self, step: _Step, notes: list[str]) -> tuple[np.ndarray, float, float, str, str]:
+        """The end of the fallback chain: the cvxpy reference (unless ``cvxpy_fallback=False``;
+        always for the second-order cone program), then ``nu = 0``."""
+        if self._uses_socp or self.cvxpy_fallback:
+            nu, _, _, status = self._run_cvxpy(step)
+            path = "cvxpy_socp" if self._uses_socp else "cvxpy"
+            if nu is not None:
+                text = "solved" if not notes else f"solved by cvxpy ({'; '.join(notes)})"
+                return self._finish(step, nu, text, path)
             notes.append(f"cvxpy status {status!r}")
         else:
-            if self.solver == "active_set" and not self._uses_socp:
-                z, found = step.fam.solver.solve(*self._qp_vectors(step))
-                if found[0]:
-                    return self._finish(step, z[0, : self.model.m], "solved", "active_set")
-                notes.append("active-set enumeration found no KKT point")
-            if not self._uses_socp:
-                z, status = self._run_osqp(step, retry=False)
-                if z is not None:
-                    return self._finish(step, z[: self.model.m], "solved", "osqp")
-                notes.append(f"osqp status {status!r}")
-                z, status = self._run_osqp(step, retry=True)
-                if z is not None:
-                    return self._finish(
-                        step,
-                        z[: self.model.m],
-                        f"solved ({'; '.join(notes)}; retried)",
-                        "osqp_retry",
-                    )
-                notes.append(f"osqp retry status {status!r}")
-            if self._uses_socp or self.cvxpy_fallback:
-                nu, _, _, status = self._run_cvxpy(step)
-                path = "cvxpy_socp" if self._uses_socp else "cvxpy"
-                if nu is not None:
-                    text = "solved" if not notes else f"solved by cvxpy ({'; '.join(notes)})"
-                    return self._finish(step, nu, text, path)
-                notes.append(f"cvxpy status {status!r}")
-            else:
-                notes.append("cvxpy retry disabled")
-        # last resort: nu = 0 (in U) with the smallest feasible slack
+            notes.append("cvxpy retry disabled")
+        return self._nu_zero(step, notes)
+
+    def _nu_zero(self, step: _Step, notes: list[str]) -> tuple[np.ndarray, float, float, str, str]:
+        """Last resort: ``nu = 0`` (in U) with the smallest feasible slack."""
         nu = np.zeros(self.model.m)
         rho = float(self._min_rho(step, nu[None])[0])
         return (
@@ -536,6 +628,138 @@ class RecedingHorizonController(_FeedbackPolicy):
         nu = self._project_nu(np.asarray(nu, dtype=np.float64))
         rho = self._min_rho(step, nu[None])  # the optimal rho for this nu (alpha > 0)
         return nu, float(rho[0]), float(self._objective(step, nu[None], rho)[0]), status, path
+
+    def _check_inputs(self, x: Any, mode: Any, k: Any) -> tuple[np.ndarray, int, int]:
+        """The checks of the base class, with a shortcut for the common case: ``x`` a finite
+        float64 ``(n,)`` array (used as is, not copied), ``mode`` and ``k`` Python or numpy
+        ints in range. Anything else goes through the full checks (same errors)."""
+        if (
+            type(x) is np.ndarray
+            and x.dtype is _FLOAT64
+            and x.shape == self._x_shape
+            and type(mode) in _INT_TYPES
+            and type(k) in _INT_TYPES
+            and 0 <= mode < self.model.N
+            and k >= 0
+            and math.isfinite(sum(x.tolist()))  # inf, -inf, nan: not finite (overflow: slow)
+        ):
+            return x, int(mode), int(k)
+        return super()._check_inputs(x, mode, k)
+
+    def _exact(
+        self,
+        fam: _Family,
+        x: np.ndarray,
+        y: list[float],
+        w: np.ndarray,
+        zero_tol: float,
+        z: list[float],
+    ) -> tuple[list[float], float, float]:
+        """``(nu, rho, cost)`` from the exact solution ``z`` of a verified active set.
+
+        A function of ``(x, k, z)`` and the family only (plain float arithmetic on the data of
+        the single-state path), so the answer does not depend on which path found ``z``.
+        ``rho`` is the smallest feasible slack for ``nu`` (eq. constraint:feasibility) and the
+        cost ``J_k`` has every constant term (see :class:`_Family`).
+        """
+        m, nb = self.model.m, self.nu_bound
+        nu = [min(max(v, -nb), nb) for v in z[:m]]  # round-off outside U
+        wl = w.tolist()
+        rho = 0.0
+        if self._chance_constrained:
+            # eq. (constraint:feasibility): G B nu - rho <= h, h = H_{k+1} - t - G Atilde x
+            h = wl[m + 1 : m + 1 + len(fam.GB_list)]
+            excess = max(
+                sum(map(mul, row, nu)) - hj for row, hj in zip(fam.GB_list, h, strict=True)
+            )
+            # round-off on an active row is not a use of the slack: report 0
+            rho = 0.0 if excess <= zero_tol else excess
+        xCx = sum(map(mul, x.tolist(), y[m + len(wl) :]))  # y = [K x; W x; C x]
+        nuHnu = sum(v * sum(map(mul, row, nu)) for v, row in zip(nu, fam.H_list, strict=True))
+        cost = xCx + fam.noise_term + nuHnu + sum(map(mul, wl[:m], nu)) + self.alpha * rho
+        return nu, rho, cost
+
+    def _act_qp(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, dict[str, Any]]:
+        """:meth:`act` for the box ``U`` with ``solver="osqp"`` or ``"active_set"``.
+
+        Warm start (OSQP path): the remembered active set of the family, verified exactly;
+        then OSQP (warm started), its active set re-solved exactly and verified, else the
+        enumeration, else OSQP's iterate; then the fallback chain of :meth:`_rescue`.
+        """
+        m = self.model.m
+        inside = max(self.model.constraint_values_one(x, k).tolist()) <= 0.0  # in C1 at time k
+        key = (mode, inside)
+        fam = self._families.get(key) or self._family(mode, inside)
+        y = fam.lin @ x  # [K x; W x; C x]
+        w0, zero_tol = fam.offsets.get(k) or self._offset(fam, k)
+        w = y[m : m + w0.shape[0]] + w0  # [q; h] of the family's ActiveSetQP
+        qp = fam.solver
+        notes: list[str] = []
+        answer: tuple | None = None
+        if self.solver == "osqp":
+            candidate = self._warm.get(key) if self._warm_start else None
+            if candidate is not None:
+                z = qp.verify(candidate, w)  # the last solution's active set, re-solved exactly
+                if z is not None:
+                    answer = (
+                        *self._exact(fam, x, y.tolist(), w, zero_tol, z),
+                        "solved",
+                        "active_set_warm",
+                    )
+        else:  # "active_set": enumeration at every call
+            candidate, z = qp.solve_one(w)
+            if z is not None:
+                answer = (*self._exact(fam, x, y.tolist(), w, zero_tol, z), "solved", "active_set")
+            else:
+                notes.append("active-set enumeration found no KKT point")
+        if answer is None:
+            answer = self._osqp_answer(fam, key, x, k, y, w, zero_tol, notes)
+        nu, rho, cost, status, path = answer
+        u = y[:m] + nu  # eq. (eq:stabilization_input)
+        info = {
+            "nu": np.array(nu, dtype=np.float64),
+            "rho": float(rho),
+            "cost": float(cost),
+            "status": status,
+            "solver": path,
+            "in_region": inside,
+            "Pi": fam.Pi,
+        }
+        return u, info
+
+    def _osqp_answer(
+        self,
+        fam: _Family,
+        key: tuple[int, bool],
+        x: np.ndarray,
+        k: int,
+        y: np.ndarray,
+        w: np.ndarray,
+        zero_tol: float,
+        notes: list[str],
+    ) -> tuple:
+        """OSQP (then its cold retry) with the exact re-solve of the active set it identified;
+        the fallback chain if both fail. Returns ``(nu, rho, cost, status, path)``."""
+        m, qp = self.model.m, fam.solver
+        q, lo, hi = self._osqp_vectors(fam, w)
+        for retry in (False, True):
+            z, dual, status = self._run_osqp(fam, q, lo, hi, retry)
+            if z is None:
+                notes.append(f"osqp {'retry ' if retry else ''}status {status!r}")
+                continue
+            text = f"solved ({'; '.join(notes)}; retried)" if retry else "solved"
+            path = "osqp_retry" if retry else "osqp"
+            candidate = qp.candidate_from_duals(dual, lo, hi)
+            exact = None if candidate is None else qp.verify(candidate, w)
+            if exact is None:  # OSQP's active set does not verify: enumerate them all
+                candidate, exact = qp.solve_one(w)
+                path = "active_set"
+            if exact is not None:
+                self._warm[key] = candidate
+                return (*self._exact(fam, x, y.tolist(), w, zero_tol, exact), text, path)
+            step = self._data(fam, x[None], np.array([k]))  # no KKT point: OSQP's iterate
+            return self._finish(step, z[:m], text, "osqp_retry" if retry else "osqp")
+        return self._rescue(self._data(fam, x[None], np.array([k])), notes)
 
     def act(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, dict[str, Any]]:
         """Solve P3 at ``(x_k, theta_k, k)`` and return ``u_k = K_theta x_k + nu_k``.
@@ -555,8 +779,9 @@ class RecedingHorizonController(_FeedbackPolicy):
         info : dict
             ``"nu"`` (m,), ``"rho"`` (float), ``"cost"`` (``J*_k`` with every constant term),
             ``"status"`` (``"solved"``, or a description of the retries / fallback),
-            ``"solver"`` (which path produced the answer), ``"in_region"`` (``x_k`` in C1),
-            ``"Pi"`` (n, n).
+            ``"solver"`` (which path produced the answer: ``"active_set_warm"``, ``"osqp"``,
+            ``"osqp_retry"``, ``"active_set"``, ``"cvxpy"``, ``"cvxpy_socp"`` or
+            ``"fallback"``), ``"in_region"`` (``x_k`` in C1), ``"Pi"`` (n, n).
 
         Raises
         ------
@@ -564,18 +789,23 @@ class RecedingHorizonController(_FeedbackPolicy):
             If ``x`` is not a finite ``(n,)`` vector, ``mode`` is out of range or ``k < 0``.
         """
         x, mode, k = self._check_inputs(x, mode, k)
-        step = self._step(x, mode, k)
-        nu, rho, cost, status, path = self._solve(step)
-        u = step.Kx[0] + nu  # eq. (eq:stabilization_input)
-        info = {
-            "nu": np.array(nu, dtype=np.float64),
-            "rho": float(rho),
-            "cost": float(cost),
-            "status": status,
-            "solver": path,
-            "in_region": step.fam.inside,
-            "Pi": step.Pi,
-        }
+        if self._qp_path:
+            u, info = self._act_qp(x, mode, k)
+        else:
+            step = self._step(x, mode, k)
+            nu, rho, cost, status, path = self._solve(step)
+            u = step.Kx[0] + nu  # eq. (eq:stabilization_input)
+            info = {
+                "nu": np.array(nu, dtype=np.float64),
+                "rho": float(rho),
+                "cost": float(cost),
+                "status": status,
+                "solver": path,
+                "in_region": step.fam.inside,
+                "Pi": step.Pi,
+            }
+        counts = self._path_counts
+        counts[info["solver"]] = counts.get(info["solver"], 0) + 1
         return np.asarray(u, dtype=np.float64), info
 
     def act_batch(

@@ -10,7 +10,7 @@ from scipy import optimize, stats
 
 from controllers.chance import row_satisfaction_probability, tightening
 from controllers.rhc import RecedingHorizonController, UnconstrainedRecedingHorizonController
-from sdjls_gym import SDJLSModel
+from sdjls_gym import SDJLSModel, SDJLSVectorEnv
 from sdjls_gym.systems.macro import PAPER_K, PAPER_RHC, macro
 
 Z_999 = stats.norm.ppf(0.999)  # one-sided 99.9% normal quantile, 3.09
@@ -89,7 +89,7 @@ def test_osqp_matches_cvxpy_on_the_example(constraint):
         mode, k = int(rng.integers(3)), int(rng.integers(0, 25))
         u1, i1 = fast.act(x, mode, k)
         u2, i2 = ref.act(x, mode, k)
-        assert i1["status"] == "solved" and i1["solver"] == "osqp"
+        assert i1["status"] == "solved" and i1["solver"] in ("osqp", "active_set_warm")
         np.testing.assert_allclose(i1["nu"], i2["nu"], rtol=0, atol=1e-6)
         assert i1["rho"] == pytest.approx(i2["rho"], abs=1e-6)
         assert i1["cost"] == pytest.approx(i2["cost"], rel=1e-10, abs=1e-6)
@@ -363,6 +363,163 @@ def test_warm_started_families_are_reused():
     assert 1 <= len(ctrl._osqp) <= 2 * model.N  # one OSQP object per (mode, in_region)
 
 
+# ---------------------------------------------------------------------- active-set warm start
+def assert_same_answer(i1, i2, tol):
+    np.testing.assert_allclose(i1["nu"], i2["nu"], rtol=0, atol=tol)
+    assert i1["rho"] == pytest.approx(i2["rho"], abs=tol)
+    assert i1["cost"] == pytest.approx(i2["cost"], rel=1e-10, abs=tol)
+
+
+def warm_start_cases():
+    """(model, K, Psi, kwargs, state scale, controller class) of the warm-start comparisons:
+    the example (both slack regimes and the box bind at scale 60) and random systems with E, W
+    not identity, m = 1 or 2 and up to 4 rows."""
+    cases = [
+        (
+            macro(),
+            PAPER_K,
+            PAPER_RHC["Psi"],
+            {k: v for k, v in PAPER_RHC.items() if k != "Psi"},
+            20.0,
+        )
+    ]
+    for seed in (0, 1, 2, 5):
+        rng, model, K, Psi = random_problem(seed)
+        kw = dict(xi=float(rng.uniform(0.6, 0.97)), alpha=float(rng.uniform(10.0, 1000.0)),
+                  nu_bound=float(rng.uniform(0.5, 5.0)))  # fmt: skip
+        cases.append((model, K, Psi, kw, 2.0))
+    return cases
+
+
+@pytest.mark.parametrize("case", range(5))
+@pytest.mark.parametrize("cls", [RecedingHorizonController, UnconstrainedRecedingHorizonController])
+def test_warm_start_equals_enumeration_and_cvxpy(case, cls):
+    """Random states, modes and times: the OSQP path (warm start first) gives the answer of the
+    full enumeration and of the cvxpy reference, and the warm start answers some of them."""
+    model, K, Psi, kw, scale = warm_start_cases()[case]
+    if cls is UnconstrainedRecedingHorizonController:
+        kw = {key: kw[key] for key in ("alpha", "nu_bound")}
+    fast = cls(model, K, Psi, **kw)
+    enum = cls(model, K, Psi, **kw, solver="active_set")
+    ref = cls(model, K, Psi, **kw, solver="cvxpy")
+    rng = np.random.default_rng(100 + case)
+    paths = []
+    for i in range(60):
+        if i % 6 == 0:  # runs of states near one another (as in a closed loop), then a jump
+            base = rng.normal(size=model.n) * scale
+        x = base + rng.normal(size=model.n) * 0.05 * scale
+        mode, k = int(rng.integers(model.N)), int(rng.integers(0, 20))
+        u1, i1 = fast.act(x, mode, k)
+        _, i2 = enum.act(x, mode, k)
+        _, i3 = ref.act(x, mode, k)
+        assert i1["status"] == "solved" and i2["solver"] == "active_set"
+        assert_same_answer(i1, i2, 1e-9)
+        assert_same_answer(i1, i3, 1e-6)
+        np.testing.assert_allclose(u1, K[mode] @ x + i1["nu"], rtol=0, atol=1e-12)
+        assert_feasible(fast, x, mode, k, u1, i1)
+        paths.append(i1["solver"])
+    assert "active_set_warm" in paths and "osqp" in paths
+    assert fast._path_counts == {p: paths.count(p) for p in set(paths)}
+
+
+def test_warm_start_answers_most_closed_loop_steps():
+    """On the example's closed loop the active set rarely changes: most decisions are made by
+    the warm start (no OSQP), and they equal those with OSQP at every call."""
+    model = macro()
+    ctrl = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
+    cold = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
+    cold._warm_start = False
+    env = SDJLSVectorEnv(16, model=model)
+    _, info = env.reset(seed=7)
+    for _ in range(20):
+        us = []
+        for x, mode, k in zip(info["state"], info["mode"], info["k"], strict=True):
+            u, i1 = ctrl.act(x, mode, k)
+            _, i2 = cold.act(x, mode, k)
+            assert_same_answer(i1, i2, 1e-9)
+            us.append(u)
+        _, _, _, _, info = env.step(np.array(us))
+    counts = ctrl._path_counts
+    assert sum(counts.values()) == 16 * 20
+    assert counts.get("active_set_warm", 0) > 0.5 * 16 * 20, counts
+    assert "active_set_warm" not in cold._path_counts
+
+
+def test_a_wrong_remembered_active_set_is_rejected():
+    """Whatever active set is remembered for the family, the answer is the optimum: a wrong
+    one fails the KKT test, OSQP decides, and its (right) active set is remembered instead."""
+    model = macro()
+    ref = RecedingHorizonController(model, PAPER_K, **PAPER_RHC, solver="cvxpy")
+    ctrl = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
+    states = [  # one per active set of the example's optima (rows of ActiveSetQP.C)
+        ([0.1, -0.1], 0, 0),  # lower band row, rho = 0
+        ([4.7, -3.5], 2, 3),  # upper band row, rho = 0
+        ([0.3, 3.4], 1, 3),  # no row: rho = 0 only
+        ([1.7, -93.0], 1, 0),  # slack used on the lower row
+        ([63.0, -17.3], 2, 3),  # slack used on the upper row
+        ([0.5, -3.7], 2, 250),  # nu = 100 (box) and slack
+        ([55.0, -72.6], 2, 0),  # the upper row, nu = 100 and slack
+    ]
+    seen = set()
+    for x, mode, k in states:
+        x = np.array(x)
+        _, expected = ctrl.act(x, mode, k)
+        assert_same_answer(expected, ref.act(x, mode, k)[1], 1e-6)
+        key = (mode, expected["in_region"])
+        right, qp = ctrl._warm[key], ctrl._families[key].solver
+        seen.add(tuple(qp.active_sets[right].tolist()))
+        for wrong in range(qp.n_candidates):
+            ctrl._warm[key] = wrong
+            _, info = ctrl.act(x, mode, k)
+            assert info["solver"] == ("active_set_warm" if wrong == right else "osqp"), wrong
+            assert ctrl._warm[key] == right
+            np.testing.assert_array_equal(info["nu"], expected["nu"])
+            assert info["cost"] == expected["cost"] and info["rho"] == expected["rho"]
+    assert len(seen) == len(states)
+
+
+def test_answer_from_a_failed_osqp_identification_comes_from_the_enumeration(monkeypatch):
+    """If the active set read from OSQP's multipliers does not verify, the full enumeration
+    settles the state (same answer, reported as "active_set") and its set is remembered."""
+    from controllers.active_set import ActiveSetQP
+
+    model = macro()
+    healthy = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
+    monkeypatch.setattr(ActiveSetQP, "candidate_from_duals", lambda *args: None)
+    ctrl = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
+    x = np.array([0.0, 1.0])
+    _, info = ctrl.act(x, 1, 5)
+    _, expected = healthy.act(x, 1, 5)
+    assert info["solver"] == "active_set" and info["status"] == "solved"
+    np.testing.assert_array_equal(info["nu"], expected["nu"])
+    assert ctrl.act(x, 1, 5)[1]["solver"] == "active_set_warm"
+
+
+def test_bounds_that_osqp_rejects_are_a_failure_not_the_previous_answer():
+    """OSQP's update() silently keeps the previous data when it rejects new bounds (l > u once
+    clipped to 1e30: a state of size 1e31 here); that must be reported as an OSQP failure and
+    go down the fallback chain, not return the previous state's solution as "solved"."""
+    kw = {**PAPER_RHC, "nu_bound": 1.0}
+    ctrl = RecedingHorizonController(macro(), np.zeros((3, 1, 2)), **kw, cvxpy_fallback=False)
+    ctrl._warm_start = False  # OSQP at every call
+    assert ctrl.act(np.array([10.0, -10.0]), 1, 3)[1]["solver"] == "osqp"
+    _, info = ctrl.act(np.array([1e31, -1e31]), 1, 3)
+    assert info["solver"] == "fallback", info["status"]
+    assert info["status"].startswith("fallback_nu0: osqp status 'error ValueError: bounds rejected")
+
+
+def test_fast_input_check_leaves_the_state_alone():
+    """float64 (n,) states are used without a copy and never written; numpy ints are accepted."""
+    ctrl = RecedingHorizonController(macro(), PAPER_K, **PAPER_RHC)
+    x = np.array([1.0, 3.0])
+    x.setflags(write=False)
+    u1, i1 = ctrl.act(x, np.int64(1), np.int32(4))
+    u2, i2 = ctrl.act([1.0, 3.0], 1, 4)
+    np.testing.assert_array_equal(u1, u2)
+    assert isinstance(i1["cost"], float) and np.array_equal(x, [1.0, 3.0])
+    assert ctrl._check_inputs(np.array([1e308, 1e308]), 0, 0)[1:] == (0, 0)  # sum overflows
+
+
 # ---------------------------------------------------------------------- variants
 def test_unconstrained_controller_is_the_clipped_unconstrained_minimiser():
     model = macro()
@@ -523,6 +680,13 @@ def test_unconstrained_constructor_validates_too():
         (([1.0, 2.0], -1, 0), ValueError, r"mode = -1 is out of range"),
         (([1.0, 2.0], 1.0, 0), TypeError, r"mode = 1\.0 must be an int"),
         (([1.0, 2.0], 0, -1), ValueError, r"k = -1 is out of range"),
+        # the same through the fast check of float64 arrays and numpy ints
+        ((np.array([1.0, np.nan]), 0, 0), ValueError, r"x = .*non-finite"),
+        ((np.array([np.inf, -np.inf]), 0, 0), ValueError, r"x = .*non-finite"),
+        ((np.array([1.0, 2.0, 3.0]), 0, 0), ValueError, r"x has shape \(3,\); expected \(2,\)"),
+        ((np.array([1.0, 2.0]), np.int64(3), 0), ValueError, r"mode = 3 is out of range"),
+        ((np.array([1.0, 2.0]), True, 0), TypeError, r"mode = True must be an int"),
+        ((np.array([1.0, 2.0]), 0, np.int32(-1)), ValueError, r"k = -1 is out of range"),
     ],
 )
 def test_act_rejects_bad_inputs(args, error, pattern):

@@ -23,7 +23,6 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-import pytest
 from scipy import stats
 
 from benchmarks.montecarlo import rollout
@@ -228,13 +227,6 @@ def test_reused_batch_controller_gives_bit_identical_closed_loops():
     assert np.array_equal(closed_loop_batch(5, ctrl), closed_loop_batch(5, ctrl))
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="bug: act() warm-starts OSQP from the previous call, so its answer depends on the "
-    "call history in the last bit (5 of these 300 states differ by ~4e-15 in nu); a controller "
-    "reused for a second run with the same seed can give a different trajectory (with seed 0 "
-    "and 30 episodes, closed_loop() reports a J* that differs by 6e-14)",
-)
 def test_act_does_not_depend_on_the_call_history():
     """The same (x, mode, k) gives bit-identical answers from a fresh controller and from one
     that has already been used, so re-running with the same seed reproduces a run exactly."""
