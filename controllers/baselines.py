@@ -33,6 +33,16 @@ class RiccatiConvergenceError(RuntimeError):
     """The coupled Riccati iteration did not converge (subclass of :class:`RuntimeError`)."""
 
 
+#: Largest state magnitude a controller accepts. The costs it reports (``x'Q x`` and the like)
+#: overflow float64 from about 1e154; a state above this bound means the closed loop diverged
+#: long ago (the environments terminate at ``divergence_bound``, at most 1e30).
+MAX_STATE = 1e100
+_TOO_LARGE = (
+    f"has an entry of magnitude above {MAX_STATE:.0e}, the largest state a controller accepts "
+    "(its costs would overflow float64); a state this large means the closed loop has diverged"
+)
+
+
 def _check_model(model: Any) -> SDJLSModel:
     if not isinstance(model, SDJLSModel):
         raise TypeError(
@@ -145,6 +155,8 @@ class _FeedbackPolicy:
             raise ValueError(f"x has shape {x.shape}; expected ({model.n},), one state vector")
         if not np.all(np.isfinite(x)):
             raise ValueError(f"x = {_fmt(x)} has a non-finite entry; the state must be finite")
+        if np.max(np.abs(x)) > MAX_STATE:
+            raise ValueError(f"x = {_fmt(x)} {_TOO_LARGE}")
         mode = _check_int("mode", mode, 0, model.N)
         k = _check_int("k", k, 0)
         return x, mode, k
@@ -162,6 +174,9 @@ class _FeedbackPolicy:
             raise ValueError(f"x has shape {x.shape}; expected (B, {model.n}), one state per row")
         if not np.all(np.isfinite(x)):
             raise ValueError("x has a non-finite entry; every state must be finite")
+        if x.size and np.max(np.abs(x)) > MAX_STATE:
+            row = int(np.argmax(np.max(np.abs(x), axis=1)))
+            raise ValueError(f"x[{row}] = {_fmt(x[row])} {_TOO_LARGE}")
         B = x.shape[0]
         out = []
         for name, value, high in (("mode", mode, model.N), ("k", k, None)):

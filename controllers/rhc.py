@@ -51,7 +51,6 @@ then the cvxpy reference is tried (unless ``cvxpy_fallback=False``), and as a la
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from operator import mul
 from typing import Any
@@ -63,7 +62,7 @@ import scipy.sparse as sp
 from sdjls_gym.model import SDJLSModel, _check_psd, max_last
 
 from .active_set import ActiveSetQP
-from .baselines import _check_gain, _check_positive, _FeedbackPolicy
+from .baselines import MAX_STATE, _check_gain, _check_positive, _FeedbackPolicy
 from .chance import _check_constraint, _check_xi, tightening
 
 __all__ = ["RecedingHorizonController", "UnconstrainedRecedingHorizonController"]
@@ -641,7 +640,7 @@ class RecedingHorizonController(_FeedbackPolicy):
             and type(k) in _INT_TYPES
             and 0 <= mode < self.model.N
             and k >= 0
-            and math.isfinite(sum(x.tolist()))  # inf, -inf, nan: not finite (overflow: slow)
+            and all(-MAX_STATE <= v <= MAX_STATE for v in x.tolist())  # False for NaN
         ):
             return x, int(mode), int(k)
         return super()._check_inputs(x, mode, k)
@@ -831,7 +830,8 @@ class RecedingHorizonController(_FeedbackPolicy):
         u : (B, m) float64 array
         info : dict of arrays
             ``"nu"`` (B, m), ``"rho"`` (B,), ``"cost"`` (B,) (J*_k), ``"status"`` (B,) str
-            objects, ``"ok"`` (B,) bool (solved without a fallback), ``"in_region"`` (B,).
+            objects, ``"ok"`` (B,) bool (False where the last resort
+            ``nu = 0`` was used; an OSQP retry or a cvxpy rescue is optimal and counts as ok), ``"in_region"`` (B,).
         """
         x, mode, k = self._check_batch_inputs(x, mode, k)
         if self._uses_socp or self.solver == "cvxpy":

@@ -636,6 +636,18 @@ CASES = [
     ),
     case(lambda c: rhc().act([1.0, 2.0], 0, -1), ValueError, r"k = -1 is out of range", "act-k"),
     case(
+        lambda c: rhc().act(np.array([1e101, 0.0]), 0, 0),
+        ValueError,
+        r"^x = \[1\.e\+101, 0\.e\+000\] has an entry of magnitude above 1e\+100",
+        "act-huge-state",
+    ),
+    case(
+        lambda c: rhc().act_batch(np.array([[0.0, 1.0], [0.0, -2e300]]), np.zeros(2, int), 0),
+        ValueError,
+        r"^x\[1\] = .* has an entry of magnitude above 1e\+100",
+        "act-batch-huge-state",
+    ),
+    case(
         lambda c: rhc().act_batch(np.zeros((4, 3)), np.zeros(4, int), 0),
         ValueError,
         r"x has shape \(4, 3\); expected \(B, 2\)",

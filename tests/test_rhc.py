@@ -517,7 +517,9 @@ def test_fast_input_check_leaves_the_state_alone():
     u2, i2 = ctrl.act([1.0, 3.0], 1, 4)
     np.testing.assert_array_equal(u1, u2)
     assert isinstance(i1["cost"], float) and np.array_equal(x, [1.0, 3.0])
-    assert ctrl._check_inputs(np.array([1e308, 1e308]), 0, 0)[1:] == (0, 0)  # sum overflows
+    assert ctrl._check_inputs(np.array([1e100, -1e100]), 0, 0)[1:] == (0, 0)  # the bound itself
+    with pytest.raises(ValueError, match=r"magnitude above 1e\+100"):  # costs would overflow
+        ctrl._check_inputs(np.array([1e308, 1e308]), 0, 0)
 
 
 # ---------------------------------------------------------------------- variants
