@@ -32,14 +32,7 @@ from itertools import combinations
 
 import numpy as np
 
-from sdjls_gym.model import max_last
-
 __all__ = ["ActiveSetQP"]
-
-
-def _max_over_middle(a: np.ndarray) -> np.ndarray:
-    """``a.max(axis=1)`` for ``a`` (B, j, k) with a short axis 1."""
-    return max_last(np.moveaxis(a, 1, -1))
 
 
 class ActiveSetQP:
@@ -138,23 +131,27 @@ class ActiveSetQP:
         return np.concatenate([upper[:, self._upper_idx], -lower[:, self._lower_idx]], axis=1)
 
     def _range(self, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
-        """KKT-residual and solution maps of candidates ``lo .. hi-1`` (cached)."""
+        """KKT-residual and solution maps of candidates ``lo .. hi-1`` (cached), as row blocks:
+        row ``j * (hi - lo) + c`` of the first is residual ``j`` of candidate ``lo + c``, row
+        ``c * d + i`` of the second is ``z_i`` of candidate ``lo + c``."""
         key = (lo, hi)
         if key not in self._ranges:
-            k = self._kkt[lo:hi]  # (h, 2c, d + c), stored residual-major for _max_over_middle
-            kkt_T = k.transpose(1, 0, 2).reshape(-1, k.shape[2]).T.copy()
-            Z_T = self._Zc[lo:hi].reshape(-1, k.shape[2]).T.copy()
-            self._ranges[key] = (kkt_T, Z_T)
+            k = self._kkt[lo:hi]  # (h, 2c, d + c)
+            kkt_rows = k.transpose(1, 0, 2).reshape(-1, k.shape[2]).copy()
+            Z_rows = self._Zc[lo:hi].reshape(-1, k.shape[2]).copy()
+            self._ranges[key] = (kkt_rows, Z_rows)
         return self._ranges[key]
 
     def solve(
-        self, q: np.ndarray, lower: np.ndarray, upper: np.ndarray
+        self, q: np.ndarray, lower: np.ndarray | None = None, upper: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         """Solve a batch of instances.
 
         Parameters
         ----------
         q : (B, d)
+            Linear terms; or, when ``lower`` and ``upper`` are omitted, the whole data
+            ``w = [q; h]`` (B, d + c1) with ``h = one_sided_bounds(lower, upper)``.
         lower, upper : (B, c)
 
         Returns
@@ -162,11 +159,17 @@ class ActiveSetQP:
         z : (B, d) solutions (NaN where ``ok`` is False)
         ok : (B,) bool, whether a candidate passed the KKT test
         """
-        q = np.atleast_2d(np.asarray(q, dtype=np.float64))
-        h = self.one_sided_bounds(np.atleast_2d(lower), np.atleast_2d(upper))
-        B, d, nc = q.shape[0], self.d, self.n_candidates
-        w = np.concatenate([q, h], axis=1)  # (B, d + c)
-        tol = self.tol * (1.0 + max_last(np.abs(w)))
+        if lower is None and upper is None:
+            w = np.atleast_2d(np.asarray(q, dtype=np.float64))
+        else:
+            q = np.atleast_2d(np.asarray(q, dtype=np.float64))
+            h = self.one_sided_bounds(np.atleast_2d(lower), np.atleast_2d(upper))
+            w = np.concatenate([q, h], axis=1)  # (B, d + c)
+        # instances along the last axis: every elementwise operation below runs over the batch
+        # in contiguous memory (w given as the transpose of a (d + c, B) array costs no copy)
+        wT = w.T if w.T.flags.c_contiguous else np.ascontiguousarray(w.T)
+        B, d, nc = wT.shape[1], self.d, self.n_candidates
+        tol = self.tol * (1.0 + np.abs(wT).max(axis=0, initial=0.0))
         z = np.full((B, d), np.nan)
         found = np.zeros(B, dtype=bool)
         # The answer is always the lowest-index candidate that passes the KKT test (any KKT
@@ -174,22 +177,27 @@ class ActiveSetQP:
         # history). For speed the candidates are tried in two ranges: up to the one that won
         # most often in the previous call, then the rest for the states not settled yet.
         g = self._guess
-        todo = np.arange(B)
+        todo = None  # every instance
         winners = []
         for lo, hi in ((0, g + 1), (g + 1, nc)):
-            if hi <= lo or todo.size == 0:
+            if hi <= lo or (todo is not None and todo.size == 0):
                 continue
-            kkt_T, Z_T = self._range(lo, hi)
-            wr = w[todo]
-            residual = (wr @ kkt_T).reshape(todo.size, -1, hi - lo)  # (R, 2c, hi - lo)
-            ok = _max_over_middle(residual) <= tol[todo, None]  # KKT holds
-            best = np.argmax(ok, axis=1)
-            rows = np.arange(todo.size)
-            hit = ok[rows, best]
-            z[todo[hit]] = (wr[hit] @ Z_T).reshape(-1, hi - lo, d)[rows[: hit.sum()], best[hit]]
-            found[todo[hit]] = True
-            winners.append(lo + best[hit])
-            todo = todo[~hit]
+            h = hi - lo
+            kkt_rows, Z_rows = self._range(lo, hi)
+            wr, tr = (wT, tol) if todo is None else (wT[:, todo], tol[todo])
+            R = wr.shape[1]
+            residual = (kkt_rows @ wr).reshape(-1, h * R)  # (2c, h R): residual j of (c, i)
+            ok = (residual.max(axis=0) <= np.tile(tr, h)).reshape(h, R)  # KKT holds
+            best = np.argmax(ok, axis=0)  # the lowest-index candidate that passes
+            hit = ok.any(axis=0)
+            idx = np.arange(B) if todo is None else todo
+            if not hit.all():
+                best, wr = best[hit], wr[:, hit]
+            zr = (Z_rows @ wr).reshape(h, d, -1)  # z of every candidate of the range
+            z[idx[hit]] = zr[best, :, np.arange(best.size)]
+            found[idx[hit]] = True
+            winners.append(lo + best)
+            todo = idx[~hit]
         if winners:
             counts = np.bincount(np.concatenate(winners), minlength=nc)
             self._guess = int(counts.argmax()) if counts.any() else self._guess

@@ -439,7 +439,16 @@ class SDJLSModel:
         (..., r) array
         """
         k = np.asarray(k, dtype=np.float64)
-        return self.H0 + k[..., None] * self.H_rate
+        if k.ndim == 0:
+            return self.H0 + k[..., None] * self.H_rate
+        # the same arithmetic column by column: contiguous loops over the batch, not loops of
+        # length r
+        out = np.empty((*k.shape, self.r))
+        for j in range(self.r):
+            column = out[..., j]
+            np.multiply(k, self.H_rate[j], out=column)
+            column += self.H0[j]
+        return out
 
     def constraint_values(self, x: np.ndarray, k: int | np.ndarray) -> np.ndarray:
         """``G x - H_k``: positive entries are violated rows.
@@ -549,7 +558,12 @@ class SDJLSModel:
         self, inside: np.ndarray, mode: int | np.ndarray, uniform: np.ndarray | float
     ) -> np.ndarray:
         # draw_categorical with the normalized CDFs of P_in / P_out tabulated once
-        cdf = self._tables["cdf"][np.asarray(inside, dtype=np.intp), np.asarray(mode)]
+        inside, mode = np.asarray(inside, dtype=np.intp), np.asarray(mode)
+        if inside.ndim == 0 and mode.ndim == 0:
+            cdf = self._tables["cdf"][inside, mode]
+        else:  # the same rows gathered with np.take (faster than fancy indexing on a batch)
+            table = self._tables["cdf"]
+            cdf = np.take(table.reshape(-1, self.N), inside * table.shape[1] + mode, axis=0)
         u = np.asarray(uniform, dtype=np.float64)
         count = np.zeros(np.broadcast_shapes(cdf.shape[:-1], u.shape), dtype=np.int64)
         for j in range(self.N - 1):  # the last CDF entry is exactly 1 > u: never counted
@@ -601,7 +615,13 @@ class SDJLSModel:
     def stage_cost(self, x: np.ndarray, mode: int | np.ndarray, u: np.ndarray) -> np.ndarray:
         """``x' Q_theta x + u' R_theta u``; shape ``(...)``."""
         z = _stack_last(x, u)
-        return np.sum(self._per_mode(self._tables["QR_T"], self.n + self.m, mode, z) * z, axis=-1)
+        p = self._per_mode(self._tables["QR_T"], self.n + self.m, mode, z) * z
+        if p.ndim < 2 or p.shape[-1] > 8:
+            return np.sum(p, axis=-1)
+        out = p[..., 0].copy()  # the sum over the short last axis, in numpy's order, faster
+        for j in range(1, p.shape[-1]):
+            out += p[..., j]
+        return out
 
     @cached_property
     def _tables(self) -> dict[str, Any]:
@@ -628,7 +648,13 @@ class SDJLSModel:
         batch = z.shape[:-1]
         z2 = z.reshape(-1, z.shape[-1])
         mode2 = np.broadcast_to(np.asarray(mode), batch).reshape(-1)
-        y = (z2 @ M_T).reshape(z2.shape[0], self.N, rows)[np.arange(z2.shape[0]), mode2]
+        size = z2.shape[0]
+        # row mode2[b] of the (N, rows) block of b: np.take is much faster than fancy indexing
+        y = np.take(
+            (z2 @ M_T).reshape(size * self.N, rows),
+            np.arange(0, size * self.N, self.N) + mode2,
+            axis=0,
+        )
         return y.reshape(*batch, rows)
 
     # ------------------------------------------------------------------ one state, fast

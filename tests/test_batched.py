@@ -190,3 +190,22 @@ def test_vector_env_with_act_batch_equals_single_env_with_act_on_the_same_noise(
             np.testing.assert_allclose(u, us[t][i], atol=1e-6)
             _, _, _, _, sinfo = env.step(u)
             np.testing.assert_allclose(sinfo["state"], xs[t + 1, i], atol=1e-6)
+
+
+def test_active_set_solve_accepts_stacked_data():
+    """``ActiveSetQP.solve(w)`` with ``w = [q; h]`` gives the same bits as ``solve(q, l, u)``."""
+    from controllers.active_set import ActiveSetQP
+
+    P = np.array([[2.0, 0.0], [0.0, 0.0]])
+    A = np.array([[1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])
+    lo, hi = np.array([-np.inf, -1.0, 0.0]), np.array([0.5, 1.0, np.inf])
+    qp = ActiveSetQP(P, A, np.isfinite(lo), np.isfinite(hi))
+    rng = np.random.default_rng(0)
+    q = np.column_stack([rng.normal(size=50) * 3, np.full(50, 10.0)])
+    lower, upper = np.tile(lo, (50, 1)), np.tile(hi, (50, 1))
+    upper[:, 0] = rng.normal(size=50)
+    z1, ok1 = qp.solve(q, lower, upper)
+    w = np.concatenate([q, qp.one_sided_bounds(lower, upper)], axis=1)
+    for arr in (w, np.ascontiguousarray(w.T).T):
+        z2, ok2 = qp.solve(arr)
+        assert np.array_equal(ok1, ok2) and np.array_equal(z1, z2, equal_nan=True)
