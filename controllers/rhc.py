@@ -155,6 +155,19 @@ def _check_osqp_settings(settings: Any) -> dict[str, Any]:
     return merged
 
 
+def _act_info(nu, rho, cost, status: str, path: str, inside: bool, Pi: np.ndarray) -> dict:
+    """The ``info`` dict of :meth:`RecedingHorizonController.act` (keys documented there)."""
+    return {
+        "nu": np.array(nu, dtype=np.float64),
+        "rho": float(rho),
+        "cost": float(cost),
+        "status": status,
+        "solver": path,
+        "in_region": inside,
+        "Pi": Pi,
+    }
+
+
 @dataclass(frozen=True, eq=False)
 class _Family:
     """P3 for one ``(mode, x_k in C1)`` pair: ``Pi`` and every matrix of the QP are fixed.
@@ -715,16 +728,7 @@ class RecedingHorizonController(_FeedbackPolicy):
             answer = self._osqp_answer(fam, key, x, k, y, w, zero_tol, notes)
         nu, rho, cost, status, path = answer
         u = y[:m] + nu  # eq. (eq:stabilization_input)
-        info = {
-            "nu": np.array(nu, dtype=np.float64),
-            "rho": float(rho),
-            "cost": float(cost),
-            "status": status,
-            "solver": path,
-            "in_region": inside,
-            "Pi": fam.Pi,
-        }
-        return u, info
+        return u, _act_info(nu, rho, cost, status, path, inside, fam.Pi)
 
     def _osqp_answer(
         self,
@@ -794,15 +798,7 @@ class RecedingHorizonController(_FeedbackPolicy):
             step = self._step(x, mode, k)
             nu, rho, cost, status, path = self._solve(step)
             u = step.Kx[0] + nu  # eq. (eq:stabilization_input)
-            info = {
-                "nu": np.array(nu, dtype=np.float64),
-                "rho": float(rho),
-                "cost": float(cost),
-                "status": status,
-                "solver": path,
-                "in_region": step.fam.inside,
-                "Pi": step.Pi,
-            }
+            info = _act_info(nu, rho, cost, status, path, step.fam.inside, step.Pi)
         counts = self._path_counts
         counts[info["solver"]] = counts.get(info["solver"], 0) + 1
         return np.asarray(u, dtype=np.float64), info
