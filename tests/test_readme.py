@@ -1,0 +1,66 @@
+"""The README's tables are copies of the committed benchmark reports, not numbers typed by hand.
+
+The README copies the claims table of ``results/paper/REPORT.md``, the results table of
+``results/rl/REPORT.md`` and the speed table of ``results/speed/SPEED.md``. When a benchmark is
+re-run and its report changes, this test fails until the README is updated from it.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text(encoding="utf-8")
+
+
+def _section(title: str) -> str:
+    """The README text from the ``## title`` heading to the next ``## `` heading."""
+    match = re.search(rf"^## {re.escape(title)}\n(.*?)(?=^## |\Z)", README, flags=re.M | re.S)
+    assert match, f"README has no section '## {title}'"
+    return match.group(1)
+
+
+def _table_rows(text: str) -> list[str]:
+    return [line.strip() for line in text.splitlines() if line.strip().startswith("|")]
+
+
+@pytest.mark.parametrize(
+    ("title", "report", "min_rows"),
+    [
+        ("Reproducing the paper (section 6)", "results/paper/REPORT.md", 8),
+        ("Receding horizon against reinforcement learning", "results/rl/REPORT.md", 10),
+        ("Speed", "results/speed/SPEED.md", 6),
+    ],
+)
+def test_readme_tables_are_copied_from_the_committed_reports(title, report, min_rows):
+    rows = _table_rows(_section(title))
+    assert len(rows) >= min_rows, f"README section '{title}' shows {len(rows)} table rows"
+    report_rows = set(_table_rows((ROOT / report).read_text(encoding="utf-8")))
+    missing = [row for row in rows if row not in report_rows]
+    assert not missing, f"README rows not in {report} (re-copy them from it): {missing[:3]}"
+
+
+def test_readme_names_the_commands_and_shows_the_figures():
+    for command in (
+        "python -m benchmarks.reproduce_paper",
+        "python -m benchmarks.compare_rl",
+        "python -m benchmarks.speed",
+    ):
+        assert command in README
+    for figure in re.findall(r"!\[[^\]]*\]\(([^)]+)\)", README):
+        assert (ROOT / figure).is_file(), f"README shows {figure}, which does not exist"
+
+
+PYTHON_BLOCKS = re.findall(r"```python\n(.*?)```", README, flags=re.S)
+
+
+@pytest.mark.parametrize("index", range(len(PYTHON_BLOCKS)))
+def test_readme_python_examples_run(index, tmp_path, monkeypatch, capsys):
+    """Every ```python block of the README runs as written (in a scratch folder)."""
+    monkeypatch.chdir(tmp_path)
+    exec(compile(PYTHON_BLOCKS[index], f"README.md python block {index}", "exec"), {})
+    if "PAPER_K[info[" in PYTHON_BLOCKS[index]:  # the environment example prints what it says
+        assert capsys.readouterr().out.split() == ["20", "20.0", "-731.2"]
