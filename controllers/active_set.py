@@ -34,6 +34,10 @@ import numpy as np
 
 __all__ = ["ActiveSetQP"]
 
+#: Primal tolerance of :meth:`ActiveSetQP.verify` with ``strict=True``, relative to the bounds
+#: (the receding-horizon controller reports a slack below this relative size as zero).
+STRICT_PRIMAL_TOL = 1e-10
+
 
 class ActiveSetQP:
     """A QP family ``min 1/2 z'Pz + q'z  s.t.  l <= A z <= u`` solved exactly for batches.
@@ -208,7 +212,7 @@ class ActiveSetQP:
         """KKT tolerance of one instance ``w = [q; h]`` (d + c,), as in :meth:`solve`."""
         return self.tol * (1.0 + max(map(abs, w.tolist())))
 
-    def verify(self, candidate: int, w: np.ndarray) -> list[float] | None:
+    def verify(self, candidate: int, w: np.ndarray, strict: bool = False) -> list[float] | None:
         """The solution of one instance from one candidate active set, if it is the optimum.
 
         Solves the equality-constrained KKT system of the candidate (a precomputed linear map
@@ -216,6 +220,14 @@ class ActiveSetQP:
         and nonnegative multipliers on the active ones (sufficient for a convex QP), with the
         tolerance of :meth:`solve`. The result is a function of ``(candidate, w)`` only: the
         same products, in the same order, whichever caller asks.
+
+        With ``strict=True`` primal feasibility is held to round-off of the bounds,
+        ``STRICT_PRIMAL_TOL * (1 + max |h|)``, instead of the tolerance of :meth:`solve`, which
+        scales with the whole of ``w`` (a large linear term, such as P3's slack penalty
+        ``alpha``, would let a guessed active set that is too small violate a row by ~1e-6 and
+        still pass). For callers that guess the active set (a warm start, a solver's duals);
+        when the guess fails they enumerate with :meth:`solve_one`, which tries the larger
+        active sets first.
 
         Parameters
         ----------
@@ -236,9 +248,13 @@ class ActiveSetQP:
             self._single[candidate] = T
         v = (T @ w).tolist()
         tol = self._tolerance(w)
-        n2 = 2 * self._n_rows
+        n1, n2 = self._n_rows, 2 * self._n_rows
         if not math.isfinite(tol + sum(v)) or max(v[:n2], default=-math.inf) > tol:
             return None
+        if strict and n1:
+            primal_tol = STRICT_PRIMAL_TOL * (1.0 + max(map(abs, w[self.d :].tolist())))
+            if max(v[:n1]) > primal_tol:
+                return None
         return v[n2:]
 
     def solve_one(self, w: np.ndarray) -> tuple[int | None, list[float] | None]:

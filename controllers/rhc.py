@@ -711,7 +711,7 @@ class RecedingHorizonController(_FeedbackPolicy):
         if self.solver == "osqp":
             candidate = self._warm.get(key) if self._warm_start else None
             if candidate is not None:
-                z = qp.verify(candidate, w)  # the last solution's active set, re-solved exactly
+                z = qp.verify(candidate, w, strict=True)  # the last active set, re-solved
                 if z is not None:
                     answer = (
                         *self._exact(fam, x, y.tolist(), w, zero_tol, z),
@@ -753,7 +753,7 @@ class RecedingHorizonController(_FeedbackPolicy):
             text = f"solved ({'; '.join(notes)}; retried)" if retry else "solved"
             path = "osqp_retry" if retry else "osqp"
             candidate = qp.candidate_from_duals(dual, lo, hi)
-            exact = None if candidate is None else qp.verify(candidate, w)
+            exact = None if candidate is None else qp.verify(candidate, w, strict=True)
             if exact is None:  # OSQP's active set does not verify: enumerate them all
                 candidate, exact = qp.solve_one(w)
                 path = "active_set"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from scipy import optimize, stats
@@ -700,3 +701,37 @@ def test_act_rejects_bad_inputs(args, error, pattern):
 def test_tightening_attribute_matches_chance_module():
     ctrl = RecedingHorizonController(macro(), PAPER_K, **PAPER_RHC, constraint="bonferroni")
     np.testing.assert_array_equal(ctrl.tightening, tightening(macro(), 0.85, "bonferroni"))
+
+
+def test_warm_start_rejects_a_stale_active_set_that_is_barely_infeasible():
+    """A remembered active set that leaves the band row out, and breaks it by ~5e-7 at the next
+    state, is not accepted (the KKT tolerance of the enumeration scales with alpha = 1000 and
+    would pass it, reporting a spurious rho > 0): the answer is the enumeration's, rho = 0."""
+    warm = RecedingHorizonController(macro(), PAPER_K, **PAPER_RHC)
+    enum = RecedingHorizonController(macro(), PAPER_K, **PAPER_RHC, solver="active_set")
+    warm.act(np.array([-3.32597337, 1.75755035]), 0, 3)  # remembers {rho >= 0}
+    x = np.array([-1.8313282, 2.48824919])
+    _, got = warm.act(x, 0, 3)
+    _, want = enum.act(x, 0, 3)
+    assert got["rho"] == want["rho"] == 0.0
+    assert np.array_equal(got["nu"], want["nu"]) and got["cost"] == want["cost"]
+
+
+def test_warm_start_answers_equal_the_enumeration_bit_for_bit_along_closed_loops():
+    """Along 40 closed-loop episodes (800 decisions) per constraint kind, act() with the warm
+    start returns exactly the enumeration's answer, and the warm start answers most calls."""
+    for kind in ("individual", "joint", "bonferroni"):
+        kw = {**PAPER_RHC, "constraint": kind}
+        warm = RecedingHorizonController(macro(), PAPER_K, **kw)
+        enum = RecedingHorizonController(macro(), PAPER_K, **kw, solver="active_set")
+        env = gym.make("SDJLS-Macro-v0")
+        for episode in range(40):
+            _, info = env.reset(seed=episode)
+            done = False
+            while not done:
+                u, a = warm.act(info["state"], info["mode"], info["k"])
+                _, b = enum.act(info["state"], info["mode"], info["k"])
+                assert np.array_equal(a["nu"], b["nu"]) and a["rho"] == b["rho"], (kind, info)
+                _, _, terminated, truncated, info = env.step(u.astype(np.float32))
+                done = terminated or truncated
+        assert warm._path_counts.get("active_set_warm", 0) > 0.5 * sum(warm._path_counts.values())
