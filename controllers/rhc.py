@@ -475,12 +475,6 @@ class RecedingHorizonController(_FeedbackPolicy):
             hi.insert(0, upper_rows)
         return np.hstack(lo), np.hstack(hi)
 
-    def _qp_vectors(self, d: _Step) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Linear term ``q`` (B, m+1) and bounds ``l, u`` of the QP in z = (nu, rho)."""
-        alpha = self.alpha if self._chance_constrained else 0.0
-        q = np.hstack([d.g, np.full((d.g.shape[0], 1), alpha)])
-        return (q, *self._bounds(d.hbar - d.GAx))
-
     def _min_rho(self, d: _Step, nu: np.ndarray) -> np.ndarray:
         """Smallest ``rho >= 0`` (B,) that makes ``nu`` (B, m) feasible in eq. (constraint:feasibility)."""
         if not self._chance_constrained:
@@ -844,8 +838,6 @@ class RecedingHorizonController(_FeedbackPolicy):
         order = np.argsort(family.astype(np.int8 if model.N < 64 else np.int64), kind="stable")
         counts = np.bincount(family, minlength=2 * model.N).tolist()
         xs, ks = np.take(x, order, axis=0), np.take(k, order)
-        # eq. (constraint:feasibility): the constraint is on x_{k+1}, band H_{k+1}
-        band = model.H(ks + 1) if self._chance_constrained else None
         u_s, nu_s = np.empty((size, m)), np.empty((size, m))
         rho_s, cost_s = np.empty(size), np.empty(size)
         start = 0
@@ -856,16 +848,12 @@ class RecedingHorizonController(_FeedbackPolicy):
             fam = self._families.get((key // 2, bool(key % 2))) or self._family(
                 key // 2, bool(key % 2)
             )
-            xf = xs[start:stop]
-            y = xf @ fam.maps.T  # [K x, Atilde x, g, G Atilde x]
-            g = y[:, m + model.n : 2 * m + model.n]
+            step = self._data(fam, xs[start:stop], ks[start:stop])
             wT = np.empty((fam.w0.shape[0], count))  # [q; h] of the family's ActiveSetQP
             wT[:] = fam.w0[:, None]
-            wT[:m] = g.T
+            wT[:m] = step.g.T
             if self._chance_constrained:
-                GAx = y[:, 2 * m + model.n :]
-                hbar = band[start:stop] - self.tightening[fam.mode]
-                wT[d : d + r] = (hbar - GAx).T
+                wT[d : d + r] = (step.hbar - step.GAx).T
             w = wT.T  # (count, d + c1), a view
             z, found = fam.solver.solve(w)  # w = [q; h]
             nu_f = self._project_nu(
@@ -876,22 +864,10 @@ class RecedingHorizonController(_FeedbackPolicy):
                 _, info_j = self.act(x[i], int(mode[i]), int(k[i]))
                 nu_f[j], status[i] = info_j["nu"], info_j["status"]
                 ok[i] = not info_j["status"].startswith("fallback")
-            if self._chance_constrained:  # the optimal rho for this nu (alpha > 0)
-                excess = max_last(GAx + nu_f @ fam.GB.T - hbar)
-                # round-off on an active row (|excess| ~ 1e-15) is not a use of the slack
-                zero = excess <= _RHO_ZERO_TOL * np.maximum(1.0, max_last(np.abs(hbar)))
-                rho_f = np.where(zero, 0.0, excess)
-            else:
-                rho_f = np.zeros(count)
+            rho_f = self._min_rho(step, nu_f)  # the optimal rho for this nu (alpha > 0)
             nu_s[start:stop], rho_s[start:stop] = nu_f, rho_f
-            cost_s[start:stop] = (  # J_k, as in _objective
-                np.sum((xf @ fam.C) * xf, axis=1)
-                + fam.noise_term
-                + np.sum((nu_f @ fam.H_nu) * nu_f, axis=1)
-                + np.sum(g * nu_f, axis=1)
-                + self.alpha * rho_f
-            )
-            np.add(y[:, :m], nu_f, out=u_s[start:stop])  # eq. (eq:stabilization_input)
+            cost_s[start:stop] = self._objective(step, nu_f, rho_f)
+            np.add(step.Kx, nu_f, out=u_s[start:stop])  # eq. (eq:stabilization_input)
             start = stop
         back = np.empty(size, dtype=np.intp)  # the inverse permutation of order
         back[order] = np.arange(size)

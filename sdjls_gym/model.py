@@ -616,7 +616,7 @@ class SDJLSModel:
         """``x' Q_theta x + u' R_theta u``; shape ``(...)``."""
         z = _stack_last(x, u)
         p = self._per_mode(self._tables["QR_T"], self.n + self.m, mode, z) * z
-        if p.ndim < 2 or p.shape[-1] > 8:
+        if p.ndim < 2 or p.shape[-1] >= 8:  # from 8 terms numpy sums in 8 running accumulators
             return np.sum(p, axis=-1)
         out = p[..., 0].copy()  # the sum over the short last axis, in numpy's order, faster
         for j in range(1, p.shape[-1]):
