@@ -17,9 +17,9 @@ learning curve, no checkpoint). A run whose file exists with the same configurat
 trained again, so an interrupted run resumes where it stopped (``--retrain`` trains anew).
 
 Compute: measured on the 2-core development machine with one torch thread per process and two
-trainings in parallel, PPO trains at about 2500 env steps/s, SAC at about 110 and TD3 at about
+trainings in parallel, PPO trains at about 9500 env steps/s, SAC at about 110 and TD3 at about
 170 (alone: SAC about 210, TD3 about 340). The default budgets of
-:data:`benchmarks.rl_hyperparams.TIMESTEPS` (PPO 450k, SAC 15k, TD3 25k steps: about 2.5
+:data:`benchmarks.rl_hyperparams.TIMESTEPS` (PPO 1.35M, SAC 15k, TD3 25k steps: about 2.5
 minutes per run each) make the default run (3 x 3 x 6 = 54 trainings on ``--workers 2``) take
 about 70 minutes.
 """

@@ -138,7 +138,7 @@ HYPERPARAMS: dict[str, dict[str, Any]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
 #: Default training budget (env steps) per run, chosen from measured speeds on 2 cores so that
 #: the default run (3 algorithms x 3 seeds x 6 variants) takes about 70 minutes; see
 #: ``benchmarks/compare_rl.py``'s docstring for the measurement.
-TIMESTEPS: dict[str, int] = {"ppo": 450_000, "sac": 15_000, "td3": 25_000}
+TIMESTEPS: dict[str, int] = {"ppo": 1_350_000, "sac": 15_000, "td3": 25_000}
 
 #: Budget of ``--quick``.
 QUICK_TIMESTEPS = 2000
