@@ -16,12 +16,11 @@ figures, ``REPORT.md``, and ``runs/*.json``, one small file per training run (it
 learning curve, no checkpoint). A run whose file exists with the same configuration is not
 trained again, so an interrupted run resumes where it stopped (``--retrain`` trains anew).
 
-Compute: measured on the 2-core development machine with one torch thread per process and two
-trainings in parallel, PPO trains at about 9500 env steps/s, SAC at about 110 and TD3 at about
-170 (alone: SAC about 210, TD3 about 340). The default budgets of
-:data:`benchmarks.rl_hyperparams.TIMESTEPS` (PPO 1.35M, SAC 15k, TD3 25k steps: about 2.5
-minutes per run each) make the default run (3 x 3 x 6 = 54 trainings on ``--workers 2``) take
-about 70 minutes.
+Compute: measured in the committed run on the 2-core development machine, with one torch thread
+per process and two trainings in parallel: PPO trains at about 9500 env steps/s, SAC at about 345
+and TD3 at about 590. The default budgets of :data:`benchmarks.rl_hyperparams.TIMESTEPS` (PPO
+1.35M, SAC 30k, TD3 50k steps: about 1.5 to 2.5 minutes per run) make the default run
+(3 x 3 x 6 = 54 trainings on ``--workers 2``, with their learning curves) take about 50 minutes.
 """
 
 from __future__ import annotations

@@ -44,7 +44,7 @@ Agents acting directly on ``u`` learn slowly: the open loop is very unstable (an
 divergence unless the mean policy already stabilizes. In trials PPO (seed 0, 300k steps), SAC
 (8k) and TD3 (25k) acting on ``u`` still diverged in most episodes, and lower noise
 (``log_std_init`` -4, -5; TD3 noise 0.01) did not help; another PPO seed began to stabilize after
-about 200k steps, hence PPO's larger budget (PPO is ~15x cheaper per step than SAC and TD3 here).
+about 200k steps, hence PPO's larger budget (PPO is ~20x cheaper per step than SAC and TD3 here).
 The residual agents, pre-stabilized by the paper's gains, never diverged in trials. The
 learning-curve figure and the report show where the budget was not enough.
 """
@@ -136,9 +136,9 @@ TD3: dict[str, Any] = {
 HYPERPARAMS: dict[str, dict[str, Any]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
 
 #: Default training budget (env steps) per run, chosen from measured speeds on 2 cores so that
-#: the default run (3 algorithms x 3 seeds x 6 variants) takes about 70 minutes; see
+#: the default run (3 algorithms x 3 seeds x 6 variants) takes about 50 minutes; see
 #: ``benchmarks/compare_rl.py``'s docstring for the measurement.
-TIMESTEPS: dict[str, int] = {"ppo": 1_350_000, "sac": 15_000, "td3": 25_000}
+TIMESTEPS: dict[str, int] = {"ppo": 1_350_000, "sac": 30_000, "td3": 50_000}
 
 #: Budget of ``--quick``.
 QUICK_TIMESTEPS = 2000
