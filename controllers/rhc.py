@@ -820,8 +820,8 @@ class RecedingHorizonController(_FeedbackPolicy):
         u : (B, m) float64 array
         info : dict of arrays
             ``"nu"`` (B, m), ``"rho"`` (B,), ``"cost"`` (B,) (J*_k), ``"status"`` (B,) str
-            objects, ``"ok"`` (B,) bool (False where the last resort
-            ``nu = 0`` was used; an OSQP retry or a cvxpy rescue is optimal and counts as ok), ``"in_region"`` (B,).
+            objects, ``"ok"`` (B,) bool (False where the last resort ``nu = 0`` was used; an
+            OSQP retry or a cvxpy rescue is optimal and counts as ok), ``"in_region"`` (B,).
         """
         x, mode, k = self._check_batch_inputs(x, mode, k)
         if self._uses_socp or self.solver == "cvxpy":
@@ -845,9 +845,7 @@ class RecedingHorizonController(_FeedbackPolicy):
             if not count:
                 continue
             stop = start + count
-            fam = self._families.get((key // 2, bool(key % 2))) or self._family(
-                key // 2, bool(key % 2)
-            )
+            fam = self._family(key // 2, bool(key % 2))
             step = self._data(fam, xs[start:stop], ks[start:stop])
             wT = np.empty((fam.w0.shape[0], count))  # [q; h] of the family's ActiveSetQP
             wT[:] = fam.w0[:, None]
