@@ -17,10 +17,10 @@ learning curve, no checkpoint). A run whose file exists with the same configurat
 trained again, so an interrupted run resumes where it stopped (``--retrain`` trains anew).
 
 Compute: measured in the committed run on the 2-core development machine, with one torch thread
-per process and two trainings in parallel: PPO trains at about 9500 env steps/s, SAC at about 345
-and TD3 at about 590. The default budgets of :data:`benchmarks.rl_hyperparams.TIMESTEPS` (PPO
-1.35M, SAC 30k, TD3 50k steps: about 1.5 to 2.5 minutes per run) make the default run
-(3 x 3 x 6 = 54 trainings on ``--workers 2``, with their learning curves) take about 50 minutes.
+per process and two trainings in parallel: PPO trains at about 9000 env steps/s, SAC at about 315
+and TD3 at about 530. The default budgets of :data:`benchmarks.rl_hyperparams.TIMESTEPS` (PPO
+2.5M, SAC 60k, TD3 100k steps: about 3 to 5 minutes per run) make the default run
+(3 x 3 x 6 = 54 trainings on ``--workers 2``, with their learning curves) take about 100 minutes.
 """
 
 from __future__ import annotations
@@ -214,6 +214,7 @@ def evaluate_model_based(model, opts: Options) -> list[dict[str, Any]]:
                 **desc,
                 **stats,
                 "train_time_s": 0.0,
+                "max_abs_u": float(np.max(np.abs(ro.u))),
                 "decision_time_s": decision_time(ctrl, states.x, states.mode, states.k),
                 "incomes": incomes(ro),
             }
@@ -240,7 +241,7 @@ class RunSpec:
 
     def config(self) -> dict[str, Any]:
         """Everything the result depends on; a cached run is reused only if this matches."""
-        return {
+        config = {
             **asdict(self),
             "hyperparams": _jsonable(HP.HYPERPARAMS[self.algo]),
             "env": HP.ENV,
@@ -249,6 +250,9 @@ class RunSpec:
             "residual_nu_bound": HP.RESIDUAL_NU_BOUND,
             "residual_beta": HP.RESIDUAL_BETA,
         }
+        if variant_setup(self.variant)[0] == "u":  # residual agents do not depend on it
+            config["u_bound"] = HP.U_BOUND
+        return config
 
     def fingerprint(self) -> str:
         text = json.dumps(self.config(), sort_keys=True)
@@ -394,12 +398,13 @@ def train_run(spec: RunSpec, path: str | None, report=None) -> dict[str, Any]:
     model = macro()
     kind, beta, _ = variant_setup(spec.variant)
     K = PAPER_K if kind == "residual" else None
+    u_bound = HP.U_BOUND if kind == "u" else ACTION_BOUND
 
     def make_env():
-        return Monitor(make_train_env(kind, beta, HP.ENV, K, HP.RESIDUAL_NU_BOUND))
+        return Monitor(make_train_env(kind, beta, HP.ENV, K, HP.RESIDUAL_NU_BOUND, u_bound))
 
     def policy_factory(agent):
-        return SB3Policy(agent, model, kind, ACTION_BOUND, HP.ENV, K, HP.RESIDUAL_NU_BOUND, HORIZON)
+        return SB3Policy(agent, model, kind, u_bound, HP.ENV, K, HP.RESIDUAL_NU_BOUND, HORIZON)
 
     agent = build_agent(spec, [make_env])
     callbacks, log = _callbacks(spec, policy_factory, report)
@@ -887,6 +892,20 @@ def reading(summary: dict[str, Any]) -> list[str]:
 
     v_lo = rhc_curve[0]["violation"]["freq"]
     v_hi = rhc_curve[-1]["violation"]["freq"]
+
+    def seed_gaps(a: dict[str, Any]) -> str:
+        """Each seed's cost minus the RHC curve's at that seed's own violation frequency."""
+        parts = []
+        for r in summary["rl_runs"]:
+            if (r["algo"], r["variant"]) != (a["algo"], a["variant"]):
+                continue
+            v, c = r["violation"]["freq"], r["episode_cost"]
+            half = (c["ci95"][1] - c["ci95"][0]) / 2
+            parts.append(
+                f"seed {r['seed']}: {c['mean'] - rhc_cost_at(v):+.0f} +- {half:.0f} at {v:.3f}"
+            )
+        return "; ".join(parts)
+
     dominated, better, outside = [], [], []
     for a in aggs:
         v, c = a["violation"]["freq"], a["episode_cost"]["mean"]
@@ -898,7 +917,13 @@ def reading(summary: dict[str, Any]) -> list[str]:
         elif c > rhc_cost_at(v):
             dominated.append(a["name"])
         else:
-            better.append(text)
+            better.append(
+                f"{a['name']} (violations {v:.3f}, cost {c:.4g} against the curve's "
+                f"{rhc_cost_at(v):.4g}; 95% interval over seeds "
+                f"{a['episode_cost']['ci95'][0]:.4g} to {a['episode_cost']['ci95'][1]:.4g}; per "
+                f"seed, cost minus the curve's at the seed's own violation frequency, with the "
+                f"seed's 95% half-width over episodes: {seed_gaps(a)})"
+            )
     lines.append(
         f"* Against the RHC curve over xi (individual constraints, violation frequencies "
         f"{v_lo:.3f}..{v_hi:.3f}, interpolated at the agent's frequency): {len(dominated)} of "
@@ -971,6 +996,7 @@ def write_report(opts: Options, summary: dict[str, Any]) -> str:
     cmd = summary["command"]
     mb_rows = summary["model_based"]
     main_mb = [r for r in mb_rows if r.get("xi") in (None, XI)]
+    rhc_u_max = max(r["max_abs_u"] for r in main_mb if r.get("xi") == XI)
     lines = [
         "# The receding-horizon controller against RL agents (SDJLS-Macro-v0)",
         "",
@@ -988,7 +1014,9 @@ def write_report(opts: Options, summary: dict[str, Any]) -> str:
         "of the penalized per-step cost c (see `benchmarks/rl_hyperparams.py`); every number here "
         "is the true cost.",
         "",
-        f"Agents act on u (rescaled to [-1, 1]) or, for `residual`, on nu with u = K x + nu, "
+        f"Agents act on u, |u| <= {HP.U_BOUND:g} (the environment's bound is {ACTION_BOUND:g}; "
+        f"the largest |u| of the RHC at xi = {XI:g} in these episodes is {rhc_u_max:.1f}), "
+        "rescaled to [-1, 1], or, for `residual`, on nu with u = K x + nu, "
         f"|nu| <= {HP.RESIDUAL_NU_BOUND:g}; `beta<b>` trains on reward - b * info['cost']; "
         f"`residual` trains on reward - {HP.RESIDUAL_BETA:g} * info['cost']; "
         f"`lagrangian` adapts beta by dual ascent towards a violation frequency of 1 - xi = "

@@ -127,6 +127,7 @@ def make_train_env(
     env_hp: dict[str, float],
     K: np.ndarray | None = None,
     nu_bound: float = 100.0,
+    u_bound: float | None = None,
 ) -> gym.Env:
     """``SDJLS-Macro-v0`` wrapped for training one agent.
 
@@ -144,6 +145,11 @@ def make_train_env(
         Gains under a residual agent.
     nu_bound : float
         Bound on ``|nu|`` of a residual agent.
+    u_bound : float, optional
+        Bound on ``|u|`` of an agent acting on ``u``: the environment is made with
+        ``action_bound=u_bound``, so the agent's action ``a`` in [-1, 1] is ``u = u_bound * a``.
+        ``None`` keeps the registered bound (200). Ignored for residual agents. Evaluate such an
+        agent with ``SB3Policy(..., action_bound=u_bound)``.
 
     Returns
     -------
@@ -152,7 +158,14 @@ def make_train_env(
     """
     if action_kind not in ACTION_KINDS:
         raise ValueError(f"action_kind = {action_kind!r}; expected one of {ACTION_KINDS}")
-    env = gym.make("SDJLS-Macro-v0")
+    if u_bound is not None and not (
+        isinstance(u_bound, (int, float)) and np.isfinite(u_bound) and u_bound > 0
+    ):
+        raise ValueError(f"u_bound = {u_bound!r}; expected a finite positive float or None")
+    if action_kind == "residual" or u_bound is None:
+        env = gym.make("SDJLS-Macro-v0")
+    else:
+        env = gym.make("SDJLS-Macro-v0", action_bound=float(u_bound))
     if action_kind == "residual":
         if K is None:
             raise ValueError("a residual agent needs the gains K (N, m, n)")

@@ -169,13 +169,16 @@ class _FixedAgent:
         return np.full((len(obs), 1), self.a, dtype=np.float32), None
 
 
-@pytest.mark.parametrize("kind", ["u", "residual"])
-def test_adapter_matches_training_env(kind):
+@pytest.mark.parametrize(
+    ("kind", "u_bound"), [("u", None), ("u", HP.U_BOUND), ("residual", None), ("residual", 60.0)]
+)
+def test_adapter_matches_training_env(kind, u_bound):
     """The adapter sees what the training env shows the agent and applies the same input."""
     model = macro()
-    env = make_train_env(kind, None, HP.ENV, PAPER_K, HP.RESIDUAL_NU_BOUND)
+    env = make_train_env(kind, None, HP.ENV, PAPER_K, HP.RESIDUAL_NU_BOUND, u_bound)
     agent = _FixedAgent(0.3)
-    policy = SB3Policy(agent, model, kind, 200.0, HP.ENV, PAPER_K, HP.RESIDUAL_NU_BOUND, 20)
+    bound = 200.0 if u_bound is None or kind == "residual" else u_bound
+    policy = SB3Policy(agent, model, kind, bound, HP.ENV, PAPER_K, HP.RESIDUAL_NU_BOUND, 20)
     obs, info = env.reset(seed=3)
     for _ in range(5):
         x, mode, k = info["state"], info["mode"], info["k"]
@@ -183,6 +186,14 @@ def test_adapter_matches_training_env(kind):
         np.testing.assert_allclose(agent.seen[0], obs, rtol=1e-6)
         obs, _, _, _, info = env.step(np.array([agent.a], dtype=np.float32))
         np.testing.assert_allclose(info["u"], np.clip(u[0], -200, 200), rtol=1e-6, atol=1e-9)
+        if kind == "u":  # a = 0.3 is u = 0.3 * bound, whatever the bound
+            np.testing.assert_allclose(info["u"], [0.3 * bound], rtol=1e-6)
+
+
+@pytest.mark.parametrize("bad", [0.0, -60.0, float("nan"), float("inf"), "60"])
+def test_train_env_rejects_a_bad_u_bound(bad):
+    with pytest.raises(ValueError, match="u_bound"):
+        make_train_env("u", None, HP.ENV, None, HP.RESIDUAL_NU_BOUND, bad)
 
 
 def test_scaled_observation_clips_the_state_only():
