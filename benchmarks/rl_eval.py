@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from numbers import Real
 from typing import Any
 
 import gymnasium as gym
@@ -159,7 +160,10 @@ def make_train_env(
     if action_kind not in ACTION_KINDS:
         raise ValueError(f"action_kind = {action_kind!r}; expected one of {ACTION_KINDS}")
     if u_bound is not None and not (
-        isinstance(u_bound, (int, float)) and np.isfinite(u_bound) and u_bound > 0
+        isinstance(u_bound, Real)
+        and not isinstance(u_bound, bool)
+        and np.isfinite(u_bound)
+        and u_bound > 0
     ):
         raise ValueError(f"u_bound = {u_bound!r}; expected a finite positive float or None")
     if action_kind == "residual" or u_bound is None:

@@ -45,7 +45,7 @@ divergence unless the mean policy already stabilizes. In trials PPO (seed 0, 300
 (8k) and TD3 (25k) acting on ``u`` still diverged in most episodes, and lower noise
 (``log_std_init`` -4, -5; TD3 noise 0.01) did not help; another PPO seed began to stabilize after
 about 200k steps, hence PPO's larger budget (PPO is ~20x cheaper per step than SAC and TD3 here).
-Narrowing their input to ``|u| <= 60`` (:data:`U_BOUND`) helped all three; feeding the policy
+Narrowing their input to ``|u| <= 60`` (:data:`U_BOUND`) helped all three in short trials; feeding the policy
 the mode-gated state ``one-hot (x) x`` as well (in which the stabilizing mode-dependent feedback is
 linear) did not help SAC or TD3 in 12k-20k-step trials and was dropped.
 The residual agents, pre-stabilized by the paper's gains, never diverged in trials. The

@@ -190,10 +190,17 @@ def test_adapter_matches_training_env(kind, u_bound):
             np.testing.assert_allclose(info["u"], [0.3 * bound], rtol=1e-6)
 
 
-@pytest.mark.parametrize("bad", [0.0, -60.0, float("nan"), float("inf"), "60"])
+@pytest.mark.parametrize("bad", [0.0, -60.0, float("nan"), float("inf"), "60", True])
 def test_train_env_rejects_a_bad_u_bound(bad):
     with pytest.raises(ValueError, match="u_bound"):
         make_train_env("u", None, HP.ENV, None, HP.RESIDUAL_NU_BOUND, bad)
+
+
+def test_train_env_takes_a_numpy_u_bound():
+    env = make_train_env("u", None, HP.ENV, None, HP.RESIDUAL_NU_BOUND, np.float32(60.0))
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.array([0.5], dtype=np.float32))
+    np.testing.assert_allclose(info["u"], [30.0], rtol=1e-6)
 
 
 def test_scaled_observation_clips_the_state_only():
