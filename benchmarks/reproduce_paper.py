@@ -629,13 +629,12 @@ def write_per_step_csv(path: Path, summary: dict[str, Any]) -> int:
 
 def write_report(
     opts: Options,
-    argv: list[str],
     summary: dict[str, Any],
     figures: list[str],
     n_configs: int,
     n_per_step: int,
 ) -> str:
-    cmd = "python -m benchmarks.reproduce_paper" + ("" if not argv else " " + " ".join(argv))
+    cmd = summary["command"]
     lines = [
         "# Reproduction of section 6 (macroeconomic example)",
         "",
@@ -794,9 +793,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     (opts.out / "summary.json").write_text(dump_json(summary))
     n_configs = write_csv(opts.out / "summary.csv", summary)
     n_per_step = write_per_step_csv(opts.out / "summary_per_step.csv", summary)
-    (opts.out / "REPORT.md").write_text(
-        write_report(opts, argv, summary, figures, n_configs, n_per_step)
-    )
+    (opts.out / "REPORT.md").write_text(write_report(opts, summary, figures, n_configs, n_per_step))
     agree = sum(c["agree"] for c in summary["claims"])
     print(f"{agree}/{len(summary['claims'])} claims of section 6 agree; wrote {opts.out}/REPORT.md")
     for c in summary["claims"]:
