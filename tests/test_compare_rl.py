@@ -11,6 +11,12 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -125,6 +131,11 @@ def test_quick_run_summary_schema(quick_run):
         _check_row(a)
     assert summary["best_agent"] in {r["name"] for r in runs}
     assert {s["algo"] for s in summary["learning_curves"]} == {"ppo", "sac", "td3"}
+    # --timesteps overrides every per-variant default budget
+    assert summary["timesteps"] == {
+        a: {v: 1050 for v in ("reward", "beta1000", "residual", "lagrangian")}
+        for a in ("ppo", "sac", "td3")
+    }
     assert returned["model_based"][0]["name"] == summary["model_based"][0]["name"]
 
 
@@ -143,6 +154,7 @@ def test_quick_run_csv_and_report(quick_run):
     report = (out / "REPORT.md").read_text()
     assert summary["command"] in report
     assert "| RHC individual xi=0.85 |" in report
+    assert "## Learning curves" in report and "| TD3 residual | 1.05k |" in report
     for fig in FIGURES:
         assert f"]({fig})" in report
 
@@ -207,3 +219,185 @@ def test_scaled_observation_clips_the_state_only():
     obs = np.array([[1e6, -5.0, 0.0, 1.0, 0.0, 0.5]], dtype=np.float32)
     out = scale_observation(obs, 2, 10.0, 10.0)
     np.testing.assert_allclose(out, [[10.0, -0.5, 0.0, 1.0, 0.0, 0.5]])
+
+
+# ------------------------------------------------------------------ budgets and the flatness test
+def test_default_budgets_per_variant():
+    """The per-variant budgets override the per-algorithm ones, and only where they are listed."""
+    specs = compare_rl.run_specs(compare_rl.Options())
+    assert len(specs) == 3 * 6 * 3
+    for s in specs:
+        expected = HP.TIMESTEPS_VARIANT.get((s.algo, s.variant), HP.TIMESTEPS[s.algo])
+        assert s.timesteps == expected, s.name
+    assert {s.timesteps for s in specs if s.algo == "ppo" and s.variant == "residual"} == {
+        HP.TIMESTEPS["ppo"]
+    }
+    for (algo, variant), n in HP.TIMESTEPS_VARIANT.items():
+        assert algo in compare_rl.ALGOS and variant in compare_rl.VARIANTS
+        assert n > HP.TIMESTEPS[algo], (algo, variant)  # an override only ever adds training
+    quick = compare_rl.run_specs(compare_rl.Options(quick=True))
+    assert {s.timesteps for s in quick} == {HP.QUICK_TIMESTEPS}
+
+
+def _run(algo, variant, seed, cost, violation, diverged, episodes=100, total=1000):
+    """A synthetic run record with a learning curve of ``len(cost)`` points after the first."""
+    n = len(cost)
+    curve = [
+        {
+            "timesteps": round(total * i / (n - 1)),
+            "episode_cost_median": c,
+            "violation": v,
+            "diverged": d,
+        }
+        for i, (c, v, d) in enumerate(zip(cost, violation, diverged, strict=True))
+    ]
+    return {
+        "algo": algo,
+        "variant": variant,
+        "seed": seed,
+        "config": {"curve_episodes": episodes},
+        "learning_curve": curve,
+    }
+
+
+def _status(runs):
+    return {(s["algo"], s["variant"]): s for s in compare_rl.curve_status(runs)}
+
+
+def test_curve_status_windows():
+    """11 points (0%, 10%, ..., 100%): the late window is 80-100%, the earlier one 50-70%."""
+    flat_cost = [9e3, 6e3, 5e3, 5e3, 5e3, 5100, 4900, 5000, 5050, 4950, 5000]
+    flat_v = [0.9, 0.5, 0.3, 0.2, 0.2, 0.21, 0.19, 0.20, 0.19, 0.21, 0.20]
+    # the violation frequency still falls: 0.22 in the earlier window, 0.18 in the late one
+    falling_v = [0.9, 0.5, 0.3, 0.25, 0.24, 0.23, 0.22, 0.21, 0.19, 0.18, 0.17]
+    # the cost still falls by about 15%
+    falling_c = [9e3, 8e3, 7e3, 6e3, 6e3, 6e3, 6e3, 6e3, 5.1e3, 5.1e3, 5.1e3]
+    zero = [0] * 11
+    st = _status(
+        [
+            _run("td3", "residual", 0, flat_cost, flat_v, zero),
+            _run("td3", "beta100", 0, flat_cost, falling_v, zero),
+            _run("td3", "beta1000", 0, falling_c, flat_v, zero),
+        ]
+    )
+    s = st[("td3", "residual")]
+    assert s["late_window"] == [800, 1000] and s["earlier_window"] == [500, 700]
+    assert s["flat"] and s["cost_rel_change"] == pytest.approx(0.0, abs=1e-12)
+    assert s["violation_change"] == pytest.approx(0.0, abs=1e-12)
+    assert not st[("td3", "beta100")]["flat"]
+    assert st[("td3", "beta100")]["violation_change"] == pytest.approx(0.04)
+    assert not st[("td3", "beta1000")]["flat"]
+    assert st[("td3", "beta1000")]["cost_rel_change"] == pytest.approx(0.9e3 / 5.1e3)
+
+
+def test_curve_status_averages_windows_and_seeds():
+    """Noise that single points would call a change (0.17 at 70% against 0.23 at 100%) cancels
+    in the window means; opposite drifts of two seeds cancel in the seed average."""
+    cost = [5e3] * 11
+    zero = [0] * 11
+    noisy = [0.9, 0.3, 0.2, 0.2, 0.2, 0.23, 0.20, 0.17, 0.20, 0.17, 0.23]
+    assert _status([_run("sac", "residual", 0, cost, noisy, zero)])[("sac", "residual")]["flat"]
+    drifting = noisy[:-1] + [0.32]  # late window 0.23 against 0.20
+    st = _status([_run("sac", "residual", 0, cost, drifting, zero)])
+    assert not st[("sac", "residual")]["flat"]
+    up = [0.9, 0.3, 0.2, 0.2, 0.2, 0.17, 0.17, 0.17, 0.23, 0.23, 0.23]
+    down = [0.9, 0.3, 0.2, 0.2, 0.2, 0.23, 0.23, 0.23, 0.17, 0.17, 0.17]
+    assert not _status([_run("td3", "reward", 0, cost, up, zero)])[("td3", "reward")]["flat"]
+    both = _status(
+        [_run("td3", "reward", 0, cost, up, zero), _run("td3", "reward", 1, cost, down, zero)]
+    )
+    assert both[("td3", "reward")]["flat"]
+
+
+def test_curve_status_ignores_the_cost_of_diverging_episodes():
+    """Where the median evaluation episode diverges, its cost is not compared, but the share of
+    diverged episodes is."""
+    jumping = [4e11, 2e11, 1e11, 3e11, 1e11, 4e11, 1e11, 2e11, 1e11, 3e11, 4e11]
+    v = [0.9] + [0.6] * 10
+    steady = [100] + [60] * 10
+    falling = [100, 90, 80, 75, 70, 68, 66, 64, 58, 56, 54]
+    st = _status(
+        [
+            _run("ppo", "beta1000", 0, jumping, v, steady),
+            _run("ppo", "reward", 0, jumping, v, falling),
+        ]
+    )
+    s = st[("ppo", "beta1000")]
+    assert s["median_episode_diverges"] and s["cost_rel_change"] is None and s["flat"]
+    r = st[("ppo", "reward")]
+    assert r["diverged_share_change"] == pytest.approx(0.10) and not r["flat"]
+    assert r["diverged_share_late"] == pytest.approx(0.56)
+    # once fewer than half diverge the cost counts again: the same jumps are then a change
+    half = _status([_run("ppo", "beta100", 0, jumping, v, [10] * 11)])
+    assert not half[("ppo", "beta100")]["median_episode_diverges"]
+    assert not half[("ppo", "beta100")]["flat"]
+
+
+def test_curve_status_short_curves():
+    """The quick run's curves (0 and three points): one point per window, never the untrained
+    policy."""
+    st = _status([_run("ppo", "residual", 0, [9e3, 5e3, 5e3, 5e3], [1, 0.2, 0.2, 0.2], [0] * 4)])
+    s = st[("ppo", "residual")]
+    assert s["late_window"] == [1000, 1000] and s["earlier_window"] == [667, 667]
+    assert s["flat"]
+    assert _status([_run("ppo", "residual", 0, [1, 2], [0, 0], [0, 0])]) == {}
+
+
+# ------------------------------------------------------------------ worker processes
+def _children(pid: int) -> set[int]:
+    """PIDs whose parent is ``pid`` (Linux /proc)."""
+    out = set()
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = open(f"/proc/{entry}/stat").read()
+        except OSError:
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+            out.add(int(entry))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="uses /proc and prctl")
+def test_workers_end_with_the_main_process(tmp_path):
+    """SIGKILL the main process of a two-worker run while both are training: its worker processes
+    (and the manager) must end within 30 s instead of training on and writing runs/*.json."""
+    cmd = [
+        sys.executable, "-m", "benchmarks.compare_rl", "--quick", "--algos", "ppo",
+        "--variants", "reward", "residual", "--seeds", "1", "--timesteps", "10000000",
+        "--workers", "2", "--no-progress", "--out", str(tmp_path),
+    ]  # fmt: skip
+    root = Path(compare_rl.__file__).resolve().parents[1]
+    main = subprocess.Popen(cmd, cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    children: set[int] = set()
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and len(children) < 3:  # the manager and 2 workers
+            assert main.poll() is None, "the run ended early"
+            children = _children(main.pid)
+            time.sleep(0.2)
+        assert len(children) >= 3, f"workers did not start: {children}"
+        time.sleep(5)  # let the workers import and start training
+        main.kill()
+        main.wait()
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and any(_alive(p) for p in children):
+            time.sleep(0.2)
+        left = [p for p in children if _alive(p)]
+        assert not left, f"processes {left} outlived the main process"
+    finally:
+        if main.poll() is None:
+            main.kill()
+        for p in children:
+            if _alive(p):
+                os.kill(p, signal.SIGKILL)
+    assert not list((tmp_path / "runs").glob("*.json"))
