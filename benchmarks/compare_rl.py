@@ -79,7 +79,9 @@ class Options:
         metadata={
             "help": "env steps per training run (default: per algorithm, "
             + ", ".join(f"{a} {n}" for a, n in HP.TIMESTEPS.items())
-            + f"; {HP.QUICK_TIMESTEPS} with --quick)"
+            + ", raised for some variants: "
+            + ", ".join(f"{a} {v} {n}" for (a, v), n in HP.TIMESTEPS_VARIANT.items())
+            + f"; {HP.QUICK_TIMESTEPS} with --quick; N replaces them all)"
         },
     )
     seeds: int = field(default=3, metadata={"help": "training seeds per algorithm and variant"})
