@@ -20,9 +20,9 @@ Compute: measured in the committed run on the 2-core development machine, with o
 per process and two trainings in parallel: PPO trains at about 7600 to 9300 env steps/s, SAC at
 about 310 and TD3 at about 510 to 630. The default budgets
 (:func:`benchmarks.rl_hyperparams.timesteps`: PPO 2.5M steps, SAC 60k, TD3 100k, raised per
-variant where the learning curves still moved, up to 5M, 150k and 300k; 3 to 11 minutes per run)
+variant where the learning curves still moved, up to 5M, 300k and 600k; 3 to 17 minutes per run)
 make the default run from scratch
-(3 x 3 x 6 = 54 trainings on ``--workers 2``, with their learning curves) take about 2 h 45 min.
+(3 x 3 x 6 = 54 trainings on ``--workers 2``, with their learning curves) take about 3 h 30 min.
 If the main process is killed, its worker processes end with it (Linux), and a new start reuses
 the finished runs.
 """
