@@ -513,6 +513,8 @@ def train_all(opts: Options, specs: list[RunSpec], log) -> list[dict[str, Any]]:
                 results[spec.name] = cached
                 continue
         todo.append(spec)
+    # longest first (by estimated training time), so that the workers finish close together
+    todo.sort(key=lambda s: -s.timesteps / HP.STEPS_PER_SECOND[s.algo])
     if results:
         log(f"reusing {len(results)} finished run(s) from {run_dir} (--retrain to train again)")
     total = sum(s.timesteps for s in todo)
@@ -723,8 +725,14 @@ def curve_status(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 # ---------------------------------------------------------------------------- figures
 def make_figures(
-    out: Path, mb: list[dict], aggs: list[dict], runs: list[dict], best: dict | None
+    out: Path,
+    mb: list[dict],
+    aggs: list[dict],
+    runs: list[dict],
+    best: dict | None,
+    status: list[dict],
 ) -> list[str]:
+    """Write the figures into ``out``; ``status`` is :func:`curve_status` of ``runs``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -759,6 +767,7 @@ def make_figures(
         r["episode_cost"]["mean"] for r in mb if r["family"] in ("RHC individual", "RHC joint")
     ]
     zoom_max = 3.0 * max(rhc_costs)
+    flat = {(c["algo"], c["variant"]): c["flat"] for c in status}
     fig, axes = plt.subplots(1, 2, figsize=(14, 6))
     for panel, ax in enumerate(axes):
         keep = (lambda r: True) if panel == 0 else (lambda r: r["episode_cost"]["mean"] <= zoom_max)
@@ -782,13 +791,16 @@ def make_figures(
                 errbars(ax, r, fmt=markers[r["family"]], color="C7", ms=7, label=r["name"])
         for r in aggs:
             if keep(r):
+                # hollow marker: the learning curve has not flattened (see curve_status)
+                still = not flat.get((r["algo"], r["variant"]), True)
                 errbars(
                     ax,
                     r,
                     fmt=vmarks.get(r["variant"], "o"),
                     color=colors.get(r["algo"], "C3"),
                     ms=8,
-                    label=r["name"],
+                    mfc="none" if still else None,
+                    label=r["name"] + (" (still learning)" if still else ""),
                 )
         ax.axvline(1 - XI, color="r", ls=":", lw=1, label=f"1 - xi = {1 - XI:.2f}")
         ax.set_xlim(-0.02, 1.02)
@@ -802,7 +814,10 @@ def make_figures(
             ax.set_ylabel("mean episode cost (95% interval)")
             ax.set_title(f"Zoom: mean episode cost <= {zoom_max:.3g}")
             ax.legend(fontsize=6.5, ncol=2, loc="best")
-    fig.suptitle("Cost against violations: the RHC over xi, one point per other controller")
+    fig.suptitle(
+        "Cost against violations: the RHC over xi, one point per other controller "
+        "(hollow: learning curve not flat yet)"
+    )
     save(fig, "fig_cost_violation.png")
 
     # learning curves
@@ -1180,7 +1195,8 @@ def write_report(opts: Options, summary: dict[str, Any]) -> str:
     captions = {
         "fig_cost_violation.png": "Mean episode cost against violation frequency: the RHC over "
         "xi (individual and joint constraints), one point per other controller (trained agents: "
-        "seeds aggregated), 95% interval bars",
+        "seeds aggregated), 95% interval bars; hollow markers: agents whose learning curve has "
+        "not flattened (see Learning curves)",
         "fig_learning_curves.png": "Learning curves: median evaluation cost and violation "
         "frequency against training steps (mean over seeds, band from min to max), "
         f"{HP.LEARNING_CURVE['episodes']} fixed evaluation episodes per point",
@@ -1261,7 +1277,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "learning_curves": curve_status(runs),
         "best_agent": None if best is None else best["name"],
     }
-    summary["figures"] = make_figures(opts.out, mb, aggs, runs, best)
+    summary["figures"] = make_figures(opts.out, mb, aggs, runs, best, summary["learning_curves"])
     summary = _jsonable(summary)
     (opts.out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     write_csv(opts.out / "summary.csv", mb + aggs + summary["rl_runs"])

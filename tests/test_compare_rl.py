@@ -169,6 +169,41 @@ def test_rerun_reuses_finished_trainings(quick_run):
     ]
 
 
+def test_cost_violation_figure_marks_agents_still_learning(quick_run, monkeypatch):
+    """Agents whose curve is not flat get a hollow marker and a "(still learning)" label."""
+    from matplotlib.axes import Axes
+
+    out, _ = quick_run
+    calls = []
+    real = Axes.errorbar
+
+    def spy(self, *args, **kw):
+        calls.append((kw.get("label"), kw.get("mfc")))
+        return real(self, *args, **kw)
+
+    real_status = compare_rl.curve_status
+
+    def mixed(runs):  # a quick run's short curves may all judge alike: force one of each
+        status = real_status(runs)
+        status[0]["flat"], status[1]["flat"] = True, False
+        return status
+
+    monkeypatch.setattr(Axes, "errorbar", spy)
+    monkeypatch.setattr(compare_rl, "curve_status", mixed)
+    summary = compare_rl.main([*ARGS, "--out", str(out)])
+    flat = {(c["algo"], c["variant"]): c["flat"] for c in summary["learning_curves"]}
+    assert set(flat.values()) == {True, False}
+    seen = 0
+    for row in summary["rl_aggregates"]:
+        still = not flat[(row["algo"], row["variant"])]
+        label = row["name"] + (" (still learning)" if still else "")
+        marks = [mfc for lab, mfc in calls if lab == label]
+        assert marks, label  # drawn in at least the full panel
+        assert all((mfc == "none") == still for mfc in marks), (label, marks)
+        seen += 1
+    assert seen == len(flat)
+
+
 class _FixedAgent:
     """Stands in for a trained SB3 model: the same action ``a`` in [-1, 1] for every state."""
 
@@ -237,6 +272,27 @@ def test_default_budgets_per_variant():
         assert n > HP.TIMESTEPS[algo], (algo, variant)  # an override only ever adds training
     quick = compare_rl.run_specs(compare_rl.Options(quick=True))
     assert {s.timesteps for s in quick} == {HP.QUICK_TIMESTEPS}
+
+
+def test_trainings_start_longest_first(tmp_path, monkeypatch):
+    """train_all starts the runs by estimated training time, longest first; results keep spec order."""
+    order = []
+
+    def fake_train(spec, path, report=None):
+        order.append(spec.name)
+        return {"timesteps": spec.timesteps, "train_time_s": 0.0, "episode_cost": {"mean": 1.0},
+                "violation": {"freq": 0.5}, "diverged": 0, "episodes": 1}  # fmt: skip
+
+    monkeypatch.setattr(compare_rl, "train_run", fake_train)
+    opts = compare_rl.Options(out=tmp_path, workers=1, no_progress=True)
+    specs = compare_rl.run_specs(opts)
+    by_name = {s.name: s for s in specs}
+    results = compare_rl.train_all(opts, specs, log=lambda msg: None)
+    assert sorted(order) == sorted(by_name)
+    hours = [by_name[n].timesteps / HP.STEPS_PER_SECOND[by_name[n].algo] / 3600 for n in order]
+    assert hours == sorted(hours, reverse=True)
+    assert hours[0] > 10 * hours[-1]  # the defaults differ: the order is not the spec order
+    assert [r["timesteps"] for r in results] == [s.timesteps for s in specs]
 
 
 def _run(algo, variant, seed, cost, violation, diverged, episodes=100, total=1000):
