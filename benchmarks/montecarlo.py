@@ -38,6 +38,11 @@ class Rollouts:
     stage_cost : (runs, T) x_k'Q x_k + u_k'R u_k
     violations : (runs, T, r) whether row j of G x_{k+1} <= H_{k+1} is violated
     status_ok : (runs, T) whether the controller's solver succeeded without fallback
+    ended : (runs, T) whether the episode had already ended (diverged, ``terminated``) before
+        step k. Such a step is not simulated: the row keeps the diverged state and mode, with
+        ``u = 0``, ``rho = J = stage_cost = 0``, ``status_ok = True`` and the violations of the
+        diverged state (it stays outside the band; a frequency over ``runs x T`` steps counts
+        those steps as violated).
     """
 
     x: np.ndarray
@@ -48,6 +53,7 @@ class Rollouts:
     stage_cost: np.ndarray
     violations: np.ndarray
     status_ok: np.ndarray
+    ended: np.ndarray
 
     @property
     def runs(self) -> int:
@@ -99,6 +105,10 @@ def rollout(
     The controller sees the exact state (``info["state"]``), the mode and ``k``. The
     environment's noise comes from ``seed``, so two controllers run with the same seed see the
     same noise sequence as long as they draw nothing themselves (common random numbers).
+
+    An episode that diverges (``terminated``: ``max |x| > divergence_bound``, 1e6) ends there:
+    the vector environment restarts that row, but the rest of the row is not a new episode here;
+    it holds the diverged state (see :attr:`Rollouts.ended`). Every row has ``horizon`` steps.
     """
     env = SDJLSVectorEnv(num_envs=runs, model=model, horizon=horizon, action_bound=action_bound)
     _, info = env.reset(seed=seed)
@@ -111,17 +121,25 @@ def rollout(
     stage = np.empty((runs, horizon))
     viol = np.empty((runs, horizon, r), dtype=bool)
     ok = np.empty((runs, horizon), dtype=bool)
+    ended = np.zeros((runs, horizon), dtype=bool)
+    done = np.zeros(runs, dtype=bool)  # rows whose episode has diverged
     x[:, 0], modes[:, 0] = info["state"], info["mode"]
     for k in range(horizon):
         u, rho[:, k], J[:, k], ok[:, k] = decide_batch(
             controller, info["state"], info["mode"], info["k"]
         )
-        _, _, _, _, info = env.step(u)
+        _, _, terminated, _, info = env.step(u)
         x[:, k + 1], modes[:, k + 1] = info["state"], info["mode"]
         u_all[:, k], stage[:, k], viol[:, k] = info["u"], info["stage_cost"], info["violations"]
+        if done.any():  # the env restarted these rows: hold the diverged state instead
+            ended[:, k] = done
+            x[done, k + 1], modes[done, k + 1] = x[done, k], modes[done, k]
+            u_all[done, k], rho[done, k], J[done, k], stage[done, k] = 0.0, 0.0, 0.0, 0.0
+            viol[done, k], ok[done, k] = viol[done, k - 1], True
+        done |= terminated
         if progress is not None:
             progress.update(1)
-    return Rollouts(x, modes, u_all, rho, J, stage, viol, ok)
+    return Rollouts(x, modes, u_all, rho, J, stage, viol, ok, ended)
 
 
 def wilson(successes: int | np.ndarray, trials: int, confidence: float = 0.95) -> tuple:
@@ -132,11 +150,21 @@ def wilson(successes: int | np.ndarray, trials: int, confidence: float = 0.95) -
     denom = 1 + z**2 / trials
     center = (phat + z**2 / (2 * trials)) / denom
     half = z * np.sqrt(phat * (1 - phat) / trials + z**2 / (4 * trials**2)) / denom
-    return center - half, center + half
+    # the exact limits lie in [0, 1], with 0 at phat = 0 and 1 at phat = 1; round-off misses both
+    lo = np.where(s <= 0, 0.0, np.clip(center - half, 0.0, 1.0))
+    hi = np.where(s >= trials, 1.0, np.clip(center + half, 0.0, 1.0))
+    return (float(lo), float(hi)) if lo.ndim == 0 else (lo, hi)
 
 
-def mean_ci(values: np.ndarray, confidence: float = 0.95) -> tuple[float, float, float]:
-    """Mean and Student-t interval ``(mean, low, high)`` of i.i.d. samples."""
+def mean_ci(
+    values: np.ndarray, confidence: float = 0.95, floor: float | None = None
+) -> tuple[float, float, float]:
+    """Mean and Student-t interval ``(mean, low, high)`` of i.i.d. samples.
+
+    ``floor``: a value the mean cannot be below (0 for a cost). The interval is cut there: on
+    heavy-tailed samples (diverging episodes, three seeds) the t interval reaches below it, and
+    cutting off impossible values keeps the coverage as it is.
+    """
     values = np.asarray(values, dtype=np.float64)
     mean = float(values.mean())
     if values.size < 2:
@@ -146,4 +174,5 @@ def mean_ci(values: np.ndarray, confidence: float = 0.95) -> tuple[float, float,
         * values.std(ddof=1)
         / np.sqrt(values.size)
     )
-    return mean, mean - half, mean + half
+    low = mean - half if floor is None else max(mean - half, float(floor))
+    return mean, low, mean + half

@@ -290,14 +290,15 @@ def score(ro: Rollouts, divergence_bound: float = 1e6) -> dict[str, Any]:
         ``episodes``, ``steps``; ``episode_cost`` mean with a Student-t 95% interval (over
         episodes), and its median; ``violation`` per-step frequency of any violated row with a
         95% Wilson interval (over episodes x steps); ``diverged`` episodes (``max |x| >
-        divergence_bound`` at some step; such an episode's cost is the cost up to divergence).
+        divergence_bound`` at some step; such an episode's cost is the cost up to divergence,
+        and every step after it counts as violated: see :class:`benchmarks.montecarlo.Rollouts`).
     """
     costs = ro.episode_cost
     violations = ro.any_violation
     total = violations.size
     count = int(violations.sum())
     lo, hi = wilson(count, total)
-    mean, clo, chi = mean_ci(costs)
+    mean, clo, chi = mean_ci(costs, floor=0.0)  # a cost is >= 0
     diverged = np.any(np.abs(ro.x) > divergence_bound, axis=(1, 2))
     return {
         "episodes": int(ro.runs),
@@ -350,10 +351,13 @@ class DecisionStates:
 
     @classmethod
     def from_rollouts(cls, ro: Rollouts, size: int, seed: int = 0) -> DecisionStates:
-        """``size`` states ``(x_k, theta_k, k)``, k < T, drawn from ``ro`` (capped to 1e6)."""
-        runs, T1, n = ro.x.shape
+        """``size`` states ``(x_k, theta_k, k)``, k < T, drawn from ``ro`` (capped to 1e6).
+
+        Only states the controller decided on: none from after a diverged episode ended.
+        """
+        runs, T = ro.ended.shape
         rng = np.random.default_rng(seed)
-        i = rng.integers(0, runs, size)
-        k = rng.integers(0, T1 - 1, size)
+        lived = np.flatnonzero(~ro.ended.ravel())
+        i, k = np.divmod(lived[rng.integers(0, lived.size, size)], T)
         x = np.clip(ro.x[i, k], -1e6, 1e6)
         return cls(x=x, mode=ro.mode[i, k].astype(np.int64), k=k.astype(np.int64))

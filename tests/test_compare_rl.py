@@ -122,14 +122,33 @@ def test_quick_run_summary_schema(quick_run):
             betas = [p["beta"] for p in r["dual_ascent"]]
             assert all(b >= 0 for b in betas)
             assert r["final_beta"] == betas[-1] != HP.LAGRANGIAN["beta0"]
+            # beta <- max(0, beta + lr_dual * (freq - (1 - xi))), freq from the evaluation
+            # episodes of the deterministic policy (a multiple of 1 / (episodes x 20 steps))
+            lag, prev = HP.LAGRANGIAN, HP.LAGRANGIAN["beta0"]
+            for p in r["dual_ascent"]:
+                step = lag["lr_dual"] * (p["freq"] - (1 - lag["xi"]))
+                assert p["beta"] == pytest.approx(max(0.0, prev + step), rel=1e-12, abs=1e-9)
+                assert 0 <= p["train_freq"] <= 1
+                count = p["freq"] * lag["episodes"] * 20
+                assert count == pytest.approx(round(count), abs=1e-6)
+                prev = p["beta"]
         else:
             assert not r["dual_ascent"]
 
     aggs = summary["rl_aggregates"]
     assert len(aggs) == 12
+    by_config = {(r["algo"], r["variant"]): r for r in runs}
     for a in aggs:
         _check_row(a)
+        assert a["episode_cost"]["ci95"][0] >= 0.0  # a cost: the interval stops at 0
+        # one seed: the interval is that seed's over episodes, not a zero-width one
+        assert (
+            a["episode_cost"]["ci95"]
+            == by_config[(a["algo"], a["variant"])]["episode_cost"]["ci95"]
+        )
     assert summary["best_agent"] in {r["name"] for r in runs}
+    best = next(r for r in runs if r["name"] == summary["best_agent"])
+    assert summary["best_config"] == f"{best['algo'].upper()} {best['variant']}"
     assert {s["algo"] for s in summary["learning_curves"]} == {"ppo", "sac", "td3"}
     # --timesteps overrides every per-variant default budget
     assert summary["timesteps"] == {
@@ -167,6 +186,64 @@ def test_rerun_reuses_finished_trainings(quick_run):
     assert [r["episode_cost"] for r in again["rl_runs"]] == [
         r["episode_cost"] for r in first["rl_runs"]
     ]
+
+
+def test_policies_are_kept_small_and_reload_exactly(quick_run):
+    """Each run keeps its policy (a few tens of KB); the reloaded policy acts as the trained one."""
+    out, summary = quick_run
+    runs = {r["name"]: r for r in summary["rl_runs"]}
+    specs = {s.name: s for s in compare_rl.run_specs(compare_rl.parse_args(ARGS))}
+    assert set(specs) == set(runs)
+    obs = np.random.default_rng(0).uniform(-1, 1, (64, 6)).astype(np.float32)
+    for name, spec in specs.items():
+        path = out / "runs" / f"{name}.pt"
+        assert 0 < path.stat().st_size < 500_000, name
+        policy = compare_rl.load_policy(spec, path)
+        a, _ = policy.predict(obs, deterministic=True)
+        b, _ = compare_rl.load_policy(spec, path).predict(obs, deterministic=True)
+        np.testing.assert_array_equal(a, b)
+        assert np.all(np.abs(a) <= 1.0)
+
+
+def test_reloaded_policy_equals_the_trained_agent(tmp_path):
+    """train_run's saved state dict, rebuilt by load_policy, gives the trained agent's actions."""
+    import torch
+
+    spec = compare_rl.RunSpec("sac", "residual", 0, 300, 1, 5, 1)
+    make_env, _ = compare_rl._train_setup(spec)
+    agent = compare_rl.build_agent(spec, [make_env])
+    agent.learn(300)
+    torch.save(agent.policy.state_dict(), tmp_path / "p.pt")
+    obs = np.random.default_rng(1).uniform(-1, 1, (32, 6)).astype(np.float32)
+    expected, _ = agent.predict(obs, deterministic=True)
+    got, _ = compare_rl.load_policy(spec, tmp_path / "p.pt").predict(obs, deterministic=True)
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_rescoring_needs_no_training(quick_run):
+    """More evaluation episodes: the cached runs are rescored, not trained again."""
+    out, first = quick_run
+    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "runs").iterdir()}
+    args = [a if a != "200" else "300" for a in ARGS]  # --eval-episodes 300
+    again = compare_rl.main([*args, "--out", str(out)])
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "runs").iterdir()} == stamps
+    assert {r["episodes"] for r in again["rl_runs"] + again["model_based"]} == {300}
+    for a, b in zip(first["rl_runs"], again["rl_runs"], strict=True):
+        assert a["learning_curve"] == b["learning_curve"]
+    compare_rl.main([*ARGS, "--out", str(out)])  # back to the fixture's files for other tests
+
+
+def test_a_run_without_its_policy_is_trained_again(quick_run):
+    out, _ = quick_run
+    victim = out / "runs" / "td3_reward_s0.pt"
+    victim.unlink()
+    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*.json")}
+    compare_rl.main([*ARGS, "--out", str(out)])
+    assert victim.exists()
+    changed = {
+        p.name for p in (out / "runs").glob("*.json") if p.stat().st_mtime_ns != stamps[p.name]
+    }
+    assert changed == {"td3_reward_s0.json"}
 
 
 def test_cost_violation_figure_marks_agents_still_learning(quick_run, monkeypatch):
@@ -280,8 +357,8 @@ def test_trainings_start_longest_first(tmp_path, monkeypatch):
 
     def fake_train(spec, path, report=None):
         order.append(spec.name)
-        return {"timesteps": spec.timesteps, "train_time_s": 0.0, "episode_cost": {"mean": 1.0},
-                "violation": {"freq": 0.5}, "diverged": 0, "episodes": 1}  # fmt: skip
+        point = {"episode_cost_median": 1.0, "violation": 0.5, "diverged": 0}
+        return {"timesteps": spec.timesteps, "train_time_s": 0.0, "learning_curve": [point]}
 
     monkeypatch.setattr(compare_rl, "train_run", fake_train)
     opts = compare_rl.Options(out=tmp_path, workers=1, no_progress=True)
@@ -293,6 +370,28 @@ def test_trainings_start_longest_first(tmp_path, monkeypatch):
     assert hours == sorted(hours, reverse=True)
     assert hours[0] > 10 * hours[-1]  # the defaults differ: the order is not the spec order
     assert [r["timesteps"] for r in results] == [s.timesteps for s in specs]
+
+
+def test_best_agent_is_the_median_seed_of_the_cheapest_safe_configuration():
+    def row(algo, variant, cost, v, div, seed=None):
+        r = {"algo": algo, "variant": variant, "episode_cost": {"mean": cost},
+             "violation": {"freq": v}, "diverged": div}  # fmt: skip
+        return r if seed is None else r | {"seed": seed, "name": f"{algo}_{variant}_s{seed}"}
+
+    aggs = [
+        row("ppo", "residual", 4600.0, 0.22, 0),  # too many violations
+        row("td3", "beta10000", 5000.0, 0.155, 0),  # the answer
+        row("td3", "lagrangian", 900.0, 0.10, 4),  # cheap but diverges
+        row("sac", "beta10000", 5200.0, 0.18, 0),
+    ]
+    runs = [row("td3", "beta10000", c, 0.155, 0, seed) for seed, c in enumerate((5200, 4700, 5100))]
+    runs += [row("sac", "beta10000", 10.0, 0.18, 0, 0)]
+    assert compare_rl.best_config(aggs, 0.15)["variant"] == "beta10000"
+    assert compare_rl.best_agent(aggs, runs, 0.15)["name"] == "td3_beta10000_s2"  # 5100: median
+    # nothing safe: fewest diverged, then fewest violations
+    unsafe = [row("a", "x", 1.0, 0.9, 3), row("b", "y", 9.0, 0.95, 0), row("c", "z", 5.0, 0.5, 0)]
+    assert compare_rl.best_config(unsafe, 0.15)["algo"] == "c"
+    assert compare_rl.best_agent([], [], 0.15) is None
 
 
 def _run(algo, variant, seed, cost, violation, diverged, episodes=100, total=1000):
@@ -457,3 +556,23 @@ def test_workers_end_with_the_main_process(tmp_path):
             if _alive(p):
                 os.kill(p, signal.SIGKILL)
     assert not list((tmp_path / "runs").glob("*.json"))
+
+
+def _no_wall(point: dict) -> dict:
+    return {k: v for k, v in point.items() if k != "wall_s"}
+
+
+def test_two_workers_give_the_same_results_as_one(tmp_path):
+    """The parallel path end to end: trainings in two worker processes write the same runs (and
+    the same scores) as one process does; each training is seeded and uses one torch thread."""
+    args = [
+        "--quick", "--algos", "ppo", "td3", "--variants", "reward", "residual", "--seeds", "1",
+        "--timesteps", "1050", "--eval-episodes", "50", "--no-progress",
+    ]  # fmt: skip
+    one = compare_rl.main([*args, "--workers", "1", "--out", str(tmp_path / "one")])
+    two = compare_rl.main([*args, "--workers", "2", "--out", str(tmp_path / "two")])
+    for a, b in zip(one["rl_runs"], two["rl_runs"], strict=True):
+        assert a["name"] == b["name"]
+        curves = [[_no_wall(p) for p in r["learning_curve"]] for r in (a, b)]
+        assert curves[0] == curves[1] and len(curves[0]) == 4
+        assert a["episode_cost"] == b["episode_cost"] and a["violation"] == b["violation"]

@@ -1,0 +1,91 @@
+"""``benchmarks.montecarlo.rollout``: how an episode that diverges is recorded and scored."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from benchmarks.montecarlo import mean_ci, rollout, wilson
+from benchmarks.rl_eval import score
+from controllers import LinearFeedbackController
+from sdjls_gym.systems.macro import PAPER_K, macro
+
+RUNS, T = 40, 20
+
+
+class _HalfUnstable:
+    """The paper's feedback on rows ``>= RUNS // 2``; ``u = 0`` (open loop) on the others.
+
+    The open loop diverges within a few steps (the slump mode has an eigenvalue near -6),
+    so the first half of the batch ends early and the second half never does.
+    """
+
+    def __init__(self, model) -> None:
+        self.inner = LinearFeedbackController(model, PAPER_K)
+
+    def act_batch(self, x, mode, k):
+        u, info = self.inner.act_batch(x, mode, k)
+        u = np.array(u, dtype=np.float64)
+        u[: RUNS // 2] = 200.0 * np.sign(x[: RUNS // 2, 1:2] + 1e-12)  # push x2 away from 0
+        return u, info
+
+
+def test_a_diverged_episode_holds_its_state_and_counts_as_violated():
+    model = macro()
+    ro = rollout(model, _HalfUnstable(model), RUNS, T, seed=3)
+    bad = np.any(np.abs(ro.x) > 1e6, axis=(1, 2))
+    assert bad[: RUNS // 2].all() and not bad[RUNS // 2 :].any()
+    for i in np.flatnonzero(bad):
+        end = int(np.argmax(np.abs(ro.x[i, 1:]).max(axis=1) > 1e6))  # step whose x_{k+1} diverged
+        assert end < T - 1, "the test needs episodes that end before the last step"
+        assert not ro.ended[i, : end + 1].any() and ro.ended[i, end + 1 :].all()
+        # held, not restarted: the state stays the diverged one (never back near x0 = (2, 2))
+        np.testing.assert_array_equal(
+            ro.x[i, end + 2 :], np.broadcast_to(ro.x[i, end + 1], (T - end - 1, 2))
+        )
+        assert np.all(ro.stage_cost[i, end + 1 :] == 0.0) and np.all(ro.u[i, end + 1 :] == 0.0)
+        assert ro.any_violation[i, end:].all()
+    assert not ro.ended[RUNS // 2 :].any()
+
+
+def test_rows_that_do_not_diverge_are_unaffected():
+    """Common random numbers: the stable rows match a run where no row diverges."""
+    model = macro()
+    ro = rollout(model, _HalfUnstable(model), RUNS, T, seed=3)
+    ref = rollout(model, LinearFeedbackController(model, PAPER_K), RUNS, T, seed=3)
+    half = slice(RUNS // 2, None)
+    np.testing.assert_array_equal(ro.x[half], ref.x[half])
+    np.testing.assert_array_equal(ro.violations[half], ref.violations[half])
+    assert not ref.ended.any()
+
+
+def test_score_counts_every_step_after_divergence():
+    model = macro()
+    ro = rollout(model, _HalfUnstable(model), RUNS, T, seed=3)
+    stats = score(ro)
+    assert stats["diverged"] == RUNS // 2
+    expected = ro.any_violation.sum() / (RUNS * T)
+    assert stats["violation"]["freq"] == expected
+    # the diverged half violates at every step from its divergence on
+    lived = ~ro.ended[: RUNS // 2]
+    assert ro.any_violation[: RUNS // 2][~lived].all()
+    assert np.isfinite(stats["episode_cost"]["mean"])
+
+
+def test_wilson_limits_stay_in_the_unit_interval():
+    """At 0 and at n successes the limits are exactly 0 and 1 (round-off used to give 1 + 2e-16)."""
+    for n in (1, 7, 200, 20000, 60000):
+        assert wilson(n, n)[1] == 1.0 and wilson(0, n)[0] == 0.0
+        lo, hi = wilson(np.arange(n + 1), n)
+        assert np.all((0.0 <= lo) & (lo <= np.arange(n + 1) / n) & (np.arange(n + 1) / n <= hi))
+        assert np.all(hi <= 1.0)
+    # the textbook value for 5 of 10 (Wilson 1927; e.g. Brown, Cai and DasGupta 2001): 0.2366-0.7634
+    np.testing.assert_allclose(wilson(5, 10), (0.2366, 0.7634), atol=5e-5)
+
+
+def test_mean_ci_floor_cuts_only_impossible_values():
+    costs = np.array([1.0, 2.0, 1e6])  # one diverging episode among three: t interval below 0
+    mean, lo, hi = mean_ci(costs)
+    assert lo < 0 < mean < hi
+    assert mean_ci(costs, floor=0.0) == (mean, 0.0, hi)
+    tame = np.array([10.0, 11.0, 12.0])
+    assert mean_ci(tame, floor=0.0) == mean_ci(tame)  # nothing to cut
