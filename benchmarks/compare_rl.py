@@ -99,7 +99,7 @@ class Options:
     seed: int = field(default=0, metadata={"help": "noise seed of the evaluation episodes"})
     out: Path = field(
         default=Path("results/rl"),
-        metadata={"help": "folder for figures, summary files, REPORT.md and runs/*.json"},
+        metadata={"help": "folder for figures, summary files, REPORT.md and runs/ (*.json, *.pt)"},
     )
     workers: int = field(
         default=2, metadata={"help": "trainings run in parallel (one torch thread each)"}
@@ -112,7 +112,7 @@ class Options:
         },
     )
     retrain: bool = field(
-        default=False, metadata={"help": "train again even when runs/*.json has the result"}
+        default=False, metadata={"help": "train again even when runs/ has the trained run"}
     )
     no_progress: bool = field(default=False, metadata={"help": "do not show the progress bar"})
 
@@ -228,9 +228,34 @@ def evaluate_model_based(model, opts: Options) -> list[dict[str, Any]]:
                 "max_abs_u": float(np.max(np.abs(ro.u))),
                 "decision_time_s": decision_time(ctrl, states.x, states.mode, states.k),
                 "incomes": incomes(ro),
+                "_episode_costs": ro.episode_cost,  # for the paired comparisons; not written
             }
         )
     return rows
+
+
+def paired_curve_gap(costs: np.ndarray, v: float, mb: list[dict[str, Any]]) -> dict | None:
+    """Cost minus the RHC curve's at violation frequency ``v``, paired over the common episodes.
+
+    The curve is the individual-constraint RHC over the xi sweep, linear between the two sweep
+    points whose violation frequencies bracket ``v``; on each episode the agent's cost ``costs``
+    (E,) is compared with the same interpolation of their costs on that episode (the same
+    noise), which removes the episode-to-episode spread the two share. Returns the mean gap with
+    a 95% Student-t interval over episodes (negative: cheaper than the curve), or None where
+    ``v`` lies outside the curve's range.
+    """
+    curve = sorted(
+        (r for r in mb if r["family"] == "RHC individual"), key=lambda r: r["violation"]["freq"]
+    )
+    vs = [r["violation"]["freq"] for r in curve]
+    if not vs[0] <= v <= vs[-1]:
+        return None
+    j = min(int(np.searchsorted(vs, v, side="right")) - 1, len(vs) - 2)
+    span = vs[j + 1] - vs[j]
+    w = 1.0 if span == 0 else (vs[j + 1] - v) / span  # weight of the lower sweep point
+    ref = w * curve[j]["_episode_costs"] + (1 - w) * curve[j + 1]["_episode_costs"]
+    mean, lo, hi = mean_ci(np.asarray(costs) - ref)
+    return {"mean": mean, "ci95": [lo, hi], "curve_cost": float(ref.mean())}
 
 
 # ---------------------------------------------------------------------------- RL runs
@@ -517,6 +542,7 @@ def score_run(spec: RunSpec, run: dict[str, Any], path: str | Path, opts: Option
         "learning_curve": run["learning_curve"],
         "dual_ascent": run["dual_ascent"],
         "incomes": incomes(ro),
+        "_episode_costs": ro.episode_cost,  # for the paired comparisons; not written
     }
 
 
@@ -1015,19 +1041,24 @@ CSV_HEADER = [
     "name", "kind", "algo", "variant", "seed", "xi", "episodes", "episode_cost_mean",
     "episode_cost_lo", "episode_cost_hi", "episode_cost_median", "violation", "violation_lo",
     "violation_hi", "diverged", "timesteps", "train_time_s", "decision_time_batched_s",
-    "decision_time_single_s", "final_beta",
+    "decision_time_single_s", "final_beta", "curve_gap", "curve_gap_lo", "curve_gap_hi",
 ]  # fmt: skip
 
 
 def csv_row(r: dict[str, Any]) -> list[Any]:
     c, v, d = r["episode_cost"], r["violation"], r["decision_time_s"]
-    beta = r.get("final_beta")
+    beta, g = r.get("final_beta"), r.get("curve_gap")
+    gap = (
+        ["", "", ""]
+        if g is None
+        else [f"{g['mean']:.6g}", f"{g['ci95'][0]:.6g}", f"{g['ci95'][1]:.6g}"]
+    )
     return [
         r["name"], r["kind"], r.get("algo", ""), r.get("variant", ""), r.get("seed", ""),
         r.get("xi", ""), r["episodes"], f"{c['mean']:.6g}", f"{c['ci95'][0]:.6g}",
         f"{c['ci95'][1]:.6g}", f"{c['median']:.6g}", f"{v['freq']:.6f}", f"{v['wilson95'][0]:.6f}",
         f"{v['wilson95'][1]:.6f}", r["diverged"], r.get("timesteps", 0), f"{r['train_time_s']:.1f}",
-        f"{d['batched']:.3g}", f"{d['single']:.3g}", "" if beta is None else f"{beta:.6g}",
+        f"{d['batched']:.3g}", f"{d['single']:.3g}", "" if beta is None else f"{beta:.6g}", *gap,
     ]  # fmt: skip
 
 
@@ -1135,15 +1166,19 @@ def reading(summary: dict[str, Any]) -> list[str]:
     v_hi = rhc_curve[-1]["violation"]["freq"]
 
     def seed_gaps(a: dict[str, Any]) -> str:
-        """Each seed's cost minus the RHC curve's at that seed's own violation frequency."""
+        """Each seed's cost minus the RHC curve's at that seed's own violation frequency, paired
+        over the common episodes (:func:`paired_curve_gap`)."""
         parts = []
         for r in summary["rl_runs"]:
             if (r["algo"], r["variant"]) != (a["algo"], a["variant"]):
                 continue
-            v, c = r["violation"]["freq"], r["episode_cost"]
-            half = (c["ci95"][1] - c["ci95"][0]) / 2
+            g = r.get("curve_gap")
+            at = f"at {r['violation']['freq']:.3f}"
             parts.append(
-                f"seed {r['seed']}: {c['mean'] - rhc_cost_at(v):+.0f} +- {half:.0f} at {v:.3f}"
+                f"seed {r['seed']}: outside the curve's range {at}"
+                if g is None
+                else f"seed {r['seed']}: {g['mean']:+.0f} ({g['ci95'][0]:+.0f} to "
+                f"{g['ci95'][1]:+.0f}) {at}"
             )
         return "; ".join(parts)
 
@@ -1162,8 +1197,8 @@ def reading(summary: dict[str, Any]) -> list[str]:
                 f"{a['name']} (violations {v:.3f}, cost {c:.4g} against the curve's "
                 f"{rhc_cost_at(v):.4g}; 95% interval over seeds "
                 f"{a['episode_cost']['ci95'][0]:.4g} to {a['episode_cost']['ci95'][1]:.4g}; per "
-                f"seed, cost minus the curve's at the seed's own violation frequency, with the "
-                f"seed's 95% half-width over episodes: {seed_gaps(a)})"
+                f"seed, cost minus the curve's at the seed's own violation frequency, paired over "
+                f"the common episodes, with its 95% interval: {seed_gaps(a)})"
             )
     lines.append(
         f"* Against the RHC curve over xi (individual constraints, violation frequencies "
@@ -1377,6 +1412,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         score_run(spec, run, policy_path(opts.out / "runs" / f"{spec.name}.json"), opts)
         for spec, run in zip(specs, trained, strict=True)
     ]
+    for r in runs:  # where the RHC curve is a fair reference: no divergence, inside its range
+        r["curve_gap"] = (
+            paired_curve_gap(r["_episode_costs"], r["violation"]["freq"], mb)
+            if r["diverged"] == 0
+            else None
+        )
+    for r in mb + runs:
+        del r["_episode_costs"]
     aggs = aggregate(runs)
     best = best_agent(aggs, runs, 1 - XI)
     summary: dict[str, Any] = {

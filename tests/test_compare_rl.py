@@ -146,6 +146,13 @@ def test_quick_run_summary_schema(quick_run):
             a["episode_cost"]["ci95"]
             == by_config[(a["algo"], a["variant"])]["episode_cost"]["ci95"]
         )
+    for r in runs:  # the paired gap to the RHC curve, where the curve is a fair reference
+        if r["curve_gap"] is not None:
+            assert r["diverged"] == 0
+            assert r["curve_gap"]["ci95"][0] <= r["curve_gap"]["mean"] <= r["curve_gap"]["ci95"][1]
+            gap = r["episode_cost"]["mean"] - r["curve_gap"]["curve_cost"]
+            assert r["curve_gap"]["mean"] == pytest.approx(gap, rel=1e-9, abs=1e-6)
+        assert not any(k.startswith("_") for k in r)
     assert summary["best_agent"] in {r["name"] for r in runs}
     best = next(r for r in runs if r["name"] == summary["best_agent"])
     assert summary["best_config"] == f"{best['algo'].upper()} {best['variant']}"
@@ -370,6 +377,28 @@ def test_trainings_start_longest_first(tmp_path, monkeypatch):
     assert hours == sorted(hours, reverse=True)
     assert hours[0] > 10 * hours[-1]  # the defaults differ: the order is not the spec order
     assert [r["timesteps"] for r in results] == [s.timesteps for s in specs]
+
+
+def _rhc_row(xi, v, costs):
+    return {"family": "RHC individual", "xi": xi, "violation": {"freq": v},
+            "_episode_costs": np.asarray(costs, dtype=float)}  # fmt: skip
+
+
+def test_paired_curve_gap_interpolates_episode_by_episode():
+    rng = np.random.default_rng(5)
+    noise = rng.lognormal(8.0, 0.5, 400)  # the spread every controller shares on an episode
+    mb = [_rhc_row(0.5, 0.5, noise + 100), _rhc_row(0.85, 0.2, noise + 400),
+          _rhc_row(0.7, 0.3, noise + 250)]  # fmt: skip
+    # at v = 0.25, halfway between 0.2 (cost + 400) and 0.3 (+ 250): the curve is noise + 325
+    g = compare_rl.paired_curve_gap(noise + 300 + rng.normal(0, 1, 400), 0.25, mb)
+    assert g["curve_cost"] == pytest.approx(float(np.mean(noise)) + 325)
+    assert g["ci95"][0] < -25 < g["ci95"][1] and g["ci95"][1] - g["ci95"][0] < 1.0
+    # unpaired, the shared spread would swamp the 25: the paired interval is what resolves it
+    assert 2 * 1.96 * np.std(noise) / np.sqrt(400) > 50
+    at_point = compare_rl.paired_curve_gap(noise + 250, 0.3, mb)
+    assert at_point["mean"] == pytest.approx(0.0, abs=1e-9)
+    assert compare_rl.paired_curve_gap(noise, 0.6, mb) is None  # outside 0.2..0.5
+    assert compare_rl.paired_curve_gap(noise, 0.1, mb) is None
 
 
 def test_best_agent_is_the_median_seed_of_the_cheapest_safe_configuration():
