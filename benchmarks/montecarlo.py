@@ -40,9 +40,9 @@ class Rollouts:
     status_ok : (runs, T) whether the controller's solver succeeded without fallback
     ended : (runs, T) whether the episode had already ended (diverged, ``terminated``) before
         step k. Such a step is not simulated: the row keeps the diverged state and mode, with
-        ``u = 0``, ``rho = J = stage_cost = 0``, ``status_ok = True`` and the violations of the
-        diverged state (it stays outside the band; a frequency over ``runs x T`` steps counts
-        those steps as violated).
+        ``u = 0``, ``rho = J = stage_cost = 0``, ``status_ok = True``, and every row of the
+        constraint counts as violated (the episode failed; a frequency over ``runs x T`` steps
+        counts those steps as violated, whatever direction the state diverged in).
     """
 
     x: np.ndarray
@@ -106,9 +106,11 @@ def rollout(
     environment's noise comes from ``seed``, so two controllers run with the same seed see the
     same noise sequence as long as they draw nothing themselves (common random numbers).
 
-    An episode that diverges (``terminated``: ``max |x| > divergence_bound``, 1e6) ends there:
-    the vector environment restarts that row, but the rest of the row is not a new episode here;
-    it holds the diverged state (see :attr:`Rollouts.ended`). Every row has ``horizon`` steps.
+    An episode that diverges (``terminated``: ``max |x|`` beyond the environment's divergence
+    bound, 1e6 by default) ends there: the vector environment restarts that row, but the rest of
+    the row is not a new episode here; it holds the diverged state (see :attr:`Rollouts.ended`),
+    and the controller's decisions for it are discarded (its input is set to 0, so that no
+    decision on a diverged state can stop the batch). Every row has ``horizon`` steps.
     """
     env = SDJLSVectorEnv(num_envs=runs, model=model, horizon=horizon, action_bound=action_bound)
     _, info = env.reset(seed=seed)
@@ -128,6 +130,9 @@ def rollout(
         u, rho[:, k], J[:, k], ok[:, k] = decide_batch(
             controller, info["state"], info["mode"], info["k"]
         )
+        if done.any():
+            u = np.array(u, dtype=np.float64)
+            u[done] = 0.0
         _, _, terminated, _, info = env.step(u)
         x[:, k + 1], modes[:, k + 1] = info["state"], info["mode"]
         u_all[:, k], stage[:, k], viol[:, k] = info["u"], info["stage_cost"], info["violations"]
@@ -135,7 +140,7 @@ def rollout(
             ended[:, k] = done
             x[done, k + 1], modes[done, k + 1] = x[done, k], modes[done, k]
             u_all[done, k], rho[done, k], J[done, k], stage[done, k] = 0.0, 0.0, 0.0, 0.0
-            viol[done, k], ok[done, k] = viol[done, k - 1], True
+            viol[done, k], ok[done, k] = True, True
         done |= terminated
         if progress is not None:
             progress.update(1)

@@ -351,13 +351,14 @@ class DecisionStates:
 
     @classmethod
     def from_rollouts(cls, ro: Rollouts, size: int, seed: int = 0) -> DecisionStates:
-        """``size`` states ``(x_k, theta_k, k)``, k < T, drawn from ``ro`` (capped to 1e6).
+        """``size`` states ``(x_k, theta_k, k)``, k < T, drawn from ``ro``.
 
-        Only states the controller decided on: none from after a diverged episode ended.
+        Only states the controller decided on: none from after a diverged episode ended (so
+        none beyond the environment's divergence bound).
         """
         runs, T = ro.ended.shape
         rng = np.random.default_rng(seed)
         lived = np.flatnonzero(~ro.ended.ravel())
         i, k = np.divmod(lived[rng.integers(0, lived.size, size)], T)
-        x = np.clip(ro.x[i, k], -1e6, 1e6)
+        x = ro.x[i, k]
         return cls(x=x, mode=ro.mode[i, k].astype(np.int64), k=k.astype(np.int64))

@@ -39,7 +39,11 @@ class SDJLSVectorEnv(VectorEnv):
       mask ``_key`` (``u`` is masked out for sub-environments that were reset this step);
     * randomness comes from one ``numpy.random.Generator`` (``self.np_random``) for the batch,
       so the same seed gives the same batch. The stream differs from ``num_envs`` separate
-      ``SDJLSEnv`` instances; the two agree in distribution.
+      ``SDJLSEnv`` instances; the two agree in distribution. The initial modes of autoresets
+      (when ``mode0`` is a probability vector) are drawn from a second stream, a jump ahead of
+      ``np_random`` taken at ``reset()``: the noise and mode draws of the other rows do not
+      depend on which rows ended when, so two policies run from the same seed see the same
+      noise in every row that has not ended (common random numbers).
 
     Parameters
     ----------
@@ -132,6 +136,14 @@ class SDJLSVectorEnv(VectorEnv):
         )
         self._k = np.zeros(B, dtype=np.int64)
         self._prev_done = np.zeros(B, dtype=bool)
+        # autoreset modes: a stream of their own (a jump of this one, which it leaves as it is;
+        # a bit generator that cannot jump, such as SFC64, spawns a child stream instead)
+        bits = self.np_random.bit_generator
+        self._reset_rng = (
+            np.random.Generator(bits.jumped())
+            if hasattr(bits, "jumped")
+            else self.np_random.spawn(1)[0]
+        )
         self._started = True
         obs = encode_observation(
             self.model, self._x, self._mode, self._k, self.horizon, self.divergence_bound
@@ -174,7 +186,7 @@ class SDJLSVectorEnv(VectorEnv):
             count = int(reset.sum())
             # autoreset starts from the model's x0 and mode0, as a reset without options
             x_new[reset] = model.x0
-            mode_new[reset] = model.sample_mode0(rng, count)
+            mode_new[reset] = model.sample_mode0(self._reset_rng, count)
             k_new[reset] = 0
             stage_cost[reset] = 0.0
         self._x, self._mode, self._k = x_new, mode_new, k_new
