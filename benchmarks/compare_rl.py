@@ -1179,30 +1179,48 @@ def reading(summary: dict[str, Any]) -> list[str]:
             )
         return "; ".join(parts)
 
-    dominated, better, outside = [], [], []
+    diverging, above, below, unresolved, outside = [], [], [], [], []
     for a in aggs:
         v, c = a["violation"]["freq"], a["episode_cost"]["mean"]
         text = f"{a['name']} (violations {v:.3f}, cost {c:.4g})"
+        gaps = [
+            r.get("curve_gap")
+            for r in summary["rl_runs"]
+            if (r["algo"], r["variant"]) == (a["algo"], a["variant"])
+        ]
         if a["diverged"] > 0:
-            dominated.append(a["name"])
-        elif not v_lo <= v <= v_hi:
+            diverging.append(a["name"])
+        elif not v_lo <= v <= v_hi or any(g is None for g in gaps):
             outside.append(text)
-        elif c > rhc_cost_at(v):
-            dominated.append(a["name"])
         else:
-            better.append(
+            detail = (
                 f"{a['name']} (violations {v:.3f}, cost {c:.4g} against the curve's "
-                f"{rhc_cost_at(v):.4g}; 95% interval over seeds "
-                f"{a['episode_cost']['ci95'][0]:.4g} to {a['episode_cost']['ci95'][1]:.4g}; per "
-                f"seed, cost minus the curve's at the seed's own violation frequency, paired over "
-                f"the common episodes, with its 95% interval: {seed_gaps(a)})"
+                f"{rhc_cost_at(v):.4g}; per seed, cost minus the curve's at the seed's own "
+                f"violation frequency, paired over the common episodes, with its 95% interval: "
+                f"{seed_gaps(a)})"
             )
+            if all(g["ci95"][0] > 0 for g in gaps):
+                above.append(a["name"])
+            elif all(g["ci95"][1] < 0 for g in gaps):
+                below.append(detail)
+            else:
+                unresolved.append(detail)
     lines.append(
         f"* Against the RHC curve over xi (individual constraints, violation frequencies "
-        f"{v_lo:.3f}..{v_hi:.3f}, interpolated at the agent's frequency): {len(dominated)} of "
-        f"{len(aggs)} trained configurations diverged in some episode or cost more at the same "
-        "violation frequency"
-        + (f"; below the curve: {', '.join(better)}" if better else "; none is below it")
+        f"{v_lo:.3f}..{v_hi:.3f}, interpolated at each seed's frequency, compared episode by "
+        f"episode): of {len(aggs)} trained configurations, {len(diverging)} diverged in some "
+        f"episode; {len(above)} cost more than the curve in every seed"
+        + (f" ({', '.join(above)})" if above else "")
+        + (
+            f"; below the curve in every seed: {', '.join(below)}"
+            if below
+            else "; none is below it in every seed"
+        )
+        + (
+            f"; seeds on both sides of it or not resolved: {', '.join(unresolved)}"
+            if unresolved
+            else ""
+        )
         + (
             f"; outside the curve's range of violation frequencies (compare them with the "
             f"linear feedback and the LQR instead): {', '.join(outside)}"

@@ -8,6 +8,7 @@ that every number is finite and that the paper's controller is in the table. It 
 
 from __future__ import annotations
 
+import copy
 import csv
 import json
 import math
@@ -613,3 +614,34 @@ def test_two_workers_give_the_same_results_as_one(tmp_path):
         curves = [[_no_wall(p) for p in r["learning_curve"]] for r in (a, b)]
         assert curves[0] == curves[1] and len(curves[0]) == 4
         assert a["episode_cost"] == b["episode_cost"] and a["violation"] == b["violation"]
+
+
+def test_reading_sorts_agents_by_their_paired_gap_to_the_curve(quick_run):
+    """below / above / unresolved come from every seed's paired interval, not from the means."""
+    summary = copy.deepcopy(quick_run[1])
+    gaps = {  # per configuration: the seeds' paired 95% intervals
+        ("ppo", "reward"): [(-90, -10)],  # below
+        ("sac", "reward"): [(5, 40)],  # above
+        ("td3", "reward"): [(-30, 20)],  # not resolved
+    }
+    lo, hi = sorted(
+        r["violation"]["freq"] for r in summary["model_based"] if r["family"] == "RHC individual"
+    )[:: len(compare_rl.XI_SWEEP) - 1]
+    for row in summary["rl_aggregates"] + summary["rl_runs"]:
+        key = (row["algo"], row["variant"])
+        row["diverged"] = 0 if key in gaps else 1
+        if key in gaps:
+            row["violation"]["freq"] = (lo + hi) / 2
+            if row["kind"] == "rl-seed":
+                (g_lo, g_hi) = gaps[key][0]
+                row["curve_gap"] = {
+                    "mean": (g_lo + g_hi) / 2,
+                    "ci95": [g_lo, g_hi],
+                    "curve_cost": 1.0,
+                }
+    line = next(t for t in compare_rl.reading(summary) if t.startswith("* Against the RHC curve"))
+    below = line.split("below the curve in every seed: ")[1].split("; seeds on both")[0]
+    assert "PPO reward" in below and "SAC reward" not in below and "TD3 reward" not in below
+    assert "cost more than the curve in every seed (SAC reward)" in line
+    assert "TD3 reward" in line.split("seeds on both sides of it or not resolved: ")[1]
+    assert f"of {len(summary['rl_aggregates'])} trained configurations, " in line
