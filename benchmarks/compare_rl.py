@@ -20,11 +20,11 @@ cached: after the training, every controller and every kept policy is scored in 
 on the same ``--eval-episodes`` episodes, so a change of the evaluation needs no training.
 
 Compute: measured on the 2-core development machine, with one torch thread per process and two
-trainings in parallel: PPO trains at about 7600 to 9300 env steps/s, SAC at about 310 and TD3 at
-about 510 to 630. The default budgets (:func:`benchmarks.rl_hyperparams.timesteps`: PPO 2.5M
-steps, SAC 60k, TD3 100k, raised per variant where the learning curves still moved, up to 8M,
-600k and 1.2M; 3 to 33 minutes per run) make the default run from scratch (3 x 3 x 6 = 54
-trainings on ``--workers 2``, with their learning curves) take about 4 h 30 min. If the main
+trainings in parallel: PPO trains at about 6300 to 9300 env steps/s, SAC at about 310 and TD3 at
+about 290 to 630 (the slow end: agents whose episodes still diverge; the machine is shared). The default budgets (:func:`benchmarks.rl_hyperparams.timesteps`: PPO 2.5M
+steps, SAC 60k, TD3 100k, raised per variant where the learning curves still moved, up to 10M,
+600k and 1.2M; 3 to 40 minutes per run) make the default run from scratch (3 x 3 x 6 = 54
+trainings on ``--workers 2``, with their learning curves) take about 6 h. If the main
 process is killed, its worker processes end with it (Linux), and a new start reuses the finished
 runs.
 """
@@ -152,11 +152,16 @@ def parse_args(argv: list[str] | None = None) -> Options:
     opts = Options(**vars(ns))
     if opts.quick and "eval_episodes" not in explicit:
         opts.eval_episodes = 200
-    for name in ("seeds", "eval_episodes", "workers"):
+    for name in ("seeds", "workers"):
         if getattr(opts, name) < 1:
             parser.error(
                 f"--{name.replace('_', '-')} = {getattr(opts, name)}; expected a positive integer"
             )
+    if opts.eval_episodes < 2:
+        parser.error(
+            f"--eval-episodes = {opts.eval_episodes}; expected an integer >= 2 (the cost "
+            "intervals are over episodes)"
+        )
     if opts.timesteps is not None and opts.timesteps < 1:
         parser.error(f"--timesteps = {opts.timesteps}; expected a positive integer")
     opts.algos = list(dict.fromkeys(opts.algos))
@@ -216,7 +221,7 @@ def incomes(ro: Rollouts, count: int = INCOME_TRAJECTORIES) -> list[list[float]]
 def scored(controller: Any, opts: Options) -> dict[str, Any]:
     """What the report keeps of one controller, model-based or trained: its statistics on the
     common evaluation episodes, its decision time, its largest |u|, the first incomes and (for
-    the paired comparisons, not written out) every episode's cost."""
+    the paired comparisons, not written out) every episode's cost and share of violated steps."""
     ro, stats = evaluate(macro(), controller, opts.eval_episodes, opts.seed, HORIZON, ACTION_BOUND)
     states = DecisionStates.from_rollouts(ro, min(TIMING_STATES, ro.x.shape[0] * HORIZON))
     return {
@@ -225,6 +230,7 @@ def scored(controller: Any, opts: Options) -> dict[str, Any]:
         "decision_time_s": decision_time(controller, states.x, states.mode, states.k),
         "incomes": incomes(ro),
         "_episode_costs": ro.episode_cost,
+        "_episode_violations": ro.any_violation.mean(axis=1),
     }
 
 
@@ -235,28 +241,81 @@ def evaluate_model_based(model, opts: Options) -> list[dict[str, Any]]:
     ]
 
 
-def paired_curve_gap(costs: np.ndarray, v: float, mb: list[dict[str, Any]]) -> dict | None:
-    """Cost minus the RHC curve's at violation frequency ``v``, paired over the common episodes.
+#: Bootstrap resamples of the episodes behind each paired curve gap (:func:`paired_curve_gap`),
+#: and the seed that draws them (the same resamples for every agent).
+GAP_RESAMPLES = 2000
+GAP_SEED = 0
 
-    The curve is the individual-constraint RHC over the xi sweep, linear between the two sweep
-    points whose violation frequencies bracket ``v``; on each episode the agent's cost ``costs``
-    (E,) is compared with the same interpolation of their costs on that episode (the same
-    noise), which removes the episode-to-episode spread the two share. Returns the mean gap with
-    a 95% Student-t interval over episodes (negative: cheaper than the curve), or None where
-    ``v`` lies outside the curve's range.
+
+def paired_curve_gap(
+    costs: np.ndarray,
+    violations: np.ndarray,
+    mb: list[dict[str, Any]],
+    resamples: int = GAP_RESAMPLES,
+    seed: int = GAP_SEED,
+) -> dict | None:
+    """Cost minus the RHC curve's at the agent's violation frequency, paired over the episodes.
+
+    The curve is the individual-constraint RHC over the xi sweep (the ``mb`` rows of family
+    ``"RHC individual"``, each with ``_episode_costs`` and ``_episode_violations``), linear between
+    the two sweep points whose violation frequencies bracket the agent's. ``costs`` (E,) and
+    ``violations`` (E,) are the agent's cost and share of violated steps on each of the common
+    episodes (the same noise as the sweep's). The agent's frequency ``v`` is the mean of
+    ``violations``; the gap is its mean cost minus the curve's interpolated at ``v``.
+
+    The 95% interval is a percentile bootstrap over episodes (``resamples`` resamples, seed
+    ``seed``): each resample recomputes the agent's cost and frequency and every sweep point's
+    cost and frequency on the same resampled episodes, and interpolates anew (linearly
+    extrapolated from the end segment where a resample's ``v`` leaves the curve's range). So the
+    interval covers the sampling error of ``v`` and of the curve's frequencies, times the curve's
+    slope, as well as the cost's; pairing removes the episode-to-episode spread the agent and the
+    curve share. Returns ``{"mean", "ci95", "curve_cost", "violation"}`` (negative: cheaper than the
+    curve), or None where ``v`` lies outside the curve's range.
     """
-    curve = sorted(
-        (r for r in mb if r["family"] == "RHC individual"), key=lambda r: r["violation"]["freq"]
-    )
-    vs = [r["violation"]["freq"] for r in curve]
-    if not vs[0] <= v <= vs[-1]:
+    costs = np.asarray(costs, dtype=np.float64)
+    violations = np.asarray(violations, dtype=np.float64)
+    if costs.shape != violations.shape or costs.ndim != 1 or costs.size < 2:
+        raise ValueError(
+            f"costs {costs.shape} and violations {violations.shape}: expected two arrays of the "
+            "same length E >= 2 (one entry per evaluation episode)"
+        )
+    curve = [r for r in mb if r["family"] == "RHC individual"]
+    c_cost = np.stack([np.asarray(r["_episode_costs"], dtype=np.float64) for r in curve])  # (P, E)
+    c_viol = np.stack([np.asarray(r["_episode_violations"], dtype=np.float64) for r in curve])
+    if c_cost.shape[1] != costs.size or len(curve) < 2:
+        raise ValueError(
+            f"the RHC curve has {len(curve)} point(s) on {c_cost.shape[1]} episodes; expected at "
+            f"least 2 points on the agent's {costs.size} episodes"
+        )
+
+    def gaps(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Gap, curve cost and agent frequency for each row of episode weights (B, E)."""
+        v = weights @ violations  # (B,)
+        xs, ys = weights @ c_viol.T, weights @ c_cost.T  # (B, P)
+        order = np.argsort(xs, axis=1, kind="stable")
+        xs, ys = np.take_along_axis(xs, order, 1), np.take_along_axis(ys, order, 1)
+        j = np.clip((xs < v[:, None]).sum(axis=1) - 1, 0, xs.shape[1] - 2)[:, None]
+        x0, x1 = np.take_along_axis(xs, j, 1)[:, 0], np.take_along_axis(xs, j + 1, 1)[:, 0]
+        y0, y1 = np.take_along_axis(ys, j, 1)[:, 0], np.take_along_axis(ys, j + 1, 1)[:, 0]
+        span = x1 - x0
+        w = np.where(span == 0, 1.0, (x1 - v) / np.where(span == 0, 1.0, span))
+        ref = w * y0 + (1 - w) * y1  # weight w on the lower sweep point
+        return weights @ costs - ref, ref, v
+
+    E = costs.size
+    (gap,), (ref,), (v,) = gaps(np.full((1, E), 1.0 / E))
+    point_vs = c_viol.mean(axis=1)
+    if not point_vs.min() <= v <= point_vs.max():
         return None
-    j = min(int(np.searchsorted(vs, v, side="right")) - 1, len(vs) - 2)
-    span = vs[j + 1] - vs[j]
-    w = 1.0 if span == 0 else (vs[j + 1] - v) / span  # weight of the lower sweep point
-    ref = w * curve[j]["_episode_costs"] + (1 - w) * curve[j + 1]["_episode_costs"]
-    mean, lo, hi = mean_ci(np.asarray(costs) - ref)
-    return {"mean": mean, "ci95": [lo, hi], "curve_cost": float(ref.mean())}
+    rng = np.random.default_rng(seed)
+    boot, _, _ = gaps(rng.multinomial(E, np.full(E, 1.0 / E), size=resamples) / E)
+    lo, hi = np.percentile(boot, [2.5, 97.5])
+    return {
+        "mean": float(gap),
+        "ci95": [float(lo), float(hi)],
+        "curve_cost": float(ref),
+        "violation": float(v),
+    }
 
 
 # ---------------------------------------------------------------------------- RL runs
@@ -692,9 +751,10 @@ def aggregate(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
     rows = []
     for (algo, variant), rs in groups.items():
         means = np.array([r["episode_cost"]["mean"] for r in rs])
-        mean, lo, hi = mean_ci(means, floor=0.0)
         if len(rs) == 1:  # no spread between trainings to show: the episodes' interval
-            lo, hi = rs[0]["episode_cost"]["ci95"]
+            mean, (lo, hi) = float(means[0]), rs[0]["episode_cost"]["ci95"]
+        else:
+            mean, lo, hi = mean_ci(means, floor=0.0)
         steps = sum(r["episodes"] * r["steps"] for r in rs)
         count = int(round(sum(r["violation"]["freq"] * r["episodes"] * r["steps"] for r in rs)))
         vlo, vhi = wilson(count, steps)
@@ -784,7 +844,8 @@ def curve_status(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
     Flat when, between the windows, the violation frequency changes by less than 0.02, the share
     of diverged evaluation episodes by less than 0.05, and the median episode cost by less than
     10% of the late window's. The cost condition applies only if the median evaluation episode
-    does not diverge (less than half the episodes diverge at every point of both windows): the
+    does not diverge (in every seed, less than half the episodes diverge at every point of both
+    windows): the
     median cost of a diverging episode measures how far the state ran off in 20 steps, a number
     that jumps by factors of 2 to 4 between evaluations of the same policy, not the policy's
     quality. ``cost_rel_change`` is then None.
@@ -802,9 +863,10 @@ def curve_status(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
         episodes = [r["config"]["curve_episodes"] for r in usable]
         cost = np.mean([[p["episode_cost_median"] for p in c] for c in curves], axis=0)
         viol = np.mean([[p["violation"] for p in c] for c in curves], axis=0)
-        div = np.mean(
-            [[p["diverged"] / e for p in c] for c, e in zip(curves, episodes, strict=True)], axis=0
-        )
+        div_seeds = np.array(
+            [[p["diverged"] / e for p in c] for c, e in zip(curves, episodes, strict=True)]
+        )  # (seeds, points)
+        div = div_seeds.mean(axis=0)
         steps = np.array([p["timesteps"] for p in curves[0]])
         # the earlier window must not reach the first point (the untrained policy)
         width = max(1, min(int(np.sum(steps > 0.7 * steps[-1])), (n - 1) // 2))
@@ -813,7 +875,8 @@ def curve_status(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
         window = np.concatenate([early, late])
         dv = float(abs(viol[late].mean() - viol[early].mean()))
         dd = float(abs(div[late].mean() - div[early].mean()))
-        median_diverges = bool(np.any(div[window] >= 0.5))
+        # per seed: the seeds' medians are averaged, and one diverging median swamps the rest
+        median_diverges = bool(np.any(div_seeds[:, window] >= 0.5))
         dc = None
         if not median_diverges:
             dc = float(
@@ -1154,11 +1217,6 @@ def reading(summary: dict[str, Any]) -> list[str]:
         key=lambda r: r["violation"]["freq"],
     )
 
-    def rhc_cost_at(v: float) -> float:
-        xs = [r["violation"]["freq"] for r in rhc_curve]
-        ys = [r["episode_cost"]["mean"] for r in rhc_curve]
-        return float(np.interp(v, xs, ys))
-
     v_lo = rhc_curve[0]["violation"]["freq"]
     v_hi = rhc_curve[-1]["violation"]["freq"]
 
@@ -1179,24 +1237,33 @@ def reading(summary: dict[str, Any]) -> list[str]:
             )
         return "; ".join(parts)
 
-    diverging, above, below, unresolved, outside = [], [], [], [], []
+    safest = rhc_curve[0]
+    diverging, above, below, unresolved = [], [], [], []
+    safer, riskier, straddling = [], [], []
     for a in aggs:
         v, c = a["violation"]["freq"], a["episode_cost"]["mean"]
         text = f"{a['name']} (violations {v:.3f}, cost {c:.4g})"
-        gaps = [
-            r.get("curve_gap")
-            for r in summary["rl_runs"]
-            if (r["algo"], r["variant"]) == (a["algo"], a["variant"])
+        seeds = [
+            r for r in summary["rl_runs"] if (r["algo"], r["variant"]) == (a["algo"], a["variant"])
         ]
+        gaps = [r.get("curve_gap") for r in seeds]
+        seed_vs = [r["violation"]["freq"] for r in seeds]
         if a["diverged"] > 0:
             diverging.append(a["name"])
-        elif not v_lo <= v <= v_hi or any(g is None for g in gaps):
-            outside.append(text)
+        elif all(sv < v_lo for sv in seed_vs):
+            safer.append(text)
+        elif all(sv > v_hi for sv in seed_vs):
+            riskier.append(text)
+        elif any(g is None for g in gaps):
+            straddling.append(f"{text}: {seed_gaps(a)}")
         else:
+            # the curve at each seed's own frequency, averaged like the seeds' costs: the
+            # difference of the two is the mean of the seeds' gaps
+            curve_cost = float(np.mean([g["curve_cost"] for g in gaps]))
             detail = (
                 f"{a['name']} (violations {v:.3f}, cost {c:.4g} against the curve's "
-                f"{rhc_cost_at(v):.4g}; per seed, cost minus the curve's at the seed's own "
-                f"violation frequency, paired over the common episodes, with its 95% interval: "
+                f"{curve_cost:.4g} at the seeds' own violation frequencies; per seed, cost minus "
+                f"the curve's, paired over the common episodes, with its 95% bootstrap interval: "
                 f"{seed_gaps(a)})"
             )
             if all(g["ci95"][0] > 0 for g in gaps):
@@ -1222,9 +1289,21 @@ def reading(summary: dict[str, Any]) -> list[str]:
             else ""
         )
         + (
-            f"; outside the curve's range of violation frequencies (compare them with the "
-            f"linear feedback and the LQR instead): {', '.join(outside)}"
-            if outside
+            f"; safer than every point of the curve (compare them with its safest point, "
+            f"{safest['name']}: violations {safest['violation']['freq']:.3f}, cost "
+            f"{safest['episode_cost']['mean']:.4g}): {', '.join(safer)}"
+            if safer
+            else ""
+        )
+        + (
+            f"; riskier than every point of the curve (compare them with the linear feedback "
+            f"and the LQR instead): {', '.join(riskier)}"
+            if riskier
+            else ""
+        )
+        + (
+            f"; some seeds inside the curve's range and some outside it: {'; '.join(straddling)}"
+            if straddling
             else ""
         )
         + "."
@@ -1435,12 +1514,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ]
     for r in runs:  # where the RHC curve is a fair reference: no divergence, inside its range
         r["curve_gap"] = (
-            paired_curve_gap(r["_episode_costs"], r["violation"]["freq"], mb)
+            paired_curve_gap(r["_episode_costs"], r["_episode_violations"], mb)
             if r["diverged"] == 0
             else None
         )
     for r in mb + runs:
-        del r["_episode_costs"]
+        del r["_episode_costs"], r["_episode_violations"]
     aggs = aggregate(runs)
     best = best_agent(aggs, runs, 1 - XI)
     best_row = best_config(aggs, 1 - XI)

@@ -171,9 +171,11 @@ def mean_ci(
     cutting off impossible values keeps the coverage as it is.
     """
     values = np.asarray(values, dtype=np.float64)
-    mean = float(values.mean())
     if values.size < 2:
-        return mean, mean, mean
+        raise ValueError(
+            f"values has {values.size} sample(s); a Student-t interval needs at least 2"
+        )
+    mean = float(values.mean())
     half = float(
         stats.t.ppf(0.5 + confidence / 2, values.size - 1)
         * values.std(ddof=1)

@@ -77,11 +77,13 @@ def parse_args(argv: list[str] | None = None) -> Options:
             parser.add_argument(flag, type=conv, default=f.default, help=f.metadata["help"])
     ns = parser.parse_args(argv)
     opts = Options(**vars(ns))
-    for name in ("runs", "stat_runs"):
-        if getattr(opts, name) < 1:
-            parser.error(
-                f"--{name.replace('_', '-')} = {getattr(opts, name)}; expected a positive integer"
-            )
+    if opts.runs < 1:
+        parser.error(f"--runs = {opts.runs}; expected a positive integer")
+    if opts.stat_runs < 2:
+        parser.error(
+            f"--stat-runs = {opts.stat_runs}; expected an integer >= 2 (the intervals are over "
+            "runs)"
+        )
     return opts
 
 

@@ -388,9 +388,12 @@ def test_trainings_start_longest_first(tmp_path, monkeypatch):
     assert [r["timesteps"] for r in results] == [s.timesteps for s in specs]
 
 
-def _rhc_row(xi, v, costs):
-    return {"family": "RHC individual", "xi": xi, "violation": {"freq": v},
-            "_episode_costs": np.asarray(costs, dtype=float)}  # fmt: skip
+def _rhc_row(xi, v, costs, violations=None):
+    """An RHC sweep point; every episode's violated share is ``v`` unless ``violations``."""
+    costs = np.asarray(costs, dtype=float)
+    viol = np.full(costs.size, v) if violations is None else np.asarray(violations, dtype=float)
+    return {"family": "RHC individual", "xi": xi, "violation": {"freq": float(viol.mean())},
+            "_episode_costs": costs, "_episode_violations": viol}  # fmt: skip
 
 
 def test_paired_curve_gap_interpolates_episode_by_episode():
@@ -399,15 +402,48 @@ def test_paired_curve_gap_interpolates_episode_by_episode():
     mb = [_rhc_row(0.5, 0.5, noise + 100), _rhc_row(0.85, 0.2, noise + 400),
           _rhc_row(0.7, 0.3, noise + 250)]  # fmt: skip
     # at v = 0.25, halfway between 0.2 (cost + 400) and 0.3 (+ 250): the curve is noise + 325
-    g = compare_rl.paired_curve_gap(noise + 300 + rng.normal(0, 1, 400), 0.25, mb)
+    at = np.full(400, 0.25)
+    g = compare_rl.paired_curve_gap(noise + 300 + rng.normal(0, 1, 400), at, mb)
     assert g["curve_cost"] == pytest.approx(float(np.mean(noise)) + 325)
+    assert g["violation"] == pytest.approx(0.25)
     assert g["ci95"][0] < -25 < g["ci95"][1] and g["ci95"][1] - g["ci95"][0] < 1.0
     # unpaired, the shared spread would swamp the 25: the paired interval is what resolves it
     assert 2 * 1.96 * np.std(noise) / np.sqrt(400) > 50
-    at_point = compare_rl.paired_curve_gap(noise + 250, 0.3, mb)
+    at_point = compare_rl.paired_curve_gap(noise + 250, np.full(400, 0.3), mb)
     assert at_point["mean"] == pytest.approx(0.0, abs=1e-9)
-    assert compare_rl.paired_curve_gap(noise, 0.6, mb) is None  # outside 0.2..0.5
-    assert compare_rl.paired_curve_gap(noise, 0.1, mb) is None
+    assert compare_rl.paired_curve_gap(noise, np.full(400, 0.6), mb) is None  # outside 0.2..0.5
+    assert compare_rl.paired_curve_gap(noise, np.full(400, 0.1), mb) is None
+    # the same resamples every call: the interval is reproducible
+    assert compare_rl.paired_curve_gap(noise + 300, at, mb) == compare_rl.paired_curve_gap(
+        noise + 300, at, mb
+    )
+
+
+def test_paired_curve_gap_interval_covers_the_error_of_the_violation_frequency():
+    """On a steep segment of the curve, the sampling error of the agent's violation frequency
+    moves the curve's cost at that frequency; the bootstrap interval must be as wide as that.
+    E = 1000 episodes of 20 steps, violated share binomial(20, 0.25) / 20; 2000 resamples."""
+    E = 1000
+    rng = np.random.default_rng(11)
+    base = np.full(E, 5000.0)  # costs without episode noise: only the frequency's error remains
+    slope = -20000.0  # cost per unit of violation frequency between 0.2 and 0.3
+    mb = [_rhc_row(0.85, 0.2, base), _rhc_row(0.7, 0.3, base + 0.1 * slope)]
+    viol = rng.binomial(20, 0.25, E) / 20
+    g = compare_rl.paired_curve_gap(base + 0.05 * slope, viol, mb)
+    # the gap is the agent's cost minus the curve at the agent's own (sample) frequency
+    assert g["mean"] == pytest.approx(slope * (0.25 - viol.mean()), abs=1e-6)
+    expected_half = 1.96 * abs(slope) * viol.std(ddof=1) / np.sqrt(E)  # about 38
+    half = (g["ci95"][1] - g["ci95"][0]) / 2
+    assert 0.85 * expected_half < half < 1.15 * expected_half
+    assert g["ci95"][0] < g["mean"] < g["ci95"][1]
+
+
+def test_paired_curve_gap_rejects_mismatched_inputs():
+    mb = [_rhc_row(0.85, 0.2, np.ones(10)), _rhc_row(0.7, 0.3, np.ones(10))]
+    with pytest.raises(ValueError, match="same length"):
+        compare_rl.paired_curve_gap(np.ones(10), np.ones(9), mb)
+    with pytest.raises(ValueError, match="agent's 8 episodes"):
+        compare_rl.paired_curve_gap(np.ones(8), np.full(8, 0.25), mb)
 
 
 def test_best_agent_is_the_median_seed_of_the_cheapest_safe_configuration():
@@ -619,8 +655,9 @@ def test_two_workers_give_the_same_results_as_one(tmp_path):
 def test_reading_sorts_agents_by_their_paired_gap_to_the_curve(quick_run):
     """below / above / unresolved come from every seed's paired interval, not from the means."""
     summary = copy.deepcopy(quick_run[1])
+    gaps_key = ("ppo", "reward")
     gaps = {  # per configuration: the seeds' paired 95% intervals
-        ("ppo", "reward"): [(-90, -10)],  # below
+        gaps_key: [(-90, -10)],  # below
         ("sac", "reward"): [(5, 40)],  # above
         ("td3", "reward"): [(-30, 20)],  # not resolved
     }
@@ -637,11 +674,68 @@ def test_reading_sorts_agents_by_their_paired_gap_to_the_curve(quick_run):
                 row["curve_gap"] = {
                     "mean": (g_lo + g_hi) / 2,
                     "ci95": [g_lo, g_hi],
-                    "curve_cost": 1.0,
+                    "curve_cost": row["episode_cost"]["mean"] - (g_lo + g_hi) / 2,
                 }
     line = next(t for t in compare_rl.reading(summary) if t.startswith("* Against the RHC curve"))
     below = line.split("below the curve in every seed: ")[1].split("; seeds on both")[0]
     assert "PPO reward" in below and "SAC reward" not in below and "TD3 reward" not in below
+    # the curve's cost it prints is the seeds' (at their own frequencies): cost minus it = gap
+    ppo = next(a for a in summary["rl_aggregates"] if (a["algo"], a["variant"]) == gaps_key)
+    assert f"against the curve's {ppo['episode_cost']['mean'] + 50:.4g} at the seeds'" in below
     assert "cost more than the curve in every seed (SAC reward)" in line
     assert "TD3 reward" in line.split("seeds on both sides of it or not resolved: ")[1]
     assert f"of {len(summary['rl_aggregates'])} trained configurations, " in line
+
+
+def test_reading_compares_agents_outside_the_curve_with_the_right_end(quick_run):
+    """An agent safer than every point of the RHC curve is compared with its safest point, one
+    riskier than all of them with the linear feedback and the LQR, and one whose seeds lie on
+    both sides of the curve's range is named as such (not as outside it)."""
+    summary = copy.deepcopy(quick_run[1])
+    curve = sorted(
+        (r for r in summary["model_based"] if r["family"] == "RHC individual"),
+        key=lambda r: r["violation"]["freq"],
+    )
+    lo, hi = curve[0]["violation"]["freq"], curve[-1]["violation"]["freq"]
+    where = {("ppo", "reward"): lo / 2, ("sac", "reward"): (1 + hi) / 2}
+    for row in summary["rl_aggregates"] + summary["rl_runs"]:
+        key = (row["algo"], row["variant"])
+        row["diverged"] = 0 if key in where else 1
+        if key in where:
+            row["violation"]["freq"] = where[key]
+            row["curve_gap"] = None
+    line = next(t for t in compare_rl.reading(summary) if t.startswith("* Against the RHC curve"))
+    safer = line.split("safer than every point of the curve (")[1].split("; riskier")[0]
+    assert f"its safest point, {curve[0]['name']}" in safer and "PPO reward" in safer
+    riskier = line.split("riskier than every point of the curve (")[1]
+    assert "the linear feedback and the LQR" in riskier and "SAC reward" in riskier
+    assert "PPO reward" not in riskier
+    # two seeds, one on each side of the range: neither safer nor riskier
+    runs = [r for r in summary["rl_runs"] if (r["algo"], r["variant"]) == ("ppo", "reward")]
+    twin = copy.deepcopy(runs[0]) | {"seed": 1}
+    twin["violation"] = {**twin["violation"], "freq": (1 + hi) / 2}
+    summary["rl_runs"].append(twin)
+    line = next(t for t in compare_rl.reading(summary) if t.startswith("* Against the RHC curve"))
+    assert "PPO reward" in line.split("some seeds inside the curve's range and some outside")[1]
+    assert "safer than every point" not in line
+
+
+def test_curve_status_median_divergence_is_judged_per_seed():
+    """Seeds whose diverged shares are 0.8, 0.6 and 0 average below one half, yet two of the
+    three medians averaged are divergence magnitudes: the cost is not compared then."""
+    cost = [4e11] + [3e11, 1e11] * 5
+    v = [0.9] + [0.5] * 10
+    runs = [
+        _run("ppo", "beta100", 0, cost, v, [80] * 11),
+        _run("ppo", "beta100", 1, cost, v, [60] * 11),
+        _run("ppo", "beta100", 2, [500.0] * 11, v, [0] * 11),
+    ]
+    s = _status(runs)[("ppo", "beta100")]
+    assert s["diverged_share_late"] == pytest.approx(140 / 300)  # the mean is below one half
+    assert s["median_episode_diverges"] and s["cost_rel_change"] is None
+
+
+def test_eval_episodes_must_allow_an_interval(capsys):
+    with pytest.raises(SystemExit):
+        compare_rl.parse_args(["--eval-episodes", "1"])
+    assert "--eval-episodes = 1; expected an integer >= 2" in capsys.readouterr().err

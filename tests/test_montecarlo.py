@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from benchmarks.montecarlo import mean_ci, rollout, wilson
 from benchmarks.rl_eval import score
@@ -106,3 +107,10 @@ def test_mean_ci_floor_cuts_only_impossible_values():
     assert mean_ci(costs, floor=0.0) == (mean, 0.0, hi)
     tame = np.array([10.0, 11.0, 12.0])
     assert mean_ci(tame, floor=0.0) == mean_ci(tame)  # nothing to cut
+
+
+def test_mean_ci_needs_two_samples():
+    """One sample has no spread to estimate: an error, not a zero-width interval."""
+    with pytest.raises(ValueError, match="1 sample"):
+        mean_ci(np.array([3.0]))
+    assert mean_ci(np.array([1.0, 3.0]))[0] == 2.0

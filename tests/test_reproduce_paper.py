@@ -263,3 +263,6 @@ def test_bad_options_are_rejected(capsys):
     with pytest.raises(SystemExit):
         reproduce_paper.parse_args(["--runs", "0"])
     assert "--runs = 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # the intervals need two runs
+        reproduce_paper.parse_args(["--stat-runs", "1"])
+    assert "--stat-runs = 1; expected an integer >= 2" in capsys.readouterr().err
