@@ -20,13 +20,13 @@ cached: after the training, every controller and every kept policy is scored in 
 on the same ``--eval-episodes`` episodes, so a change of the evaluation needs no training.
 
 Compute: measured on the 2-core development machine, with one torch thread per process and two
-trainings in parallel: PPO trains at about 6300 to 9300 env steps/s, SAC at about 310 and TD3 at
-about 290 to 630 (the slow end: agents whose episodes still diverge; the machine is shared). The default budgets (:func:`benchmarks.rl_hyperparams.timesteps`: PPO 2.5M
-steps, SAC 60k, TD3 100k, raised per variant where the learning curves still moved, up to 10M,
-600k and 1.2M; 3 to 40 minutes per run) make the default run from scratch (3 x 3 x 6 = 54
-trainings on ``--workers 2``, with their learning curves) take about 6 h. If the main
-process is killed, its worker processes end with it (Linux), and a new start reuses the finished
-runs.
+trainings in parallel: PPO trains at about 6300 to 9300 env steps/s, SAC at about 165 to 310
+and TD3 at about 290 to 630 (the machine is shared: the speed of one configuration varied by up
+to 2x between days). The default budgets (:func:`benchmarks.rl_hyperparams.timesteps`: PPO
+2.5M steps, SAC 60k, TD3 100k, raised per variant where the learning curves still moved, up to
+10M, 600k and 1.2M; 3 to 40 minutes per run) make the default run from scratch (3 x 3 x 6 = 54
+trainings on ``--workers 2``, with their learning curves) take about 6 h. If the main process
+is killed, its worker processes end with it (Linux), and a new start reuses the finished runs.
 """
 
 from __future__ import annotations
@@ -845,10 +845,9 @@ def curve_status(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
     of diverged evaluation episodes by less than 0.05, and the median episode cost by less than
     10% of the late window's. The cost condition applies only if the median evaluation episode
     does not diverge (in every seed, less than half the episodes diverge at every point of both
-    windows): the
-    median cost of a diverging episode measures how far the state ran off in 20 steps, a number
-    that jumps by factors of 2 to 4 between evaluations of the same policy, not the policy's
-    quality. ``cost_rel_change`` is then None.
+    windows): the median cost of a diverging episode measures how far the state ran off in 20
+    steps, a number that jumps by factors of 2 to 4 between evaluations of the same policy, not
+    the policy's quality. ``cost_rel_change`` is then None.
     """
     groups: dict[tuple[str, str], list[dict]] = {}
     for r in runs:
