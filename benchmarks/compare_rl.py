@@ -792,6 +792,38 @@ def aggregate(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return rows
 
 
+def interval_check(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """How far the per-step Wilson intervals can be trusted: the largest ratio of the width of
+    the interval over episodes (``violation["episode_t95"]``, which allows for dependence between
+    the steps of an episode) to the Wilson width, among the single-policy rows (model-based
+    controllers, trained seeds) with no diverged episode, and among those with one.
+
+    Returns ``{"stable": {"rows", "max_ratio", "name"}, "diverging": {...}}`` (a part is ``None``
+    where no row qualifies), or ``None`` if no row has both intervals with a positive width.
+    """
+    out: dict[str, Any] = {}
+    for part, keep in (
+        ("stable", lambda r: r["diverged"] == 0),
+        ("diverging", lambda r: r["diverged"] > 0),
+    ):
+        ratios = []
+        for r in rows:
+            v = r["violation"]
+            if not keep(r) or v.get("episode_t95") is None:
+                continue
+            wilson_width = v["wilson95"][1] - v["wilson95"][0]
+            if wilson_width > 0:
+                ratios.append(
+                    ((v["episode_t95"][1] - v["episode_t95"][0]) / wilson_width, r["name"])
+                )
+        out[part] = (
+            None
+            if not ratios
+            else {"rows": len(ratios), "max_ratio": max(ratios)[0], "name": max(ratios)[1]}
+        )
+    return None if out["stable"] is None and out["diverging"] is None else out
+
+
 def comparable(row: dict[str, Any], target: float) -> bool:
     """Comparable with the RHC at risk level ``target``: no diverged episode and a violation
     frequency of at most ``target`` + 0.05."""
@@ -1101,6 +1133,7 @@ CSV_HEADER = [
     "episode_cost_lo", "episode_cost_hi", "episode_cost_median", "violation", "violation_lo",
     "violation_hi", "diverged", "timesteps", "train_time_s", "decision_time_batched_s",
     "decision_time_single_s", "final_beta", "curve_gap", "curve_gap_lo", "curve_gap_hi",
+    "violation_episode_lo", "violation_episode_hi",
 ]  # fmt: skip
 
 
@@ -1118,6 +1151,7 @@ def csv_row(r: dict[str, Any]) -> list[Any]:
         f"{c['ci95'][1]:.6g}", f"{c['median']:.6g}", f"{v['freq']:.6f}", f"{v['wilson95'][0]:.6f}",
         f"{v['wilson95'][1]:.6f}", r["diverged"], r.get("timesteps", 0), f"{r['train_time_s']:.1f}",
         f"{d['batched']:.3g}", f"{d['single']:.3g}", "" if beta is None else f"{beta:.6g}", *gap,
+        *(["", ""] if v.get("episode_t95") is None else [f"{e:.6f}" for e in v["episode_t95"]]),
     ]  # fmt: skip
 
 
@@ -1377,6 +1411,31 @@ def reading(summary: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _interval_check_text(check: dict[str, Any] | None) -> str:
+    """The report's sentence on :func:`interval_check`."""
+    if check is None:
+        return ""
+    text = (
+        " Checked against a Student-t interval over the episodes' shares of violated steps, which "
+        "allows for dependence between the steps of an episode (`episode_t95` in summary.json):"
+    )
+    st, dv = check["stable"], check["diverging"]
+    if st is not None:
+        text += (
+            f" for the {st['rows']} controllers and trained seeds without a diverged episode, that "
+            f"interval is at most {st['max_ratio']:.2f} times as wide as the Wilson interval "
+            f"({st['name']})"
+        )
+    if dv is not None:
+        text += (
+            ("; " if st is not None else " ")
+            + f"where episodes diverge, their held steps are all violated together and the Wilson "
+            f"interval is too narrow: up to {dv['max_ratio']:.1f} times ({dv['name']}, over "
+            f"{dv['rows']} such rows)"
+        )
+    return text + "."
+
+
 def write_report(opts: Options, summary: dict[str, Any]) -> str:
     cmd = summary["command"]
     mb_rows = summary["model_based"]
@@ -1395,7 +1454,9 @@ def write_report(opts: Options, summary: dict[str, Any]) -> str:
         "steps k = 1..20 whose state leaves the band G x <= H_k (any row), with a 95% Wilson "
         "interval (pooled over seeds for the aggregates, treating steps as independent: it shows "
         "the sampling error of one policy's frequency, not the spread between trainings, which "
-        "the per-seed table shows). Diverged: episodes in which |x| exceeded 1e6; such an episode "
+        "the per-seed table shows)."
+        + _interval_check_text(summary.get("violation_interval_check"))
+        + " Diverged: episodes in which |x| exceeded 1e6; such an episode "
         "ends there (its cost is the cost up to then) and its remaining steps count as violated. "
         "Decision time: per state, over a batch of 1000 visited states and for one state at a "
         "time, every controller measured in the same process after the training. Training time: "
@@ -1543,6 +1604,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "rl_aggregates": aggs,
         "rl_runs": [{k: v for k, v in r.items() if k != "config"} for r in runs],
         "learning_curves": curve_status(runs),
+        "violation_interval_check": interval_check(mb + runs),
         "best_config": None if best is None else f"{best['algo'].upper()} {best['variant']}",
         "best_config_comparable": bool(best_row is not None and comparable(best_row, 1 - XI)),
         "best_agent": None if best is None else best["name"],

@@ -289,15 +289,21 @@ def score(ro: Rollouts, divergence_bound: float = 1e6) -> dict[str, Any]:
     dict
         ``episodes``, ``steps``; ``episode_cost`` mean with a Student-t 95% interval (over
         episodes), and its median; ``violation`` per-step frequency of any violated row with a
-        95% Wilson interval (over episodes x steps); ``diverged`` episodes (``max |x| >
-        divergence_bound`` at some step; such an episode's cost is the cost up to divergence,
-        and every step after it counts as violated: see :class:`benchmarks.montecarlo.Rollouts`).
+        95% Wilson interval (over episodes x steps, as if the steps were independent) and, as a
+        check of that, ``episode_t95``: a Student-t interval over the episodes' shares of
+        violated steps, which allows for any dependence between the steps of an episode (cut to
+        [0, 1]); ``diverged`` episodes (``max |x| > divergence_bound`` at some step; such an
+        episode's cost is the cost up to divergence, and every step after it counts as violated:
+        see :class:`benchmarks.montecarlo.Rollouts`). The intervals need at least two episodes:
+        one raises ``ValueError``.
     """
     costs = ro.episode_cost
     violations = ro.any_violation
     total = violations.size
     count = int(violations.sum())
     lo, hi = wilson(count, total)
+    # the episodes are independent; the steps of one episode need not be
+    _, elo, ehi = mean_ci(violations.mean(axis=1))
     mean, clo, chi = mean_ci(costs, floor=0.0)  # a cost is >= 0
     diverged = np.any(np.abs(ro.x) > divergence_bound, axis=(1, 2))
     return {
@@ -308,7 +314,11 @@ def score(ro: Rollouts, divergence_bound: float = 1e6) -> dict[str, Any]:
             "ci95": [float(clo), float(chi)],
             "median": float(np.median(costs)),
         },
-        "violation": {"freq": count / total, "wilson95": [float(lo), float(hi)]},
+        "violation": {
+            "freq": count / total,
+            "wilson95": [float(lo), float(hi)],
+            "episode_t95": [max(float(elo), 0.0), min(float(ehi), 1.0)],
+        },
         "diverged": int(diverged.sum()),
     }
 

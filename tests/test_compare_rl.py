@@ -739,3 +739,48 @@ def test_eval_episodes_must_allow_an_interval(capsys):
     with pytest.raises(SystemExit):
         compare_rl.parse_args(["--eval-episodes", "1"])
     assert "--eval-episodes = 1; expected an integer >= 2" in capsys.readouterr().err
+
+
+def _row(name: str, diverged: int, wilson: tuple, episode: tuple | None) -> dict:
+    v = {"freq": (wilson[0] + wilson[1]) / 2, "wilson95": list(wilson)}
+    if episode is not None:
+        v["episode_t95"] = list(episode)
+    return {"name": name, "diverged": diverged, "violation": v}
+
+
+def test_interval_check_takes_the_widest_ratio_in_each_part():
+    rows = [
+        _row("a", 0, (0.10, 0.12), (0.10, 0.122)),  # 1.1
+        _row("b", 0, (0.20, 0.22), (0.195, 0.225)),  # 1.5
+        _row("c", 3, (0.50, 0.52), (0.45, 0.57)),  # 6
+        _row("agg", 0, (0.0, 1.0), None),  # an aggregate: no interval over episodes, skipped
+        _row("flat", 0, (1.0, 1.0), (1.0, 1.0)),  # zero Wilson width: no ratio
+    ]
+    check = compare_rl.interval_check(rows)
+    assert check["stable"]["rows"] == 2 and check["stable"]["name"] == "b"
+    assert check["stable"]["max_ratio"] == pytest.approx(1.5)
+    assert check["diverging"] == {"rows": 1, "max_ratio": pytest.approx(6.0), "name": "c"}
+    assert compare_rl.interval_check(rows[:2])["diverging"] is None
+    assert compare_rl.interval_check(rows[3:]) is None
+    text = compare_rl._interval_check_text(check)
+    assert "at most 1.50 times" in text and "up to 6.0 times (c, over 1 such rows)" in text
+    assert compare_rl._interval_check_text(None) == ""
+
+
+def test_quick_run_reports_the_interval_over_episodes(quick_run):
+    out, summary = quick_run
+    for r in summary["model_based"] + summary["rl_runs"]:
+        v = r["violation"]
+        assert 0.0 <= v["episode_t95"][0] <= v["freq"] <= v["episode_t95"][1] <= 1.0, r["name"]
+    assert summary["violation_interval_check"]["stable"]["rows"] >= 1
+    with (out / "summary.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    for r in rows:
+        if r["kind"] == "rl-aggregate":
+            assert r["violation_episode_lo"] == r["violation_episode_hi"] == ""
+        else:
+            lo, hi = float(r["violation_episode_lo"]), float(r["violation_episode_hi"])
+            assert lo <= float(r["violation"]) <= hi, r["name"]
+    assert (
+        "Checked against a Student-t interval over the episodes" in (out / "REPORT.md").read_text()
+    )

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.montecarlo import mean_ci, rollout, wilson
+from benchmarks.montecarlo import Rollouts, mean_ci, rollout, wilson
 from benchmarks.rl_eval import score
 from controllers import LinearFeedbackController
 from sdjls_gym import SDJLSModel
@@ -114,3 +114,52 @@ def test_mean_ci_needs_two_samples():
     with pytest.raises(ValueError, match="1 sample"):
         mean_ci(np.array([3.0]))
     assert mean_ci(np.array([1.0, 3.0]))[0] == 2.0
+
+
+def _synthetic(violated: np.ndarray) -> Rollouts:
+    """Rollouts of a stable controller whose steps are violated as ``violated`` (E, T) says."""
+    runs, steps = violated.shape
+    return Rollouts(
+        x=np.zeros((runs, steps + 1, 2)),
+        mode=np.zeros((runs, steps + 1), dtype=np.int64),
+        u=np.zeros((runs, steps, 1)),
+        rho=np.zeros((runs, steps)),
+        J=np.zeros((runs, steps)),
+        stage_cost=np.ones((runs, steps)),
+        violations=np.repeat(violated[:, :, None], 2, axis=2),
+        status_ok=np.ones((runs, steps), dtype=bool),
+        ended=np.zeros((runs, steps), dtype=bool),
+    )
+
+
+def _widths(stats: dict) -> tuple[float, float]:
+    v = stats["violation"]
+    assert v["episode_t95"][0] <= v["freq"] <= v["episode_t95"][1]
+    assert 0.0 <= v["episode_t95"][0] and v["episode_t95"][1] <= 1.0
+    return v["wilson95"][1] - v["wilson95"][0], v["episode_t95"][1] - v["episode_t95"][0]
+
+
+def test_episode_interval_agrees_with_wilson_only_for_independent_steps():
+    """2000 episodes of 20 steps, violated with probability 0.2 (seeded). Independent steps:
+    the interval over episodes has the Wilson width (the sample sd of the episodes' shares
+    is within about 1.6% of its true value, so 10% is about six standard errors). Whole
+    episodes violated or not: the shares vary sqrt(20) = 4.47 times as much, and so must the
+    width."""
+    rng = np.random.default_rng(11)
+    runs, p = 2000, 0.2
+    wilson_w, episode_w = _widths(score(_synthetic(rng.random((runs, T)) < p)))
+    assert episode_w / wilson_w == pytest.approx(1.0, rel=0.10)
+    together = np.repeat(rng.random((runs, 1)) < p, T, axis=1)
+    wilson_w, episode_w = _widths(score(_synthetic(together)))
+    assert episode_w / wilson_w == pytest.approx(np.sqrt(T), rel=0.10)
+
+
+def test_episode_interval_at_the_ends_and_with_one_episode():
+    all_violated = score(_synthetic(np.ones((5, T), dtype=bool)))["violation"]
+    assert all_violated["episode_t95"] == [1.0, 1.0] and all_violated["freq"] == 1.0
+    one = np.zeros((3, T), dtype=bool)
+    one[0, 0] = True  # shares 0.05, 0, 0: the t interval reaches below 0
+    near_zero = score(_synthetic(one))["violation"]
+    assert near_zero["episode_t95"][0] == 0.0 < near_zero["episode_t95"][1]
+    with pytest.raises(ValueError, match="1 sample"):
+        score(_synthetic(np.ones((1, T), dtype=bool)))
