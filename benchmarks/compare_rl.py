@@ -1387,8 +1387,10 @@ def reading(summary: dict[str, Any]) -> list[str]:
         "and more training might move those points."
     )
     train: dict[str, list[float]] = {}
+    decide: dict[str, list[float]] = {}
     for a in aggs:
         train.setdefault(a["algo"], []).append(a["train_time_s"])
+        decide.setdefault(a["algo"], []).append(a["decision_time_s"]["single"])
     lines.append(
         "* Price: the RHC needs no training and decides in "
         f"{_fmt_time(ref['decision_time_s']['single'])} us per state on its own "
@@ -1400,13 +1402,14 @@ def reading(summary: dict[str, Any]) -> list[str]:
             for k, v in train.items()
         )
         + " (mean per run of each variant, one CPU thread; the budgets differ by variant), "
-        "and decides in "
+        "and decides, one state at a time, in "
         + ", ".join(
-            f"{a['name']} {_fmt_time(a['decision_time_s']['single'])} us"
-            for a in aggs
-            if a["variant"] == "reward"
+            f"{k.upper()} {_fmt_time(min(v))}"
+            + (f" to {_fmt_time(max(v))}" if _fmt_time(max(v)) != _fmt_time(min(v)) else "")
+            + " us"
+            for k, v in decide.items()
         )
-        + " per state."
+        + " per state (range over the variants)."
     )
     return lines
 

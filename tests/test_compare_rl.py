@@ -784,3 +784,20 @@ def test_quick_run_reports_the_interval_over_episodes(quick_run):
     assert (
         "Checked against a Student-t interval over the episodes" in (out / "REPORT.md").read_text()
     )
+
+
+def test_reading_prices_every_algorithm_without_a_reward_variant(quick_run):
+    """The decision times come from every variant trained, not only from ``reward``."""
+    summary = copy.deepcopy(quick_run[1])
+    summary["rl_aggregates"] = [a for a in summary["rl_aggregates"] if a["variant"] != "reward"]
+    summary["rl_runs"] = [r for r in summary["rl_runs"] if r["variant"] != "reward"]
+    summary["learning_curves"] = [s for s in summary["learning_curves"] if s["variant"] != "reward"]
+    line = next(t for t in compare_rl.reading(summary) if t.startswith("* Price"))
+    decides = line.split("one state at a time, in ")[1]
+    for algo in ("PPO", "SAC", "TD3"):
+        times = [
+            a["decision_time_s"]["single"]
+            for a in summary["rl_aggregates"]
+            if a["algo"] == algo.lower()
+        ]
+        assert f"{algo} {compare_rl._fmt_time(min(times))}" in decides
