@@ -801,3 +801,11 @@ def test_reading_prices_every_algorithm_without_a_reward_variant(quick_run):
             if a["algo"] == algo.lower()
         ]
         assert f"{algo} {compare_rl._fmt_time(min(times))}" in decides
+
+
+def test_training_time_counts_the_evaluations_made_during_training(quick_run):
+    """``eval_time_s`` is what the learning curve (and the dual ascent) cost inside
+    ``agent.learn``; it used to be lost (read from a copy of the callbacks' log, always 0)."""
+    _, summary = quick_run
+    for r in summary["rl_runs"]:
+        assert 0.0 < r["eval_time_s"] < r["train_time_s"] == r["wall_time_s"], r["name"]
