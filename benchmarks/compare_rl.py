@@ -5,10 +5,10 @@ PPO, SAC and TD3 (``--algos``) with ``--seeds`` seeds each in six variants: on t
 (``reward``), with a violation penalty ``reward - beta * info["cost"]`` for three values of
 ``beta`` (``beta100``, ``beta1000``, ``beta10000``), as residual agents choosing ``nu`` on top of
 the paper's gains (``residual``, with the middle penalty beta = 1000), and with ``beta`` adapted
-by dual ascent to hold the violation frequency at ``1 - xi = 0.15`` (``lagrangian``). Every agent and every
-model-based controller (the paper's receding-horizon controller at xi = 0.85 with individual
-and joint constraints and over a sweep of xi, the unconstrained receding-horizon controller, the
-linear feedback ``u = K x`` and the MJLS LQ regulator) is then scored on the same
+by dual ascent to hold the violation frequency at ``1 - xi = 0.15`` (``lagrangian``). Every agent
+and every model-based controller (the paper's receding-horizon controller at xi = 0.85 with
+individual and joint constraints and over a sweep of xi, the unconstrained receding-horizon
+controller, the linear feedback ``u = K x`` and the MJLS LQ regulator) is then scored on the same
 ``--eval-episodes`` episodes (the same noise: common random numbers).
 
 Outputs under ``--out`` (default ``results/rl/``): ``summary.csv``, ``summary.json``, the
@@ -26,8 +26,9 @@ to 2x between days). The default budgets (:func:`benchmarks.rl_hyperparams.times
 2.5M steps, SAC 60k, TD3 100k, raised per variant where the learning curves still moved, up to
 10M, 600k and 1.2M; 4 to 40 minutes per run) make the default run from scratch (3 x 3 x 6 = 54
 trainings on ``--workers 2``, with their learning curves) take about 7.5 h: the committed run's
-trainings took 14.7 h in all (the sum of their ``train_time_s``), measured over three days. If the main process
-is killed, its worker processes end with it (Linux), and a new start reuses the finished runs.
+trainings took 14.7 h in all (the sum of their ``train_time_s``), measured over three days. If
+the main process is killed, its worker processes end with it (Linux), and a new start reuses the
+finished runs.
 """
 
 from __future__ import annotations
@@ -806,27 +807,20 @@ def interval_check(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
     Returns ``{"stable": {"rows", "max_ratio", "name"}, "diverging": {...}}`` (a part is ``None``
     where no row qualifies), or ``None`` if no row has both intervals with a positive width.
     """
-    out: dict[str, Any] = {}
-    for part, keep in (
-        ("stable", lambda r: r["diverged"] == 0),
-        ("diverging", lambda r: r["diverged"] > 0),
-    ):
-        ratios = []
-        for r in rows:
-            v = r["violation"]
-            if not keep(r) or v.get("episode_t95") is None:
-                continue
-            wilson_width = v["wilson95"][1] - v["wilson95"][0]
-            if wilson_width > 0:
-                ratios.append(
-                    ((v["episode_t95"][1] - v["episode_t95"][0]) / wilson_width, r["name"])
-                )
-        out[part] = (
-            None
-            if not ratios
-            else {"rows": len(ratios), "max_ratio": max(ratios)[0], "name": max(ratios)[1]}
-        )
-    return None if out["stable"] is None and out["diverging"] is None else out
+    ratios: dict[str, list[tuple[float, str]]] = {"stable": [], "diverging": []}
+    for r in rows:
+        v = r["violation"]
+        wilson_width = v["wilson95"][1] - v["wilson95"][0]
+        if v.get("episode_t95") is None or wilson_width <= 0:
+            continue
+        ratio = (v["episode_t95"][1] - v["episode_t95"][0]) / wilson_width
+        ratios["diverging" if r["diverged"] else "stable"].append((ratio, r["name"]))
+    if not any(ratios.values()):
+        return None
+    return {
+        part: {"rows": len(rs), "max_ratio": max(rs)[0], "name": max(rs)[1]} if rs else None
+        for part, rs in ratios.items()
+    }
 
 
 def comparable(row: dict[str, Any], target: float) -> bool:
@@ -1199,6 +1193,12 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def _fmt_range(values: list[float], fmt) -> str:
+    """``"lo to hi"`` of ``values`` formatted by ``fmt``, or one number where the two read alike."""
+    lo, hi = fmt(min(values)), fmt(max(values))
+    return lo if lo == hi else f"{lo} to {hi}"
+
+
 def _fmt_steps(n: int) -> str:
     """Three significant digits: 2500608 -> '2.5M', 60006 -> '60k', 1056 -> '1.06k'."""
     if n >= 1_000_000:
@@ -1401,19 +1401,11 @@ def reading(summary: dict[str, Any]) -> list[str]:
         f"{_fmt_time(ref['decision_time_s']['single'])} us per state on its own "
         f"({_fmt_time(ref['decision_time_s']['batched'])} us batched); each agent trained for "
         + ", ".join(
-            f"{k.upper()} {min(v):.0f}"
-            + (f" to {max(v):.0f}" if round(max(v)) != round(min(v)) else "")
-            + " s"
-            for k, v in train.items()
+            f"{k.upper()} {_fmt_range(v, lambda t: f'{t:.0f}')} s" for k, v in train.items()
         )
         + " (mean per run of each variant, one CPU thread; the budgets differ by variant), "
         "and decides, one state at a time, in "
-        + ", ".join(
-            f"{k.upper()} {_fmt_time(min(v))}"
-            + (f" to {_fmt_time(max(v))}" if _fmt_time(max(v)) != _fmt_time(min(v)) else "")
-            + " us"
-            for k, v in decide.items()
-        )
+        + ", ".join(f"{k.upper()} {_fmt_range(v, _fmt_time)} us" for k, v in decide.items())
         + " per state (range over the variants)."
     )
     return lines
@@ -1469,8 +1461,9 @@ def write_report(opts: Options, summary: dict[str, Any]) -> str:
         "Decision time: per state, over a batch of 1000 visited states and for one state at a "
         "time, every controller measured in the same process after the training. Training time: "
         "mean wall time per run on one CPU thread, with the evaluations made during training "
-        "(learning curve; for `lagrangian` the dual ascent's, part of the method). Agents learn from a transformed reward, -log(1 + c / 100) "
-        "of the penalized per-step cost c (see `benchmarks/rl_hyperparams.py`); every number here "
+        "(learning curve; for `lagrangian` the dual ascent's, part of the method). Agents learn "
+        "from a transformed reward, -log(1 + c / 100) of the penalized per-step cost c (see "
+        "`benchmarks/rl_hyperparams.py`); every number here "
         "is the true cost.",
         "",
         f"Agents act on u, |u| <= {HP.U_BOUND:g} (the environment's bound is {ACTION_BOUND:g}; "
