@@ -57,6 +57,7 @@ from controllers import (
     MJLSLQRController,
     RecedingHorizonController,
     UnconstrainedRecedingHorizonController,
+    tightened_set_empty,
 )
 from sdjls_gym.systems.macro import ACTION_BOUND, HORIZON, PAPER_K, PAPER_RHC, macro
 
@@ -237,10 +238,23 @@ def scored(controller: Any, opts: Options) -> dict[str, Any]:
 
 
 def evaluate_model_based(model, opts: Options) -> list[dict[str, Any]]:
-    return [
+    rows = [
         {"name": name, "kind": "model-based", **desc, "train_time_s": 0.0, **scored(ctrl, opts)}
         for name, desc, ctrl in model_based_controllers(model)
     ]
+    for r in rows:
+        if "constraint" in r:
+            r["tightened_band_empty"] = empty_band_share(model, r["xi"], r["constraint"])
+    return rows
+
+
+def empty_band_share(model, xi: float, constraint: str) -> float:
+    """Share of the (mode, next time) pairs of an episode at which the RHC's tightened band
+    ``{y : G y <= H_{k+1} - t}`` is empty (:func:`controllers.tightened_set_empty`): there the QP
+    is feasible only through its slack, ``rho > 0``, whatever the state."""
+    return float(
+        np.mean([tightened_set_empty(model, xi, k, constraint) for k in range(1, HORIZON + 1)])
+    )
 
 
 #: Bootstrap resamples of the episodes behind each paired curve gap (:func:`paired_curve_gap`),
@@ -345,7 +359,7 @@ class RunSpec:
         config = {
             **asdict(self),
             "curve_scoring": CURVE_SCORING,
-            "hyperparams": _jsonable(HP.HYPERPARAMS[self.algo]),
+            "hyperparams": _jsonable(HP.hyperparams(self.algo, self.variant)),
             "env": HP.ENV,
             "betas": list(HP.BETAS),
             "lagrangian": HP.LAGRANGIAN,
@@ -390,7 +404,7 @@ def build_agent(spec: RunSpec, env_fns: list) -> Any:
     from stable_baselines3.common.noise import NormalActionNoise
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    hp = copy.deepcopy(HP.HYPERPARAMS[spec.algo])
+    hp = copy.deepcopy(HP.hyperparams(spec.algo, spec.variant))
     n_envs = hp.pop("n_envs")
     venv = DummyVecEnv(env_fns * n_envs if len(env_fns) == 1 else env_fns)
     if spec.algo == "td3":
@@ -542,9 +556,9 @@ def train_run(spec: RunSpec, path: str | None, report=None) -> dict[str, Any]:
     make_env, policy_factory = _train_setup(spec)
     agent = build_agent(spec, [make_env])
     callbacks, log = _callbacks(spec, policy_factory, report)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     agent.learn(total_timesteps=spec.timesteps, callback=callbacks)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     result = {
         "name": spec.name,
         "kind": "rl-seed",
@@ -558,6 +572,9 @@ def train_run(spec: RunSpec, path: str | None, report=None) -> dict[str, Any]:
         # (part of what the report shows) and the dual ascent's (part of the Lagrangian method)
         "train_time_s": wall,
         "wall_time_s": wall,
+        # this process's CPU time over the same span: below the wall time when the training
+        # shared its core (more trainings than cores, or other load on the machine)
+        "cpu_time_s": cpu,
         "eval_time_s": log["eval_time"],
         "final_beta": log["state"]["beta"],
         "learning_curve": log["curve"],
@@ -581,7 +598,7 @@ def load_policy(spec: RunSpec, path: str | Path) -> Any:
     make_env, _ = _train_setup(spec)
     env = make_env()
     cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[spec.algo]
-    kwargs = copy.deepcopy(HP.HYPERPARAMS[spec.algo].get("policy_kwargs", {}))
+    kwargs = copy.deepcopy(HP.hyperparams(spec.algo, spec.variant).get("policy_kwargs", {}))
     policy = cls.policy_aliases["MlpPolicy"](
         env.observation_space, env.action_space, lambda _: 0.0, **kwargs
     )
@@ -1248,6 +1265,7 @@ def reading(summary: dict[str, Any]) -> list[str]:
         f"({mb['Linear feedback (nu = 0)']['violation']['freq']:.3f}, "
         f"{mb['MJLS LQR']['violation']['freq']:.3f}).",
     ]
+    lines += _empty_band_lines(summary["model_based"])
     if not aggs:
         return lines
     rhc_curve = sorted(
@@ -1407,8 +1425,89 @@ def reading(summary: dict[str, Any]) -> list[str]:
         "and decides, one state at a time, in "
         + ", ".join(f"{k.upper()} {_fmt_range(v, _fmt_time)} us" for k, v in decide.items())
         + " per state (range over the variants)."
+        + _shared_cpu_text(summary["rl_runs"])
     )
     return lines
+
+
+#: A training whose wall time exceeds its CPU time by more than this factor is named in the
+#: reading: it shared its core, and its training time is not comparable with the others'.
+SHARED_CPU_RATIO = 1.2
+
+
+def _shared_cpu_text(runs: list[dict[str, Any]]) -> str:
+    """The reading's note on trainings that shared a core (``train_time_s / cpu_time_s``; runs
+    recorded before ``cpu_time_s`` existed are not judged)."""
+    shared = [
+        r
+        for r in runs
+        if r.get("cpu_time_s", 0) > 0 and r["train_time_s"] > SHARED_CPU_RATIO * r["cpu_time_s"]
+    ]
+    if not shared:
+        return ""
+    return (
+        " These trainings shared a core, so their training time overstates what they need: "
+        + ", ".join(
+            f"{r['name']} {r['train_time_s']:.0f} s for {r['cpu_time_s']:.0f} s of CPU"
+            for r in shared
+        )
+        + "."
+    )
+
+
+def _empty_band_lines(model_based: list[dict[str, Any]]) -> list[str]:
+    """The reading's sentence on the RHC points whose tightened band is empty
+    (``tightened_band_empty``, :func:`empty_band_share`)."""
+    rows = [r for r in model_based if r.get("tightened_band_empty", 0.0) > 0.0]
+    if not rows:
+        return []
+    always = [r for r in rows if r["tightened_band_empty"] == 1.0]
+    some = [r for r in rows if r["tightened_band_empty"] < 1.0]
+
+    def names(group: list[dict[str, Any]]) -> str:
+        by_kind: dict[str, list[str]] = {}
+        for r in group:
+            by_kind.setdefault(r["constraint"], []).append(f"{r['xi']:g}")
+        return "; ".join(f"{k} xi = {', '.join(v)}" for k, v in by_kind.items())
+
+    parts = []
+    if always:
+        scores = {(r["episode_cost"]["mean"], r["violation"]["freq"]) for r in always}
+        text = (
+            f"* The RHC's tightened band is empty at every step and in every mode for "
+            f"{names(always)} (the tightened set {{y : G y <= H_(k+1) - t}} has no point, "
+            "`controllers.tightened_set_empty`): the QP is feasible only through its slack, "
+            "rho > 0 at every step, and the slack absorbs the excess tightening. "
+        )
+        if len(scores) == 1:
+            (c, v), n = next(iter(scores)), len(always)
+            text += (
+                f"Those {n} controllers score the same (cost {c:.4g}, violations {v:.3f}): "
+                "raising xi there changes nothing, and the safe end of the RHC curves is one "
+                "controller, not several."
+            )
+        else:
+            text += (
+                "Their scores (cost / violations): "
+                + ", ".join(
+                    f"{r['name']} {r['episode_cost']['mean']:.4g} / {r['violation']['freq']:.3f}"
+                    for r in always
+                )
+                + "."
+            )
+        if any(r["constraint"] == "joint" and r["xi"] == XI for r in always):
+            text += f" The paper's joint-constraint controller at xi = {XI:g} is one of them."
+        parts.append(text)
+    if some:
+        parts.append(
+            "* The RHC's tightened band is empty at some steps (rho > 0 there) for "
+            + ", ".join(
+                f"{r['name']} ({100 * r['tightened_band_empty']:.0f}% of the steps and modes)"
+                for r in some
+            )
+            + "."
+        )
+    return parts
 
 
 def _interval_check_text(check: dict[str, Any] | None) -> str:
@@ -1594,6 +1693,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "hyperparams": _jsonable(
             {
                 "algorithms": {a: HP.HYPERPARAMS[a] for a in opts.algos},
+                "variant_changes": {
+                    f"{a} {v}": changes
+                    for (a, v), changes in HP.HYPERPARAMS_VARIANT.items()
+                    if a in opts.algos and v in opts.variants
+                },
                 "env": HP.ENV,
                 "betas": HP.BETAS,
                 "lagrangian": HP.LAGRANGIAN,

@@ -4,7 +4,7 @@ Controllers read an :class:`sdjls_gym.SDJLSModel`; they never simulate.
 """
 
 from controllers.baselines import LinearFeedbackController, MJLSLQRController
-from controllers.chance import row_satisfaction_probability, tightening
+from controllers.chance import row_satisfaction_probability, tightened_set_empty, tightening
 from controllers.lmi import (
     GainSynthesisResult,
     LMIError,
@@ -36,5 +36,6 @@ __all__ += [
     "RecedingHorizonController",
     "UnconstrainedRecedingHorizonController",
     "row_satisfaction_probability",
+    "tightened_set_empty",
     "tightening",
 ]

@@ -36,7 +36,12 @@ from sdjls_gym.model import SDJLSModel
 
 from .baselines import _check_model
 
-__all__ = ["CONSTRAINT_KINDS", "tightening", "row_satisfaction_probability"]
+__all__ = [
+    "CONSTRAINT_KINDS",
+    "tightening",
+    "tightened_set_empty",
+    "row_satisfaction_probability",
+]
 
 #: The kinds of chance constraint understood by :func:`tightening`.
 CONSTRAINT_KINDS = ("individual", "joint", "bonferroni")
@@ -127,6 +132,73 @@ def tightening(model: SDJLSModel, xi: float, constraint: str = "individual") -> 
     delta = math.sqrt(stats.chi2.ppf(xi, df=model.p))
     rows = np.einsum("jn,inp,pq->ijq", model.G, model.E, model.W_sqrt)  # (N, r, p): G_j E_i W^{1/2}
     return delta * np.linalg.norm(rows, axis=-1)
+
+
+def tightened_set_empty(
+    model: SDJLSModel, xi: float, k_next: int, constraint: str = "individual"
+) -> np.ndarray:
+    """Whether the tightened set ``{y : G y <= H_{k_next} - t[i]}`` is empty, per mode ``i``.
+
+    When it is empty, no next-state mean satisfies the deterministic constraints of the
+    receding-horizon QP, whatever the state and the offset ``nu``: the QP is feasible only through
+    its slack, ``rho > 0`` at that step. With the band of the macroeconomic example (two opposite
+    rows, ``2 + k/2 <= x(2) <= 5 + k/2``, 3 wide, each row tightened by the same ``t``), this
+    happens as soon as ``t > 1.5``; the slack then absorbs the excess, ``rho = rho' + t - 1.5``,
+    and the minimizing ``nu`` no longer depends on ``xi``.
+
+    Parameters
+    ----------
+    model : SDJLSModel
+    xi : float
+        Chance-constraint level, strictly between 0 and 1.
+    k_next : int
+        Time of the next state (it selects the band ``H_{k_next}``), ``>= 0``.
+    constraint : {"individual", "joint", "bonferroni"}
+        Which tightening (see :func:`tightening`).
+
+    Returns
+    -------
+    (N,) bool ndarray
+        ``True`` where the tightened set is empty when the current mode is ``i``; decided by a
+        linear feasibility problem (``scipy.optimize.linprog``, HiGHS).
+
+    Raises
+    ------
+    ValueError
+        If ``xi``, ``k_next`` or ``constraint`` is invalid, or the LP solver fails.
+
+    Examples
+    --------
+    >>> from sdjls_gym.systems.macro import macro
+    >>> tightened_set_empty(macro(), 0.85, 1), tightened_set_empty(macro(), 0.85, 1, "joint")
+    (array([False, False, False]), array([ True,  True,  True]))
+    """
+    from scipy.optimize import linprog
+
+    model = _check_model(model)
+    xi = _check_xi(xi)
+    constraint = _check_constraint(constraint)
+    if isinstance(k_next, (bool, np.bool_)) or not isinstance(k_next, (int, np.integer)):
+        raise ValueError(f"k_next = {k_next!r} must be an integer time >= 0")
+    if k_next < 0:
+        raise ValueError(f"k_next = {k_next!r} is negative; expected an integer time >= 0")
+    t = tightening(model, xi, constraint)
+    out = np.empty(model.N, dtype=bool)
+    for i in range(model.N):
+        res = linprog(
+            np.zeros(model.n),
+            A_ub=model.G,
+            b_ub=model.H(int(k_next)) - t[i],
+            bounds=[(None, None)] * model.n,
+            method="highs",
+        )
+        if res.status not in (0, 2):  # 0: a feasible point, 2: infeasible
+            raise ValueError(
+                f"the feasibility LP of the tightened set failed (mode {i}, xi = {xi}, "
+                f"k_next = {k_next}): {res.message}"
+            )
+        out[i] = res.status == 2
+    return out
 
 
 def row_satisfaction_probability(

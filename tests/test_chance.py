@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from controllers.chance import row_satisfaction_probability, tightening
+from controllers.chance import row_satisfaction_probability, tightened_set_empty, tightening
 from sdjls_gym import SDJLSModel
 from sdjls_gym.systems.macro import macro
 
@@ -210,3 +210,84 @@ def test_bad_constraint_is_rejected():
 def test_model_must_be_a_model():
     with pytest.raises(TypeError, match="model must be an sdjls_gym.SDJLSModel"):
         tightening({"A": 1}, 0.9)
+
+
+# ------------------------------------------------------------------ empty tightened sets
+@pytest.mark.parametrize("k_next", [1, 10, 20])
+def test_example_tightened_band_is_empty_exactly_past_its_half_width(k_next):
+    """The example's band ``2 + k/2 <= x(2) <= 5 + k/2`` is 3 wide and both rows have unit
+    variance: it is empty once a row is tightened by more than 1.5, i.e. for individual
+    constraints above xi = Phi(1.5) and for joint ones (p = 2, chi2 quantile delta^2 > 2.25)
+    above xi = 1 - exp(-2.25 / 2)."""
+    model = macro()
+    H = model.H(k_next)
+    assert H[0] + H[1] == pytest.approx(3.0)  # -(lower) + upper: the width
+    edges = {"individual": stats.norm.cdf(1.5), "joint": 1.0 - math.exp(-2.25 / 2.0)}
+    for constraint, edge in edges.items():
+        below = tightened_set_empty(model, edge - 1e-3, k_next, constraint)
+        above = tightened_set_empty(model, edge + 1e-3, k_next, constraint)
+        assert below.shape == above.shape == (model.N,)
+        assert not below.any(), (constraint, edge)
+        assert above.all(), (constraint, edge)
+    # the paper's two configurations at xi = 0.85: the individual band is not empty, the joint is
+    assert not tightened_set_empty(model, 0.85, k_next).any()
+    assert tightened_set_empty(model, 0.85, k_next, "joint").all()
+
+
+def test_tightened_set_empty_agrees_with_a_cvxpy_feasibility_problem():
+    """Random polyhedra in 3-d with 6 rows (seeds 0-3, 4 levels, 2 modes): the HiGHS answer
+    matches cvxpy's (another solver), and both answers occur."""
+    answers = []
+    for seed in range(4):
+        model = random_model(np.random.default_rng(seed), N=2, n=3, m=1, p=2, r=6)
+        for xi in (0.6, 0.9, 0.99, 0.9999):
+            got = tightened_set_empty(model, xi, 2, "joint")
+            t = tightening(model, xi, "joint")
+            for i in range(model.N):
+                y = cp.Variable(model.n)
+                prob = cp.Problem(cp.Minimize(0), [model.G @ y <= model.H(2) - t[i]])
+                prob.solve(solver=cp.CLARABEL)
+                assert prob.status in (cp.OPTIMAL, cp.INFEASIBLE), prob.status
+                assert got[i] == (prob.status == cp.INFEASIBLE), (seed, xi, i)
+                answers.append(bool(got[i]))
+    assert 0 < sum(answers) < len(answers)
+
+
+def test_rhc_ignores_xi_once_the_tightened_band_is_empty():
+    """Past the half-width the slack absorbs the excess tightening: the QP's nu is the same for
+    individual xi = 0.95, 0.99 and joint xi = 0.85 (all empty bands), rho > 0, and differs from
+    the non-empty individual xi = 0.85."""
+    from benchmarks.montecarlo import paper_rhc
+
+    model = macro()
+    rng = np.random.default_rng(3)
+    ctrls = {
+        ("individual", 0.95): paper_rhc(model, 0.95, "individual"),
+        ("individual", 0.99): paper_rhc(model, 0.99, "individual"),
+        ("joint", 0.85): paper_rhc(model, 0.85, "joint"),
+    }
+    ref = paper_rhc(model, 0.85, "individual")
+    differs = 0
+    for _ in range(20):
+        x = rng.normal(size=2) * 2.0 + np.array([0.0, 3.0])
+        mode, k = int(rng.integers(model.N)), int(rng.integers(0, 20))
+        out = {key: c.act(x, mode, k) for key, c in ctrls.items()}
+        u0, info0 = out[("individual", 0.95)]
+        for key, (u, info) in out.items():
+            assert info["rho"] > 0.0, key
+            np.testing.assert_allclose(u, u0, rtol=1e-6, atol=1e-6, err_msg=str(key))
+        differs += not np.allclose(ref.act(x, mode, k)[0], u0, rtol=1e-6, atol=1e-6)
+    assert differs > 0
+
+
+@pytest.mark.parametrize(
+    ("k_next", "match"),
+    [
+        (-1, "k_next = -1 is negative"),
+        (1.5, "k_next = 1.5 must be an integer"),
+        (True, "k_next = True must be an integer"),
+    ],
+)
+def test_tightened_set_empty_rejects_bad_k_next(k_next, match):
+    with pytest.raises(ValueError, match=match):
+        tightened_set_empty(macro(), 0.9, k_next)

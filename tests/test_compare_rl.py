@@ -809,3 +809,52 @@ def test_training_time_counts_the_evaluations_made_during_training(quick_run):
     _, summary = quick_run
     for r in summary["rl_runs"]:
         assert 0.0 < r["eval_time_s"] < r["train_time_s"] == r["wall_time_s"], r["name"]
+        assert r["cpu_time_s"] > 0.0, r["name"]
+
+
+def test_reading_names_the_trainings_that_shared_a_core():
+    """Wall time over CPU time above SHARED_CPU_RATIO is named; old records (no CPU time) and
+    trainings that had their core are not."""
+    runs = [
+        {"name": "a", "train_time_s": 150.0, "cpu_time_s": 100.0},
+        {"name": "b", "train_time_s": 110.0, "cpu_time_s": 100.0},
+        {"name": "c", "train_time_s": 500.0},
+    ]
+    text = compare_rl._shared_cpu_text(runs)
+    assert "a 150 s for 100 s of CPU" in text
+    assert "b 110" not in text and "c 500" not in text
+    assert compare_rl._shared_cpu_text(runs[1:]) == ""
+
+
+def test_quick_run_marks_the_rhc_points_whose_tightened_band_is_empty(quick_run):
+    """The band is 3 wide with unit-variance rows: empty for individual xi > Phi(1.5) and joint
+    xi > 1 - exp(-2.25 / 2) (see tests/test_chance.py); those points score the same."""
+    from scipy import stats
+
+    summary = copy.deepcopy(quick_run[1])
+    edge = {"individual": stats.norm.cdf(1.5), "joint": 1.0 - math.exp(-2.25 / 2.0)}
+    rows = [r for r in summary["model_based"] if "constraint" in r]
+    assert len(rows) == 2 * len(compare_rl.XI_SWEEP)
+    for r in rows:
+        assert r["tightened_band_empty"] == float(r["xi"] > edge[r["constraint"]]), r["name"]
+    empty = [r for r in rows if r["tightened_band_empty"] == 1.0]
+    assert {r["name"] for r in empty} == {
+        "RHC individual xi=0.95",
+        "RHC individual xi=0.99",
+        *(f"RHC joint xi={xi:g}" for xi in compare_rl.XI_SWEEP if xi >= 0.7),
+    }
+    lines = [t for t in compare_rl.reading(summary) if "tightened band is empty" in t]
+    assert len(lines) == 1
+    assert "individual xi = 0.95, 0.99; joint xi = 0.7, 0.8, 0.85, 0.9, 0.95, 0.99" in lines[0]
+    assert f"Those {len(empty)} controllers score the same" in lines[0]
+    assert "joint-constraint controller at xi = 0.85 is one of them" in lines[0]
+
+    # the wording follows the numbers: different scores are listed, partial emptiness is named
+    empty[0]["episode_cost"]["mean"] += 1.0
+    summary["model_based"][0]["tightened_band_empty"] = 0.25
+    text = "\n".join(compare_rl._empty_band_lines(summary["model_based"]))
+    assert "score the same" not in text and "Their scores (cost / violations): " in text
+    assert f"{summary['model_based'][0]['name']} (25% of the steps and modes)" in text
+    for r in rows:
+        r["tightened_band_empty"] = 0.0
+    assert compare_rl._empty_band_lines(summary["model_based"]) == []

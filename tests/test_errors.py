@@ -36,6 +36,7 @@ from controllers import (
     row_satisfaction_probability,
     second_moment_spectral_radius,
     synthesize_gains,
+    tightened_set_empty,
     tightening,
     verify_mean_square_bound,
 )
@@ -707,6 +708,36 @@ CASES = [
         TypeError,
         r"model must be an sdjls_gym\.SDJLSModel, got dict",
         "tightening-model",
+    ),
+    case(
+        lambda c: tightened_set_empty(macro(), 1.5, 1),
+        ValueError,
+        r"xi = 1\.5 is out of range",
+        "empty-set-xi",
+    ),
+    case(
+        lambda c: tightened_set_empty(macro(), 0.9, -2),
+        ValueError,
+        r"k_next = -2 is negative; expected an integer time >= 0",
+        "empty-set-k-negative",
+    ),
+    case(
+        lambda c: tightened_set_empty(macro(), 0.9, 2.0),
+        ValueError,
+        r"k_next = 2\.0 must be an integer time >= 0",
+        "empty-set-k-float",
+    ),
+    case(
+        lambda c: tightened_set_empty(macro(), 0.9, 1, "all"),
+        ValueError,
+        r"constraint = 'all'",
+        "empty-set-kind",
+    ),
+    case(
+        lambda c: tightened_set_empty(c.kw, 0.9, 1),
+        TypeError,
+        r"model must be an sdjls_gym\.SDJLSModel, got dict",
+        "empty-set-model",
     ),
     case(
         lambda c: row_satisfaction_probability(macro(), np.zeros(3), 0, 1),
