@@ -161,15 +161,14 @@ TD3: dict[str, Any] = {
 
 HYPERPARAMS: dict[str, dict[str, Any]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
 
-#: Per-variant changes to :data:`HYPERPARAMS` (the entries here replace the algorithm's).
-#: SAC beta10000 at lr 1e-3 stabilized within 60k-180k steps and then oscillated for 400k more
-#: without a trend: from one learning-curve point to the next (60k steps apart) its median cost
-#: jumped between 2900 and 21000 and its violation frequency between 0.63 and 0.75, so the
-#: report's flatness test failed on the noise (run of 2026-12-01). Its learning rate is lowered to
-#: SB3's default, 3e-4, for smaller policy updates (run of 2026-12-02).
-HYPERPARAMS_VARIANT: dict[tuple[str, str], dict[str, Any]] = {
-    ("sac", "beta10000"): {"learning_rate": 3e-4},
-}
+#: Per-variant changes to :data:`HYPERPARAMS` (the entries here replace the algorithm's); none
+#: is in use. Tried on 2026-12-02 and not finished: SAC beta10000 at lr 3e-4 (SB3's default)
+#: instead of 1e-3. At 1e-3 it stabilized within 60k-180k steps and then oscillated for 400k more
+#: without a trend (median cost 2900 to 21000 and violations 0.63 to 0.75 from one learning-curve
+#: point to the next), so the report's flatness test fails on the noise; smaller updates may
+#: settle it. Its three seeds, trained three at a time on the 2 cores, had not reached 600k steps
+#: after 77 minutes and were stopped.
+HYPERPARAMS_VARIANT: dict[tuple[str, str], dict[str, Any]] = {}
 
 
 def hyperparams(algo: str, variant: str) -> dict[str, Any]:
@@ -202,7 +201,10 @@ TIMESTEPS: dict[str, int] = {"ppo": 2_500_000, "sac": 60_000, "td3": 100_000}
 #: 2026-12-02 raised two of them, as many as one session's two workers could retrain: PPO
 #: beta100 to 14M (seed 0 was still settling, from 61 to 0 diverged evaluation episodes out of
 #: 100 between 5M and 10M; seed 2 diverged in 82-91 from 3M on) and SAC lagrangian to 300k (at
-#: 60k still diverging in 75-98 of 100, while SAC beta10000 had stabilized by 60k-180k).
+#: 60k still diverging in 75-98 of 100, while SAC beta10000 had stabilized by 60k-180k). PPO
+#: beta100 is flat at 14M (seed 2 still diverges in 82-91 of 100 from 3M to 14M: stuck, not
+#: learning); SAC lagrangian is still improving at 300k (diverged 51-68 of 100 at 210k, 12-19 at
+#: 300k, violations falling 0.73-0.77 to 0.53-0.61 while its beta still grows).
 TIMESTEPS_VARIANT: dict[tuple[str, str], int] = {
     ("ppo", "reward"): 8_000_000,
     ("ppo", "beta100"): 14_000_000,
