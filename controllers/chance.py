@@ -34,7 +34,7 @@ from scipy import special, stats
 
 from sdjls_gym.model import SDJLSModel
 
-from .baselines import _check_model
+from .baselines import _check_int, _check_model
 
 __all__ = [
     "CONSTRAINT_KINDS",
@@ -165,7 +165,9 @@ def tightened_set_empty(
     Raises
     ------
     ValueError
-        If ``xi``, ``k_next`` or ``constraint`` is invalid, or the LP solver fails.
+        If ``xi`` or ``constraint`` is invalid, ``k_next < 0``, or the LP solver fails.
+    TypeError
+        If ``k_next`` is not an int, or ``model`` is not an :class:`SDJLSModel`.
 
     Examples
     --------
@@ -178,17 +180,15 @@ def tightened_set_empty(
     model = _check_model(model)
     xi = _check_xi(xi)
     constraint = _check_constraint(constraint)
-    if isinstance(k_next, (bool, np.bool_)) or not isinstance(k_next, (int, np.integer)):
-        raise ValueError(f"k_next = {k_next!r} must be an integer time >= 0")
-    if k_next < 0:
-        raise ValueError(f"k_next = {k_next!r} is negative; expected an integer time >= 0")
+    k_next = _check_int("k_next", k_next, 0)
     t = tightening(model, xi, constraint)
+    H = model.H(k_next)
     out = np.empty(model.N, dtype=bool)
     for i in range(model.N):
         res = linprog(
             np.zeros(model.n),
             A_ub=model.G,
-            b_ub=model.H(int(k_next)) - t[i],
+            b_ub=H - t[i],
             bounds=[(None, None)] * model.n,
             method="highs",
         )

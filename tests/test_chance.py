@@ -272,7 +272,7 @@ def test_rhc_ignores_xi_once_the_tightened_band_is_empty():
         x = rng.normal(size=2) * 2.0 + np.array([0.0, 3.0])
         mode, k = int(rng.integers(model.N)), int(rng.integers(0, 20))
         out = {key: c.act(x, mode, k) for key, c in ctrls.items()}
-        u0, info0 = out[("individual", 0.95)]
+        u0, _ = out[("individual", 0.95)]
         for key, (u, info) in out.items():
             assert info["rho"] > 0.0, key
             np.testing.assert_allclose(u, u0, rtol=1e-6, atol=1e-6, err_msg=str(key))
@@ -281,13 +281,13 @@ def test_rhc_ignores_xi_once_the_tightened_band_is_empty():
 
 
 @pytest.mark.parametrize(
-    ("k_next", "match"),
+    ("k_next", "error", "match"),
     [
-        (-1, "k_next = -1 is negative"),
-        (1.5, "k_next = 1.5 must be an integer"),
-        (True, "k_next = True must be an integer"),
+        (-1, ValueError, "k_next = -1 is out of range; expected an int >= 0"),
+        (1.5, TypeError, "k_next = 1.5 must be an int, got float"),
+        (True, TypeError, "k_next = True must be an int, got bool"),
     ],
 )
-def test_tightened_set_empty_rejects_bad_k_next(k_next, match):
-    with pytest.raises(ValueError, match=match):
+def test_tightened_set_empty_rejects_bad_k_next(k_next, error, match):
+    with pytest.raises(error, match=match):
         tightened_set_empty(macro(), 0.9, k_next)

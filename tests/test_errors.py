@@ -718,13 +718,13 @@ CASES = [
     case(
         lambda c: tightened_set_empty(macro(), 0.9, -2),
         ValueError,
-        r"k_next = -2 is negative; expected an integer time >= 0",
+        r"k_next = -2 is out of range; expected an int >= 0",
         "empty-set-k-negative",
     ),
     case(
         lambda c: tightened_set_empty(macro(), 0.9, 2.0),
-        ValueError,
-        r"k_next = 2\.0 must be an integer time >= 0",
+        TypeError,
+        r"k_next = 2\.0 must be an int, got float",
         "empty-set-k-float",
     ),
     case(
