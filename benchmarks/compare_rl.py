@@ -24,9 +24,9 @@ trainings in parallel: PPO trains at about 6300 to 9300 env steps/s, SAC at abou
 and TD3 at about 290 to 630 (the machine is shared: the speed of one configuration varied by up
 to 2x between days). The default budgets (:func:`benchmarks.rl_hyperparams.timesteps`: PPO
 2.5M steps, SAC 60k, TD3 100k, raised per variant where the learning curves still moved, up to
-14M, 600k and 1.2M; 4 to 40 minutes per run) make the default run from scratch (3 x 3 x 6 = 54
-trainings on ``--workers 2``, with their learning curves) take about 8 h: the committed run's
-trainings took 15.9 h in all (the sum of their ``train_time_s``), measured over three days. If
+14M, 600k and 1.2M; 4 to 45 minutes per run) make the default run from scratch (3 x 3 x 6 = 54
+trainings on ``--workers 2``, with their learning curves) take about 8.5 h: the committed run's
+trainings took 16.7 h in all (the sum of their ``train_time_s``), measured over three days. If
 the main process is killed, its worker processes end with it (Linux), and a new start reuses the
 finished runs.
 """
@@ -1216,6 +1216,17 @@ def _fmt_range(values: list[float], fmt) -> str:
     return lo if lo == hi else f"{lo} to {hi}"
 
 
+def _variant_changes_text(changes: dict[str, dict[str, Any]]) -> str:
+    """The report's words for the per-variant hyperparameter changes (``""`` if none)."""
+    if not changes:
+        return ""
+    return ", except " + "; ".join(
+        f"{name.split()[0].upper()} {name.split()[1]}: "
+        + ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in c.items())
+        for name, c in changes.items()
+    )
+
+
 def _fmt_steps(n: int) -> str:
     """Three significant digits: 2500608 -> '2.5M', 60006 -> '60k', 1056 -> '1.06k'."""
     if n >= 1_000_000:
@@ -1580,7 +1591,9 @@ def write_report(opts: Options, summary: dict[str, Any]) -> str:
             for algo, budgets in summary["timesteps"].items()
         )
         + f"; {opts.seeds} seed(s). Hyperparameters: `benchmarks/rl_hyperparams.py` "
-        "(from rl-zoo3's Pendulum-v1 entries).",
+        "(from rl-zoo3's Pendulum-v1 entries)"
+        + _variant_changes_text(summary["hyperparams"]["variant_changes"])
+        + ".",
         "",
         "## Results",
         "",

@@ -367,6 +367,28 @@ def test_default_budgets_per_variant():
     assert {s.timesteps for s in quick} == {HP.QUICK_TIMESTEPS}
 
 
+def test_variant_hyperparameters_change_only_their_variant(monkeypatch):
+    """HYPERPARAMS_VARIANT replaces the listed entries for one (algo, variant): the agent is built
+    with them, the run's fingerprint changes (so the cached run is trained again), the other
+    variants and the module's dicts are untouched, and the report's budget line names the change."""
+    before = copy.deepcopy(HP.HYPERPARAMS)
+    base = [compare_rl.RunSpec("sac", v, 0, 1000, 1, 5, 0) for v in ("reward", "beta1000")]
+    prints = [s.fingerprint() for s in base]
+    monkeypatch.setattr(HP, "HYPERPARAMS_VARIANT", {("sac", "reward"): {"learning_rate": 2e-5}})
+    assert HP.hyperparams("sac", "reward") == {**HP.SAC, "learning_rate": 2e-5}
+    assert HP.hyperparams("sac", "beta1000") == HP.SAC
+    assert HP.HYPERPARAMS == before
+    assert base[0].fingerprint() != prints[0] and base[1].fingerprint() == prints[1]
+    env_fn = [lambda: make_train_env("u", 0.0, HP.ENV, PAPER_K, HP.RESIDUAL_NU_BOUND, 60.0)]
+    lrs = [compare_rl.build_agent(s, env_fn).learning_rate for s in base]
+    assert lrs == [2e-5, HP.SAC["learning_rate"]]
+    assert compare_rl._variant_changes_text({}) == ""
+    text = compare_rl._variant_changes_text(
+        {"sac reward": {"learning_rate": 2e-5}, "td3 beta100": {"batch_size": 64, "gamma": 0.9}}
+    )
+    assert text == ", except SAC reward: learning_rate 2e-05; TD3 beta100: batch_size 64, gamma 0.9"
+
+
 def test_trainings_start_longest_first(tmp_path, monkeypatch):
     """train_all starts the runs by estimated training time, longest first; results keep spec order."""
     order = []
