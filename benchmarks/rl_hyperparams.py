@@ -210,7 +210,7 @@ TIMESTEPS: dict[str, int] = {"ppo": 2_500_000, "sac": 60_000, "td3": 100_000}
 #: 300k, violations falling 0.73-0.77 to 0.53-0.61 while its beta still grows). The second run
 #: of 2026-12-02 raised SAC lagrangian to 600k: its violations stopped falling (0.48-0.66 from
 #: 300k to 600k, seeds averaged 0.575 in both windows), its divergences went (0-4 of 100 from
-#: 480k on, 9-21 at 300k-360k), and its beta still grows (1.2e6-1.3e6 at 600k), so the test still
+#: 480k on, 0-21 at 300k-360k), and its beta still grows (1.2e6-1.3e6 at 600k), so the test still
 #: fails, on the diverged share and the median cost of the earlier window.
 TIMESTEPS_VARIANT: dict[tuple[str, str], int] = {
     ("ppo", "reward"): 8_000_000,
