@@ -24,9 +24,9 @@ trainings in parallel: PPO trains at about 6300 to 9300 env steps/s, SAC at abou
 and TD3 at about 290 to 630 (the machine is shared: the speed of one configuration varied by up
 to 2x between days). The default budgets (:func:`benchmarks.rl_hyperparams.timesteps`: PPO
 2.5M steps, SAC 60k, TD3 100k, raised per variant where the learning curves still moved, up to
-14M, 600k and 1.2M; 4 to 45 minutes per run) make the default run from scratch (3 x 3 x 6 = 54
-trainings on ``--workers 2``, with their learning curves) take about 8.5 h: the committed run's
-trainings took 16.7 h in all (the sum of their ``train_time_s``), measured over three days. If
+14M, 800k and 1.2M; 4 to 62 minutes per run) make the default run from scratch (3 x 3 x 6 = 54
+trainings on ``--workers 2``, with their learning curves) take about 9 h: the committed run's
+trainings took 17.6 h in all (the sum of their ``train_time_s``), measured over three days. If
 the main process is killed, its worker processes end with it (Linux), and a new start reuses the
 finished runs.
 """
