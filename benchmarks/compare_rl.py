@@ -26,7 +26,9 @@ to 2x between days). The default budgets (:func:`benchmarks.rl_hyperparams.times
 2.5M steps, SAC 60k, TD3 100k, raised per variant where the learning curves still moved, up to
 14M, 800k and 1.2M; 4 to 62 minutes per run) make the default run from scratch (3 x 3 x 6 = 54
 trainings on ``--workers 2``, with their learning curves) take about 9 h: the committed run's
-trainings took 17.6 h in all (the sum of their ``train_time_s``), measured over three days. If
+trainings took 19.1 h in all (the sum of their ``train_time_s``), measured over four days; 1.0 h
+of it is the three SAC beta10000 runs' waiting, trained three at a time on the two cores (3.1 h
+of wall time for 2.1 h of CPU, ``cpu_time_s`` in their run files). If
 the main process is killed, its worker processes end with it (Linux), and a new start reuses the
 finished runs.
 """
@@ -412,6 +414,7 @@ def build_agent(spec: RunSpec, env_fns: list) -> Any:
         hp["action_noise"] = NormalActionNoise(np.zeros(1), std * np.ones(1))
     if isinstance(hp.get("train_freq"), list):
         hp["train_freq"] = tuple(hp["train_freq"])
+    hp["learning_rate"] = HP.learning_rate(hp["learning_rate"])  # "lin_<r>": a linear decay
     cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[spec.algo]
     return cls("MlpPolicy", venv, seed=1000 + spec.seed, verbose=0, device="cpu", **hp)
 
@@ -967,9 +970,14 @@ def make_figures(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter
 
     names = []
     model = macro()
+    # env steps as 200k, 1.2M: matplotlib's plain labels of 100000..800000 run into each other
+    steps_format = FuncFormatter(
+        lambda v, _: ("-" if v < 0 else "") + _fmt_steps(int(round(abs(v))))
+    )
 
     def save(fig, name: str) -> None:
         fig.tight_layout()
@@ -1085,6 +1093,7 @@ def make_figures(
             axes[1, j].set_ylim(-0.02, 1.02)
             for i in range(2):
                 axes[i, j].set_xlabel("training env steps")
+                axes[i, j].xaxis.set_major_formatter(steps_format)
                 axes[i, j].grid(alpha=0.3, which="both")
             axes[0, j].legend(fontsize=7)
         save(fig, "fig_learning_curves.png")
@@ -1104,9 +1113,10 @@ def make_figures(
         axes[1].axhline(1 - XI, color="r", ls=":", label="target 1 - xi")
         axes[0].set_ylabel("beta")
         axes[0].set_yscale("symlog", linthresh=1000.0)
-        axes[1].set_ylabel("violation frequency (dashed: exploring policy)")
+        axes[1].set_ylabel("violation frequency\n(dashed: exploring policy)")
         for ax in axes:
             ax.set_xlabel("training env steps")
+            ax.xaxis.set_major_formatter(steps_format)
             ax.grid(alpha=0.3)
         axes[1].legend(fontsize=7)
         fig.suptitle("Lagrangian variant: dual ascent on beta")
@@ -1220,9 +1230,17 @@ def _variant_changes_text(changes: dict[str, dict[str, Any]]) -> str:
     """The report's words for the per-variant hyperparameter changes (``""`` if none)."""
     if not changes:
         return ""
+
+    def value(v: Any) -> str:
+        if isinstance(v, float):
+            return f"{v:g}"
+        if isinstance(v, str) and v.startswith("lin_"):  # see rl_hyperparams.learning_rate
+            return f"{v[4:]} falling linearly to 0"
+        return str(v)
+
     return ", except " + "; ".join(
         f"{name.split()[0].upper()} {name.split()[1]}: "
-        + ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in c.items())
+        + ", ".join(f"{k} {value(v)}" for k, v in c.items())
         for name, c in changes.items()
     )
 

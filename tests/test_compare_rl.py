@@ -389,6 +389,39 @@ def test_variant_hyperparameters_change_only_their_variant(monkeypatch):
     assert text == ", except SAC reward: learning_rate 2e-05; TD3 beta100: batch_size 64, gamma 0.9"
 
 
+def test_linear_learning_rate_schedule_reaches_the_agent(monkeypatch):
+    """``lin_<r>`` in the tables becomes SB3's schedule: r at the start, r/4 with a quarter of the
+    training left, 0 at the end and after it (never negative: that would be gradient ascent); the
+    agent built from the entry uses it, and bad rates are refused with the value in the message."""
+    schedule = HP.learning_rate("lin_1e-3")
+    assert [schedule(p) for p in (1.0, 0.25, 0.0, -0.05)] == pytest.approx([1e-3, 2.5e-4, 0, 0])
+    assert HP.learning_rate(3e-4) == 3e-4
+    for bad in (
+        "lin_",
+        "lin_abc",
+        "lin_-1e-3",
+        "lin_nan",
+        "cos_1e-3",
+        0,
+        -1e-3,
+        float("inf"),
+        True,
+    ):
+        with pytest.raises(ValueError, match="learning_rate = "):
+            HP.learning_rate(bad)
+    monkeypatch.setattr(
+        HP, "HYPERPARAMS_VARIANT", {("sac", "reward"): {"learning_rate": "lin_2e-3"}}
+    )
+    spec = compare_rl.RunSpec("sac", "reward", 0, 1000, 1, 5, 0)
+    env_fn = [lambda: make_train_env("u", 0.0, HP.ENV, PAPER_K, HP.RESIDUAL_NU_BOUND, 60.0)]
+    agent = compare_rl.build_agent(spec, env_fn)
+    assert agent.lr_schedule(1.0) == pytest.approx(2e-3)
+    assert agent.lr_schedule(0.5) == pytest.approx(1e-3)
+    json.dumps(spec.config())  # the entry stays text in the run's configuration
+    text = compare_rl._variant_changes_text({"sac reward": {"learning_rate": "lin_2e-3"}})
+    assert text == ", except SAC reward: learning_rate 2e-3 falling linearly to 0"
+
+
 def test_trainings_start_longest_first(tmp_path, monkeypatch):
     """train_all starts the runs by estimated training time, longest first; results keep spec order."""
     order = []
