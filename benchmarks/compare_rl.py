@@ -1053,8 +1053,8 @@ def make_figures(
             ax.set_title(f"Zoom: mean episode cost <= {zoom_max:.3g}")
             ax.legend(fontsize=6.5, ncol=2, loc="best")
     fig.suptitle(
-        "Cost against violations: the RHC over xi, one point per other controller "
-        "(hollow: learning curve not flat yet)"
+        "Cost against violations: the RHC over xi, one point per other controller"
+        + (" (hollow: learning curve not flat yet)" if not all(flat.values()) else "")
     )
     save(fig, "fig_cost_violation.png")
 
@@ -1628,7 +1628,9 @@ def write_report(opts: Options, summary: dict[str, Any]) -> str:
         "fig_cost_violation.png": "Mean episode cost against violation frequency: the RHC over "
         "xi (individual and joint constraints), one point per other controller (trained agents: "
         "seeds aggregated), 95% interval bars; hollow markers: agents whose learning curve has "
-        "not flattened (see Learning curves)",
+        "not flattened"
+        + ("" if any(not c["flat"] for c in summary["learning_curves"]) else ", none in this run")
+        + " (see Learning curves)",
         "fig_learning_curves.png": "Learning curves: median evaluation cost and violation "
         "frequency against training steps (mean over seeds, band from min to max), "
         f"{HP.LEARNING_CURVE['episodes']} fixed evaluation episodes per point",
