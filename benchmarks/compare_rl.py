@@ -26,7 +26,7 @@ to 2x between days). The default budgets (:func:`benchmarks.rl_hyperparams.times
 2.5M steps, SAC 60k, TD3 100k, raised per variant where the learning curves still moved, up to
 14M, 800k and 1.2M; 4 to 62 minutes per run) make the default run from scratch (3 x 3 x 6 = 54
 trainings on ``--workers 2``, with their learning curves) take about 9 h: the committed run's
-trainings took 19.1 h in all (the sum of their ``train_time_s``), measured over four days; 1.0 h
+trainings took 19.1 h in all (the sum of their ``train_time_s``), measured over three days; 1.0 h
 of it is the three SAC beta10000 runs' waiting, trained three at a time on the two cores (3.1 h
 of wall time for 2.1 h of CPU, ``cpu_time_s`` in their run files). If
 the main process is killed, its worker processes end with it (Linux), and a new start reuses the

@@ -233,37 +233,36 @@ def hyperparams(algo: str, variant: str) -> dict[str, Any]:
 #: some variants.
 TIMESTEPS: dict[str, int] = {"ppo": 2_500_000, "sac": 60_000, "td3": 100_000}
 
-#: Larger budgets for the (algorithm, variant) pairs whose learning curves were still moving at
-#: the per-algorithm budget of :data:`TIMESTEPS`: the run of 2026-11-25 at those budgets, judged
-#: by the report's flatness test (``curve_status`` in ``benchmarks/compare_rl.py``: the last 30%
-#: of training against the 30% before it). These pairs are trained with the budget here instead;
-#: the others had flattened and keep the per-algorithm budget. (SAC residual was at the edge, a
-#: violation change of 0.0199 against the tolerance 0.02, and was given the longer budget too.)
-#: The run at these budgets (2026-11-25) left seven pairs moving. Four of them, as many as one
-#: two-hour run could retrain, were raised again: SAC beta10000 to 300k and TD3 beta1000,
-#: residual and lagrangian to 600k. That left five moving; PPO reward, whose late window was
-#: already at 0.01 diverged, was then raised to 8M. The run of 2026-12-01 doubled the two whose
-#: curves trend rather than oscillate: SAC beta10000 (median cost still falling, 135% between
-#: the windows) to 600k and TD3 residual (violations still falling, 0.25) to 1.2M; PPO beta100
-#: (two seeds diverge in 60-85% of the episodes and lose about 5 points per million steps) to
-#: 10M and SAC residual (violations swing between 0.64 and 0.98 from point to point, with no
-#: trend) to 300k, to see whether the seeds still stabilize and the swings settle. That left
-#: three moving (SAC residual's swings stayed, but within the test's tolerance). The run of
-#: 2026-12-02 raised two of them, as many as one session's two workers could retrain: PPO
-#: beta100 to 14M (seed 0 was still settling, from 61 to 0 diverged evaluation episodes out of
-#: 100 between 5M and 10M; seed 2 diverged in 82-91 from 3M on) and SAC lagrangian to 300k (at
-#: 60k still diverging in 75-98 of 100, while SAC beta10000 had stabilized by 60k-180k). PPO
-#: beta100 is flat at 14M (seed 2 still diverges in 82-91 of 100 from 3M to 14M: stuck, not
-#: learning); SAC lagrangian is still improving at 300k (diverged 51-68 of 100 at 210k, 12-19 at
-#: 300k, violations falling 0.73-0.77 to 0.53-0.61 while its beta still grows). The second run
-#: of 2026-12-02 raised SAC lagrangian to 600k: its violations stopped falling (0.48-0.66 from
-#: 300k to 600k, seeds averaged 0.575 in both windows), its divergences went (0-4 of 100 from
-#: 480k on, 0-21 at 300k-360k), and its beta still grows (1.2e6-1.3e6 at 600k), so the test still
-#: fails, on the diverged share and the median cost of the earlier window. The third run of
-#: 2026-12-02 raised it to 800k, and it passes (violations 0.575 in both windows, 0-4 of 100
-#: diverged from 480k on, beta 1.5e6-1.6e6 at 800k, still growing). The fourth kept SAC beta10000
-#: at 600k with its learning rate falling linearly to 0 (:data:`HYPERPARAMS_VARIANT`), and it
-#: passes; all 18 pairs are flat by the test.
+#: Larger budgets for the (algorithm, variant) pairs whose learning curves were still moving at the
+#: per-algorithm budget of :data:`TIMESTEPS`: the run of 2026-11-25 at those budgets, judged by the
+#: report's flatness test (``curve_status`` in ``benchmarks/compare_rl.py``: the last 30% of
+#: training against the 30% before it). These pairs are trained with the budget here instead; the
+#: others had flattened and keep the per-algorithm budget. (SAC residual was at the edge, a
+#: violation change of 0.0199 against the tolerance 0.02, and was given the longer budget too.) The
+#: run at these budgets (2026-11-25) left seven pairs moving. Four of them, as many as one two-hour
+#: run could retrain, were raised again: SAC beta10000 to 300k and TD3 beta1000, residual and
+#: lagrangian to 600k. That left five moving; PPO reward, whose late window was already at 0.01
+#: diverged, was then raised to 8M. The run of 2026-12-01 doubled the two whose curves trend rather
+#: than oscillate: SAC beta10000 (median cost still falling, 135% between the windows) to 600k and
+#: TD3 residual (violations still falling, 0.25) to 1.2M; PPO beta100 (two seeds diverge in 60-85%
+#: of the episodes and lose about 5 points per million steps) to 10M and SAC residual (violations
+#: swing between 0.64 and 0.98 from point to point, with no trend) to 300k, to see whether the seeds
+#: still stabilize and the swings settle. That left three moving (SAC residual's swings stayed, but
+#: within the test's tolerance). The run of 2026-12-02 raised two of them, as many as one session's
+#: two workers could retrain: PPO beta100 to 14M (seed 0 was still settling, from 61 to 0 diverged
+#: evaluation episodes out of 100 between 5M and 10M; seed 2 diverged in 82-91 from 3M on) and SAC
+#: lagrangian to 300k (at 60k still diverging in 75-98 of 100, while SAC beta10000 had stabilized by
+#: 60k-180k). PPO beta100 is flat at 14M (seed 2 still diverges in 80-93 of 100 from 2.8M to 14M:
+#: stuck, not learning); SAC lagrangian is still improving at 300k (diverged 51-68 of 100 at 210k,
+#: 12-19 at 300k, violations falling 0.73-0.77 to 0.53-0.61 while its beta still grows). The second
+#: run of 2026-12-02 raised SAC lagrangian to 600k: its violations stopped falling (0.48-0.66 from
+#: 300k to 600k, seeds averaged 0.573 and 0.574 in the two windows), its divergences went (0-4 of
+#: 100 from 480k on, 0-21 at 300k-360k), and its beta still grows (1.2e6-1.3e6 at 600k), so the test
+#: still fails, on the diverged share and the median cost of the earlier window. The third run of
+#: 2026-12-02 raised it to 800k, and it passes (violations 0.575 and 0.574 in the two windows, 0-4
+#: of 100 diverged from 480k on, beta 1.5e6-1.6e6 at 800k, still growing). The fourth kept SAC
+#: beta10000 at 600k with its learning rate falling linearly to 0 (:data:`HYPERPARAMS_VARIANT`), and
+#: it passes; all 18 pairs are flat by the test.
 TIMESTEPS_VARIANT: dict[tuple[str, str], int] = {
     ("ppo", "reward"): 8_000_000,
     ("ppo", "beta100"): 14_000_000,
