@@ -1234,8 +1234,8 @@ def _variant_changes_text(changes: dict[str, dict[str, Any]]) -> str:
     def value(v: Any) -> str:
         if isinstance(v, float):
             return f"{v:g}"
-        if isinstance(v, str) and v.startswith("lin_"):  # see rl_hyperparams.learning_rate
-            return f"{v[4:]} falling linearly to 0"
+        if isinstance(v, str) and v.startswith(HP.LINEAR_SCHEDULE_PREFIX):  # HP.learning_rate
+            return f"{v.removeprefix(HP.LINEAR_SCHEDULE_PREFIX)} falling linearly to 0"
         return str(v)
 
     return ", except " + "; ".join(

@@ -185,41 +185,44 @@ HYPERPARAMS_VARIANT: dict[tuple[str, str], dict[str, Any]] = {
 }
 
 
+#: Prefix of a linearly decaying learning rate in the tables, rl-zoo3's notation: ``"lin_1e-3"``.
+LINEAR_SCHEDULE_PREFIX = "lin_"
+
+
 def learning_rate(value: float | str) -> float | Callable[[float], float]:
     """The ``learning_rate`` argument of stable-baselines3 for an entry of :data:`HYPERPARAMS`.
 
-    A positive number is a constant rate. ``"lin_<r>"`` (rl-zoo3's notation, e.g. ``"lin_1e-3"``)
-    is a rate falling linearly from ``r`` at the start of training to 0 at its end: SB3 calls it
-    with ``progress_remaining``, 1 at the start and 0 at the end (below 0 when the last episode
-    ends past the budget; the rate stays 0 there). Kept as text in the tables so
-    that a run's configuration (and its cache fingerprint) stays JSON.
+    A positive number is a constant rate. ``"lin_<r>"`` (:data:`LINEAR_SCHEDULE_PREFIX`) is a
+    rate falling linearly from ``r`` at the start of training to 0 at its end: SB3 calls it with
+    ``progress_remaining``, 1 at the start and 0 at the end (below 0 when the last episode ends
+    past the budget; the rate stays 0 there). Kept as text in the tables so that a run's
+    configuration (and its cache fingerprint) stays JSON.
     """
-    if isinstance(value, str):
-        rate = None
-        if value.startswith("lin_"):
-            try:
-                rate = float(value[4:])
-            except ValueError:
-                rate = None
-        if rate is None or not (math.isfinite(rate) and rate > 0):
-            raise ValueError(
-                f"learning_rate = {value!r}; expected a positive number or 'lin_<positive number>'"
-                " (a linear decay to 0, e.g. 'lin_1e-3')"
-            )
-
-        def schedule(progress_remaining: float) -> float:
-            # clamped: an episode that ends past the budget makes the progress negative, and a
-            # negative rate would be gradient ascent
-            return max(progress_remaining, 0.0) * rate
-
-        return schedule
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    linear = isinstance(value, str) and value.startswith(LINEAR_SCHEDULE_PREFIX)
+    rate: Any = value
+    if linear:
+        try:
+            rate = float(value[len(LINEAR_SCHEDULE_PREFIX) :])
+        except ValueError:
+            rate = None
+    if (
+        isinstance(rate, bool)
+        or not isinstance(rate, (int, float))
+        or not (math.isfinite(rate) and rate > 0)
+    ):
         raise ValueError(
-            f"learning_rate = {value!r}; expected a positive number or 'lin_<positive number>'"
+            f"learning_rate = {value!r}; expected a positive finite number or "
+            f"'{LINEAR_SCHEDULE_PREFIX}<positive number>' (a linear decay to 0, e.g. 'lin_1e-3')"
         )
-    if not (math.isfinite(value) and value > 0):
-        raise ValueError(f"learning_rate = {value!r}; expected a positive finite number")
-    return float(value)
+    if not linear:
+        return float(rate)
+
+    def schedule(progress_remaining: float) -> float:
+        # clamped: an episode that ends past the budget makes the progress negative, and a
+        # negative rate would be gradient ascent
+        return max(progress_remaining, 0.0) * rate
+
+    return schedule
 
 
 def hyperparams(algo: str, variant: str) -> dict[str, Any]:
