@@ -1,0 +1,383 @@
+"""Argument checks shared by the model, the environments, the wrappers and the controllers.
+
+One rule per kind of argument, so that the same mistake gets the same kind of error everywhere:
+
+* a **number** is a real number: a Python ``int`` or ``float``, a numpy integer or floating
+  scalar, or a 0-d real numpy array. ``bool`` (Python or numpy) is never a number, nor is a
+  string (``"0.85"``), ``None`` or a complex number: those are :class:`TypeError`.
+* an **int** is a Python ``int`` or a numpy integer (never a ``bool``, never a float such as
+  ``2.0``: :class:`TypeError`). Its range is checked on the exact integer, before any conversion
+  to a fixed-width type, so ``2**70`` or ``np.uint64(2**64 - 1)`` are rejected, not wrapped.
+* a value of the right type outside its range (``xi = 1.5``, ``alpha = -1``, ``nan``) is a
+  :class:`ValueError`.
+
+Every message names the argument, shows the bad value and says what is expected::
+
+    xi = 1.5 is out of range; expected a number in (0, 1)
+    horizon = 2.0 is a float; expected an int >= 1
+
+The functions return the value converted to the canonical Python type (``float``, ``int``,
+``bool``, ``str``).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "MAX_INDEX",
+    "check_array",
+    "check_bool",
+    "check_choice",
+    "check_int",
+    "check_mapping",
+    "check_number",
+    "check_optional_int",
+    "check_positive",
+    "check_probability",
+    "check_str_sequence",
+    "describe",
+    "type_name",
+]
+
+#: Largest time index ``k`` (and any other count) accepted: integers up to 2**53 are exact in
+#: float64 (``H_k = H0 + k * H_rate``) and fit in int64 with room for ``k + 1``.
+MAX_INDEX = 2**53
+
+
+def type_name(value: Any) -> str:
+    """The type of ``value`` as a user reads it (``'numpy.float32'``, ``'str'``)."""
+    t = type(value)
+    module = t.__module__
+    return t.__qualname__ if module == "builtins" else f"{module.split('.')[0]}.{t.__qualname__}"
+
+
+def describe(value: Any, width: int = 80) -> str:
+    """A short ``repr`` of ``value`` for an error message (one line, at most ``width`` chars)."""
+    try:
+        if isinstance(value, np.ndarray):
+            text = np.array2string(value, precision=6, threshold=12, separator=", ")
+        else:
+            text = repr(value)
+    except Exception:  # noqa: BLE001 - a broken __repr__ must not hide the real error
+        text = f"<{type_name(value)} object>"
+    text = " ".join(text.split())
+    return text if len(text) <= width else text[: width - 3] + "..."
+
+
+def _is_bool(value: Any) -> bool:
+    return isinstance(value, (bool, np.bool_)) or (
+        isinstance(value, np.ndarray) and value.dtype == np.bool_
+    )
+
+
+def _as_real(name: str, value: Any, expected: str) -> float:
+    """The float value of a number (see the module docstring), or a TypeError naming ``name``."""
+    if isinstance(value, np.ndarray) and value.ndim == 0 and not _is_bool(value):
+        value = value[()]
+    if _is_bool(value) or not isinstance(value, (numbers.Real, np.integer, np.floating)):
+        kind = "a bool" if _is_bool(value) else f"a {type_name(value)}"
+        raise TypeError(f"{name} = {describe(value)} is {kind}; expected {expected}")
+    try:
+        return float(value)
+    except OverflowError:  # an int beyond float64
+        return math.inf if value > 0 else -math.inf
+
+
+def check_number(
+    name: str,
+    value: Any,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_open: bool = False,
+    high_open: bool = False,
+    what: str = "",
+) -> float:
+    """A finite real number in ``[low, high]`` (open ends with ``low_open`` / ``high_open``).
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, as the user wrote it (``"alpha"``, ``"options['x0']"``).
+    value : Any
+    low, high : float, optional
+        Range; None for no bound.
+    low_open, high_open : bool
+        Exclude the bound itself.
+    what : str
+        A few words on what the argument is (``"penalty on the slack rho"``), added to messages.
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    TypeError
+        ``value`` is not a number (a bool, a string, None, ...).
+    ValueError
+        ``value`` is NaN, infinite or out of range.
+
+    Examples
+    --------
+    >>> check_number("xi", 0.85, low=0, high=1, low_open=True, high_open=True)
+    0.85
+    >>> check_number("xi", "0.85")
+    Traceback (most recent call last):
+    ...
+    TypeError: xi = '0.85' is a str; expected a finite number
+    """
+    lo_txt = "" if low is None else f"{'>' if low_open else '>='} {low:g}"
+    hi_txt = "" if high is None else f"{'<' if high_open else '<='} {high:g}"
+    if low is not None and high is not None:
+        rng = f"in {'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+    else:
+        rng = lo_txt or hi_txt
+    expected = "a finite number" + (f" {rng}" if rng else "")
+    if what:
+        expected += f" ({what})"
+    out = _as_real(name, value, expected)
+    if not math.isfinite(out):
+        raise ValueError(f"{name} = {describe(value)} is not finite; expected {expected}")
+    bad = (
+        (low is not None and (out < low or (low_open and out == low)))
+        or (high is not None and (out > high or (high_open and out == high)))
+    )  # fmt: skip
+    if bad:
+        raise ValueError(f"{name} = {describe(value)} is out of range; expected {expected}")
+    return out
+
+
+def check_positive(name: str, value: Any, what: str = "") -> float:
+    """A finite number ``> 0`` (see :func:`check_number`)."""
+    return check_number(name, value, low=0.0, low_open=True, what=what)
+
+
+def check_probability(name: str, value: Any, what: str = "") -> float:
+    """A probability level strictly between 0 and 1 (see :func:`check_number`)."""
+    return check_number(name, value, low=0.0, high=1.0, low_open=True, high_open=True, what=what)
+
+
+def check_int(
+    name: str, value: Any, *, low: int | None = None, high: int | None = MAX_INDEX, what: str = ""
+) -> int:
+    """An integer in ``[low, high]`` (``high`` defaults to :data:`MAX_INDEX`).
+
+    Raises
+    ------
+    TypeError
+        ``value`` is not a Python or numpy integer (a bool, a float, a string, ...).
+    ValueError
+        ``value`` is out of range.
+
+    Examples
+    --------
+    >>> check_int("horizon", 20, low=1)
+    20
+    >>> check_int("horizon", 2.0, low=1)
+    Traceback (most recent call last):
+    ...
+    TypeError: horizon = 2.0 is a float; expected an int >= 1
+    """
+    # the default upper bound is a technical limit, named only when it is exceeded
+    shown_high = None if high == MAX_INDEX else high
+    if low is not None and shown_high is not None:
+        expected = f"an int in [{low}, {shown_high}]"
+    elif low is not None:
+        expected = f"an int >= {low}"
+    elif shown_high is not None:
+        expected = f"an int <= {shown_high}"
+    else:
+        expected = "an int"
+    if what:
+        expected += f" ({what})"
+    if isinstance(value, np.ndarray) and value.ndim == 0 and not _is_bool(value):
+        value = value[()]
+    if _is_bool(value) or not isinstance(value, (numbers.Integral, np.integer)):
+        kind = "a bool" if _is_bool(value) else f"a {type_name(value)}"
+        raise TypeError(f"{name} = {describe(value)} is {kind}; expected {expected}")
+    out = int(value)  # exact, for numpy's unsigned types too
+    if low is not None and out < low:
+        raise ValueError(f"{name} = {describe(value)} is out of range; expected {expected}")
+    if high is not None and out > high:
+        limit = "2**53, the largest index that float64 holds exactly" if high == MAX_INDEX else high
+        raise ValueError(
+            f"{name} = {describe(value)} is too large; expected {expected}, at most {limit}"
+        )
+    return out
+
+
+def check_optional_int(
+    name: str, value: Any, *, low: int | None = None, what: str = ""
+) -> int | None:
+    """None, or an int as :func:`check_int`."""
+    return None if value is None else check_int(name, value, low=low, what=what)
+
+
+def check_bool(name: str, value: Any) -> bool:
+    """``True`` or ``False`` (Python or numpy bool); anything else is a :class:`TypeError`."""
+    if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype == np.bool_:
+        value = value[()]
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(
+            f"{name} = {describe(value)} is a {type_name(value)}; expected True or False"
+        )
+    return bool(value)
+
+
+def check_choice(name: str, value: Any, allowed: Iterable[str]) -> str:
+    """One of the strings ``allowed``.
+
+    Raises
+    ------
+    TypeError
+        ``value`` is not a string.
+    ValueError
+        ``value`` is a string not among ``allowed``.
+    """
+    allowed = tuple(allowed)
+    expected = "one of " + ", ".join(repr(a) for a in allowed)
+    if not isinstance(value, str):
+        raise TypeError(f"{name} = {describe(value)} is a {type_name(value)}; expected {expected}")
+    if value not in allowed:
+        raise ValueError(f"{name} = {value!r} is not known; expected {expected}")
+    return value
+
+
+def check_mapping(name: str, value: Any, allowed: Iterable[str] | None = None) -> dict[str, Any]:
+    """A mapping (``dict``-like) with string keys, all among ``allowed`` when given; a copy.
+
+    ``None`` gives ``{}``.
+
+    Raises
+    ------
+    TypeError
+        ``value`` is not a mapping, or a key is not a string.
+    ValueError
+        A key is not among ``allowed``.
+    """
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        expected = "a dict" + (f" with keys among {sorted(allowed)}" if allowed is not None else "")
+        raise TypeError(f"{name} = {describe(value)} is a {type_name(value)}; expected {expected}")
+    out = dict(value)
+    for key in out:
+        if not isinstance(key, str):
+            raise TypeError(
+                f"{name} has a key {describe(key)} of type {type_name(key)}; keys are str"
+            )
+    if allowed is not None:
+        allowed = sorted(allowed)
+        unknown = sorted(set(out) - set(allowed))
+        if unknown:
+            raise ValueError(f"{name} has unknown keys {unknown}; expected keys among {allowed}")
+    return out
+
+
+def check_str_sequence(name: str, value: Any, length: int | None = None) -> tuple[str, ...]:
+    """A list or tuple of strings (of ``length`` items when given), as a tuple.
+
+    A generator, a set or a single string is a :class:`TypeError` (its order or its items would
+    be guessed).
+    """
+    expected = f"a list or tuple of {length if length is not None else ''} str".replace("  ", " ")
+    if not isinstance(value, (list, tuple)):
+        raise TypeError(f"{name} = {describe(value)} is a {type_name(value)}; expected {expected}")
+    for i, item in enumerate(value):
+        if not isinstance(item, str):
+            raise TypeError(
+                f"{name}[{i}] = {describe(item)} is a {type_name(item)}; expected {expected}"
+            )
+    if length is not None and len(value) != length:
+        raise ValueError(f"{name} has {len(value)} items; expected {length}")
+    return tuple(value)
+
+
+def check_array(
+    name: str,
+    value: Any,
+    *,
+    shape: tuple[int | None, ...] | None = None,
+    finite: bool = True,
+    max_abs: float | None = None,
+    what: str = "",
+) -> np.ndarray:
+    """A real float64 array (a new copy), of ``shape`` when given (``None`` entries: any size).
+
+    Raises
+    ------
+    TypeError
+        ``value`` has entries that are not real numbers (bools, strings, None, complex).
+    ValueError
+        Ragged input, wrong shape, a non-finite entry (when ``finite``), or an entry above
+        ``max_abs`` in magnitude.
+    """
+    suffix = f" ({what})" if what else ""
+    if isinstance(value, (str, bytes)) or value is None:
+        raise TypeError(
+            f"{name} = {describe(value)} is a {type_name(value)}; expected an array of numbers{suffix}"
+        )
+    try:
+        raw = np.asarray(value)
+    except (TypeError, ValueError):
+        raw = None  # ragged: reported below
+    if raw is not None and (raw.dtype.kind in "bcSUO" or raw.dtype == np.bool_):
+        if raw.dtype.kind == "O":
+            bad = next(
+                (
+                    v
+                    for v in raw.ravel()
+                    if _is_bool(v) or not isinstance(v, (numbers.Real, np.integer, np.floating))
+                ),
+                None,
+            )
+            if bad is None and raw.size:
+                raw = raw.astype(np.float64)
+            else:
+                raise TypeError(
+                    f"{name} has an entry {describe(bad)} of type {type_name(bad)}; expected an "
+                    f"array of real numbers{suffix}"
+                )
+        else:
+            kind = {"b": "bool", "c": "complex", "S": "bytes", "U": "str"}.get(raw.dtype.kind)
+            raise TypeError(
+                f"{name} = {describe(value)} has {kind} entries; expected an array of real "
+                f"numbers{suffix}"
+            )
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"{name} = {describe(value)} could not be read as an array of numbers ({exc}){suffix}"
+        ) from None
+    if shape is not None and (
+        arr.ndim != len(shape)
+        or any(s is not None and a != s for a, s in zip(arr.shape, shape, strict=True))
+    ):
+        want = (
+            "("
+            + ", ".join("B" if s is None else str(s) for s in shape)
+            + ("," if len(shape) == 1 else "")
+            + ")"
+        )
+        raise ValueError(f"{name} has shape {arr.shape}; expected {want}{suffix}")
+    if finite and not np.all(np.isfinite(arr)):
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
+        raise ValueError(
+            f"{name} has a non-finite entry {arr[bad]} at index {bad}; every entry must be "
+            f"finite{suffix}"
+        )
+    if max_abs is not None and arr.size and float(np.max(np.abs(arr))) > max_abs:
+        bad = tuple(int(i) for i in np.unravel_index(int(np.argmax(np.abs(arr))), arr.shape))
+        raise ValueError(
+            f"{name} has an entry {arr[bad]:.6g} at index {bad}; entries must be at most "
+            f"{max_abs:g} in magnitude{suffix}"
+        )
+    return arr
