@@ -3,6 +3,7 @@
 Controllers read an :class:`sdjls_gym.SDJLSModel`; they never simulate.
 """
 
+from controllers.base import Controller
 from controllers.baselines import LinearFeedbackController, MJLSLQRController
 from controllers.chance import row_satisfaction_probability, tightened_set_empty, tightening
 from controllers.lmi import (
@@ -31,6 +32,7 @@ __all__ += [
     "verify_mean_square_bound",
 ]
 __all__ += [
+    "Controller",
     "LinearFeedbackController",
     "MJLSLQRController",
     "RecedingHorizonController",
