@@ -11,7 +11,8 @@ Both have ``SDJLSVectorEnv`` as their ``vector_entry_point``.
 import gymnasium
 
 from sdjls_gym.env import SDJLSEnv
-from sdjls_gym.model import InvalidModelError, SDJLSModel, load_model, save_model
+from sdjls_gym.model import InvalidModelError, InvalidModelTypeError, SDJLSModel
+from sdjls_gym.model_files import load_model, save_model
 from sdjls_gym.systems import macro
 from sdjls_gym.systems.macro import ACTION_BOUND as _MACRO_ACTION_BOUND
 from sdjls_gym.systems.macro import HORIZON as _MACRO_HORIZON
@@ -20,6 +21,7 @@ from sdjls_gym.vector_env import SDJLSVectorEnv
 __all__ = [
     "SDJLSModel",
     "InvalidModelError",
+    "InvalidModelTypeError",
     "SDJLSEnv",
     "SDJLSVectorEnv",
     "load_model",
