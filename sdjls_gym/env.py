@@ -438,12 +438,6 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._k
 
     # ------------------------------------------------------------------ helpers
-    def _diverged(self) -> bool:
-        """Whether the current state is outside the divergence box or not finite."""
-        xs = self._x.tolist()
-        # max() may skip a NaN, which the sum does not (the sum of entries <= 1e30 is finite)
-        return not (max(map(abs, xs)) <= self.divergence_bound and math.isfinite(sum(xs)))
-
     def _obs(self, diverged: bool) -> np.ndarray:
         # encode_observation for one state, without its batch machinery (the hot path)
         model, bound = self.model, self.divergence_bound
@@ -463,8 +457,10 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         if values is None:
             values = self.model.constraint_values_one(x, self._k)
         if diverged:  # NaN values count as violated
-            self._inside = bool(np.all(values <= 0.0))
+            violations = ~(values <= 0.0)
+            self._inside = not violations.any()
         else:
+            violations = values > 0.0
             self._inside = max(values.tolist()) <= 0.0  # x in C1: reused by the next step
         return {
             "state": x.copy(),
@@ -472,7 +468,7 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
             "k": self._k,
             "in_region": self._inside,
             "constraint_values": values,
-            "violations": ~(values <= 0.0),
+            "violations": violations,
             "cost": 0.0 if self._inside else 1.0,
             "stage_cost": stage_cost,
             "diverged": diverged,
@@ -538,7 +534,10 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         if self.render_mode is not None:
             self._history.append((self._x, self._mode))
 
-        diverged = self._diverged()
+        # outside the divergence box or not finite: max() may skip a NaN, which the sum does not
+        # (a sum of entries of at most 1e30 is finite)
+        xs = self._x.tolist()
+        diverged = not (max(map(abs, xs)) <= self.divergence_bound and math.isfinite(sum(xs)))
         if not stage_cost <= MAX_STAGE_COST:  # inf or NaN: saturated, and the episode ends
             stage_cost, diverged = MAX_STAGE_COST, True
         info = self._info(stage_cost, diverged, values)

@@ -846,3 +846,18 @@ def test_valid_time_indices_are_accepted():
     np.testing.assert_array_equal(model.H([0, 1]), [model.H(0), model.H(1)])
     np.testing.assert_array_equal(model.H(2**53), model.H0 + 2.0**53 * model.H_rate)
     assert model.H(np.zeros(0, dtype=np.int64)).shape == (0, 2)
+
+
+def test_readme_sections_named_in_the_sources_exist():
+    """A pointer such as ``README, "Some section"`` in ``sdjls_gym`` names a real heading."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    headings = set(re.findall(r"^#+ (.+?)\s*$", (root / "README.md").read_text("utf-8"), re.M))
+    pointers = []
+    for path in sorted((root / "sdjls_gym").rglob("*.py")):
+        text = " ".join(line.strip().lstrip("#:").strip() for line in path.read_text().splitlines())
+        pointers += [(path.name, name) for name in re.findall(r'README[^".]{0,40}"([^"]+)"', text)]
+    assert pointers, "no README pointer found: the test would be vacuous"
+    missing = [(file, name) for file, name in pointers if name not in headings]
+    assert missing == []
