@@ -49,8 +49,9 @@ class InvalidModelTypeError(InvalidModelError, TypeError):
 
 
 @contextlib.contextmanager
-def model_errors() -> Iterator[None]:
-    """Turn the TypeError / ValueError of a :mod:`~sdjls_gym._validate` check into model errors."""
+def model_errors(field: str) -> Iterator[None]:
+    """Turn the TypeError / ValueError of a :mod:`~sdjls_gym._validate` check of ``field`` into
+    model errors (and a RecursionError on a deeply nested value into one naming the field)."""
     try:
         yield
     except InvalidModelError:
@@ -61,7 +62,7 @@ def model_errors() -> Iterator[None]:
         raise InvalidModelError(str(exc)) from None
     except RecursionError:
         raise InvalidModelError(
-            "a model field is nested too deeply to be read; fields are arrays of at most 3 "
+            f"{field} is nested too deeply to be read; model fields are arrays of at most 3 "
             "dimensions"
         ) from None
 
@@ -98,7 +99,7 @@ def as_float_array(name: str, value: Any) -> np.ndarray:
             f"{name} has a missing entry (None, or null in a file) at index {missing}; every "
             "entry must be a finite number"
         )
-    with model_errors():
+    with model_errors(name):
         return check_array(name, value)
 
 
@@ -184,7 +185,7 @@ def _check_mode0(value: Any, N: int) -> int | np.ndarray:
                 f"sum to 1 (tolerance {ROW_SUM_TOL:g})"
             )
         return mode0
-    with model_errors():
+    with model_errors("mode0"):
         return check_int(
             "mode0",
             value,
@@ -195,7 +196,7 @@ def _check_mode0(value: Any, N: int) -> int | np.ndarray:
 
 
 def _check_names(name: str, value: Any, count: int) -> tuple[str, ...]:
-    with model_errors():
+    with model_errors(name):
         return check_str_sequence(name, value, length=count)
 
 

@@ -125,13 +125,18 @@ def parse_reset_options(
 
 
 def _plain(value: Any) -> Any:
-    """A JSON-friendly form of a constructor argument (a model becomes its ``to_dict()``)."""
+    """A JSON-friendly form of a constructor argument (a model becomes its ``to_dict()``, numpy
+    arrays lists, also inside a model given as a dict)."""
     if isinstance(value, SDJLSModel):
         return value.to_dict()
     if isinstance(value, np.ndarray):
         return value.tolist()
     if isinstance(value, np.generic):
         return value.item()
+    if isinstance(value, dict):
+        return {key: _plain(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(item) for item in value]
     return value
 
 
@@ -442,8 +447,10 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         # encode_observation for one state, without its batch machinery (the hot path)
         model, bound = self.model, self.divergence_bound
         obs = np.zeros(model.n + model.N + 1, dtype=np.float32)
-        if diverged:  # inf at +-bound, NaN at +bound: inside the observation space
-            obs[: model.n] = np.nan_to_num(np.clip(self._x, -bound, bound), nan=bound)
+        if diverged:  # clipped, NaN at +bound: inside the observation space (n is small)
+            obs[: model.n] = [
+                v if -bound <= v <= bound else -bound if v < 0 else bound for v in self._x.tolist()
+            ]
         else:
             obs[: model.n] = self._x
         obs[model.n + self._mode] = 1.0
@@ -458,7 +465,7 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
             values = self.model.constraint_values_one(x, self._k)
         if diverged:  # NaN values count as violated
             violations = ~(values <= 0.0)
-            self._inside = not violations.any()
+            self._inside = not any(violations.tolist())
         else:
             violations = values > 0.0
             self._inside = max(values.tolist()) <= 0.0  # x in C1: reused by the next step

@@ -512,10 +512,12 @@ class SDJLSModel:
         return y[:n], mode_next, stage_cost, y[n:] - self._H_one(k + 1)
 
     def _H_one(self, k: int) -> np.ndarray:
+        if type(k) is not int:  # a float 2.0 would hit the cache entry of 2
+            k = check_int("k", k, low=0)
         cache = self._one["H"]
         H = cache.get(k)
-        if H is None:  # checked once per distinct k; the cache stays bounded
-            k = check_int("k", k, low=0)
+        if H is None:  # the range is checked once per distinct k; the cache stays bounded
+            check_int("k", k, low=0)
             if len(cache) >= _H_CACHE_SIZE:
                 cache.clear()
             H = cache[k] = self.H0 + k * self.H_rate
@@ -608,3 +610,12 @@ def _check_k(k: Any) -> Any:
                 check_int("k", bad, low=0)
         return k
     return check_int("k", k, low=0)
+
+
+def __getattr__(name: str) -> Any:
+    # load_model and save_model live in sdjls_gym.model_files; imported lazily (no cycle)
+    if name in ("load_model", "save_model"):
+        from sdjls_gym import model_files
+
+        return getattr(model_files, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -721,6 +721,13 @@ def test_spec_with_a_model_object_is_json_and_remakes_the_same_env(other_model):
         "SDJLS-v0", num_envs=2, vectorization_mode="vector_entry_point", model=other_model
     )
     assert EnvSpec.from_json(envs.spec.to_json()).kwargs["model"] == other_model.to_dict()
+    # a model given as a dict of numpy arrays is stored as plain lists too
+    arrays = {
+        key: np.asarray(value) if key not in ("mode_names", "state_names") else value
+        for key, value in other_model.to_dict().items()
+    }
+    env = gym.make("SDJLS-v0", model=arrays, horizon=7)
+    assert gym.make(EnvSpec.from_json(env.spec.to_json())).unwrapped.model == other_model
 
 
 def test_the_ids_can_be_made_without_importing_the_package():
