@@ -80,14 +80,16 @@ def env_step_time(env_id: str, episodes: int, repeats: int) -> float:
     T = 20
 
     def block() -> float:
-        total = 0.0
+        total, steps = 0.0, 0
         for _ in range(episodes):
             env.reset()
             t0 = time.perf_counter()
             for _ in range(T):
-                env.step(action)
+                steps += 1
+                if any(env.step(action)[2:4]):  # ended (SDJLS envs raise on a step after that)
+                    break
             total += time.perf_counter() - t0
-        return total / (episodes * T)
+        return total / steps
 
     block()
     return statistics.median(block() for _ in range(repeats))

@@ -5,13 +5,16 @@ Importing the package registers two environment ids:
 * ``SDJLS-v0``: any system, ``gym.make("SDJLS-v0", model=model, horizon=T)``;
 * ``SDJLS-Macro-v0``: the macroeconomic example of section 6 of the paper (20 quarters).
 
-Both have ``SDJLSVectorEnv`` as their ``vector_entry_point``.
+Both have ``SDJLSVectorEnv`` as their ``vector_entry_point``. Neither registers a
+``TimeLimit``: the environments truncate at their own ``horizon``, which ``env.spec`` reports as
+``max_episode_steps``. ``gym.make("sdjls_gym:SDJLS-Macro-v0")`` imports the package first.
 """
 
 import gymnasium
 
 from sdjls_gym.env import SDJLSEnv
-from sdjls_gym.model import InvalidModelError, SDJLSModel, load_model, save_model
+from sdjls_gym.model import InvalidModelError, InvalidModelTypeError, SDJLSModel
+from sdjls_gym.model_files import load_model, save_model
 from sdjls_gym.systems import macro
 from sdjls_gym.systems.macro import ACTION_BOUND as _MACRO_ACTION_BOUND
 from sdjls_gym.systems.macro import HORIZON as _MACRO_HORIZON
@@ -20,6 +23,7 @@ from sdjls_gym.vector_env import SDJLSVectorEnv
 __all__ = [
     "SDJLSModel",
     "InvalidModelError",
+    "InvalidModelTypeError",
     "SDJLSEnv",
     "SDJLSVectorEnv",
     "load_model",
@@ -40,6 +44,7 @@ if "SDJLS-Macro-v0" not in gymnasium.registry:
         id="SDJLS-Macro-v0",
         entry_point="sdjls_gym.env:SDJLSEnv",
         vector_entry_point="sdjls_gym.vector_env:SDJLSVectorEnv",
-        max_episode_steps=_MACRO_HORIZON,
+        # no max_episode_steps: the env truncates at its own horizon (so that horizon=40 alone
+        # works) and reports it as env.spec.max_episode_steps
         kwargs={"model": "macro", "horizon": _MACRO_HORIZON, "action_bound": _MACRO_ACTION_BOUND},
     )

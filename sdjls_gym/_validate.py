@@ -35,6 +35,7 @@ __all__ = [
     "check_array",
     "check_bool",
     "check_choice",
+    "check_float32_bound",
     "check_int",
     "check_mapping",
     "check_number",
@@ -49,6 +50,10 @@ __all__ = [
 #: Largest time index ``k`` (and any other count) accepted: integers up to 2**53 are exact in
 #: float64 (``H_k = H0 + k * H_rate``) and fit in int64 with room for ``k + 1``.
 MAX_INDEX = 2**53
+
+#: The range of positive float32 numbers that are normal (not subnormal, not zero, not inf).
+FLOAT32_TINY = float(np.finfo(np.float32).tiny)
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 def type_name(value: Any) -> str:
@@ -303,7 +308,7 @@ def check_str_sequence(name: str, value: Any, length: int | None = None) -> tupl
                 f"{name}[{i}] = {describe(item)} is {a_type(item)}; expected {expected}"
             )
     if length is not None and len(value) != length:
-        raise ValueError(f"{name} has {len(value)} items; expected {length}")
+        raise ValueError(f"{name} = {describe(value)} has {len(value)} items; expected {length}")
     return tuple(value)
 
 
@@ -388,3 +393,68 @@ def check_array(
             f"{max_abs:g} in magnitude{suffix}"
         )
     return arr
+
+
+def check_float32_bound(
+    name: str, value: Any, size: int | None = None, what: str = ""
+) -> float | np.ndarray:
+    """A positive bound that a float32 ``Box`` holds exactly enough: a normal float32 number.
+
+    Parameters
+    ----------
+    name : str
+    value : number, or (size,) array when ``size`` is given
+        One bound (used for every entry when ``size`` is given) or one per entry.
+    size : int, optional
+        Accept an array of this many bounds as well as a single number.
+    what : str
+        A few words on what is bounded, added to messages.
+
+    Returns
+    -------
+    float, or (size,) float64 array when ``size`` is given
+
+    Raises
+    ------
+    TypeError
+        Not a number (or an array of numbers).
+    ValueError
+        Not finite, not positive, above the largest float32 (3.4e38, where the Box would become
+        infinite), or below the smallest normal float32 (1.2e-38, where it would round to a
+        subnormal number or to zero).
+
+    Examples
+    --------
+    >>> check_float32_bound("action_bound", 200.0)
+    200.0
+    >>> check_float32_bound("action_bound", 1e300)
+    Traceback (most recent call last):
+    ...
+    ValueError: action_bound = 1e+300 does not fit in float32; expected a number in [1.17549e-38, 3.40282e+38]
+    """
+    scalar = size is None or (
+        not isinstance(value, (list, tuple)) and not (isinstance(value, np.ndarray) and value.ndim)
+    )
+    if scalar:
+        bounds = np.array([check_positive(name, value, what=what)])
+    else:
+        bounds = check_array(name, value, shape=(size,), what=what)
+        bad = np.flatnonzero(~(bounds > 0))
+        if bad.size:
+            i = int(bad[0])
+            raise ValueError(
+                f"{name}[{i}] = {bounds[i]:g} is not positive; expected bounds > 0"
+                + (f" ({what})" if what else "")
+            )
+    outside = np.flatnonzero((bounds > FLOAT32_MAX) | (bounds < FLOAT32_TINY))
+    if outside.size:
+        i = int(outside[0])
+        label = name if scalar else f"{name}[{i}]"
+        shown = describe(value) if scalar else f"{bounds[i]:g}"
+        raise ValueError(
+            f"{label} = {shown} does not fit in float32; expected a number in "
+            f"[{FLOAT32_TINY:g}, {FLOAT32_MAX:g}]" + (f" ({what})" if what else "")
+        )
+    if size is None:
+        return float(bounds[0])
+    return np.broadcast_to(bounds, (size,)).copy()

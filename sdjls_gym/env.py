@@ -2,105 +2,179 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import sys
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.envs.registration import EnvSpec
+from gymnasium.error import ResetNeeded
 
+from sdjls_gym._validate import (
+    check_array,
+    check_choice,
+    check_float32_bound,
+    check_int,
+    check_mapping,
+    check_number,
+    describe,
+    type_name,
+)
 from sdjls_gym.model import SDJLSModel, max_last
 
-__all__ = ["SDJLSEnv", "resolve_model", "observation_space", "action_space", "decode_observation"]
-
-
-def resolve_model(model: SDJLSModel | str | dict) -> SDJLSModel:
-    """Accept a model, a preset name (``"macro"``) or a ``to_dict()`` dict."""
-    if isinstance(model, SDJLSModel):
-        return model
-    if isinstance(model, str):
-        from sdjls_gym.systems import PRESETS
-
-        if model not in PRESETS:
-            raise ValueError(
-                f"model = {model!r} is not a preset; known presets are {sorted(PRESETS)}"
-            )
-        return PRESETS[model]()
-    if isinstance(model, dict):
-        return SDJLSModel.from_dict(model)
-    raise TypeError(
-        f"model must be an SDJLSModel, a preset name or a dict, got {type(model).__name__}; "
-        'e.g. gym.make("SDJLS-v0", model=my_model, horizon=20)'
-    )
-
-
-def _check_positive_int(name: str, value: Any) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} = {value!r}; expected a positive int")
-    return int(value)
-
+__all__ = [
+    "SDJLSEnv",
+    "ResetNeededError",
+    "resolve_model",
+    "observation_space",
+    "action_space",
+    "decode_observation",
+]
 
 #: Largest allowed ``divergence_bound``: squares of states stay finite in float64 and the clipped
 #: observation stays finite in float32.
 MAX_DIVERGENCE_BOUND = 1e30
 
+#: The stage cost reported (and negated as the reward) when it overflows float64 (or is NaN):
+#: the largest finite float. Such a step terminates the episode as diverged.
+MAX_STAGE_COST = sys.float_info.max
 
-def _check_divergence_bound(value: Any) -> float:
-    try:
-        bound = float(value)
-    except (TypeError, ValueError):
-        bound = float("nan")
-    if not (np.isfinite(bound) and 0 < bound <= MAX_DIVERGENCE_BOUND):
-        raise ValueError(
-            f"divergence_bound = {value!r}; expected a positive float <= {MAX_DIVERGENCE_BOUND:g}"
+#: Bound on a standard normal draw assumed when deciding whether a step can overflow float64.
+#: It only decides whether numpy's overflow warnings are silenced; overflow is handled anyway.
+_NOISE_DRAW_BOUND = 1e3
+
+
+class ResetNeededError(ResetNeeded, RuntimeError):
+    """``step()`` before ``reset()``, or after the episode ended (Gymnasium's convention).
+
+    Both a :class:`gymnasium.error.ResetNeeded` and a :class:`RuntimeError`.
+    """
+
+
+def resolve_model(model: SDJLSModel | str | dict | None) -> SDJLSModel:
+    """Accept a model, a preset name (``"macro"``) or a ``to_dict()`` dict.
+
+    Raises
+    ------
+    TypeError
+        ``model`` is missing (None) or of another type.
+    ValueError
+        ``model`` is a string that names no preset.
+    """
+    if isinstance(model, SDJLSModel):
+        return model
+    if isinstance(model, str):
+        from sdjls_gym.systems import PRESETS
+
+        return PRESETS[check_choice("model", model, sorted(PRESETS))]()
+    if isinstance(model, dict):
+        return SDJLSModel.from_dict(model)
+    example = 'e.g. gym.make("SDJLS-v0", model=sdjls_gym.macro(), horizon=20)'
+    if model is None:
+        raise TypeError(
+            "model is missing; pass an SDJLSModel, a preset name (model='macro') or a "
+            f"to_dict() dict, {example}"
         )
-    return bound
+    raise TypeError(
+        f"model = {describe(model)} is a {type_name(model)}; expected an SDJLSModel, a preset "
+        f"name or a to_dict() dict, {example}"
+    )
+
+
+def check_divergence_bound(value: Any) -> float:
+    """A threshold on ``max |x|`` in ``(0, MAX_DIVERGENCE_BOUND]``."""
+    return check_number(
+        "divergence_bound",
+        value,
+        low=0.0,
+        low_open=True,
+        high=MAX_DIVERGENCE_BOUND,
+        what="termination threshold on max |x|",
+    )
+
+
+def check_model_x0(model: SDJLSModel, divergence_bound: float) -> None:
+    """The model's initial state must start inside the divergence box."""
+    if float(np.max(np.abs(model.x0))) > divergence_bound:
+        raise ValueError(
+            f"the model's x0 = {describe(model.x0)} has an entry beyond divergence_bound = "
+            f"{divergence_bound:g}; raise divergence_bound or change x0"
+        )
 
 
 def parse_reset_options(
     model: SDJLSModel, options: dict[str, Any] | None, divergence_bound: float
 ) -> tuple[np.ndarray | None, int | None]:
     """Validate ``reset(options=...)``: ``(x0 or None, mode0 or None)``, None when not given."""
-    options = dict(options or {})
-    unknown = sorted(set(options) - {"x0", "mode0"})
-    if unknown:
-        raise ValueError(
-            f"reset options {unknown} are not understood; expected keys 'x0' and/or 'mode0'"
-        )
+    options = check_mapping("options", options, allowed=("x0", "mode0"))
     x0 = mode0 = None
     if "x0" in options:
-        try:
-            x0 = np.array(options["x0"], dtype=np.float64)
-        except (TypeError, ValueError):
-            x0 = np.full(1, np.nan)
-        if x0.shape != (model.n,) or not np.all(np.abs(x0) <= divergence_bound):
-            raise ValueError(
-                f"options['x0'] = {options['x0']!r}; expected {model.n} finite numbers with "
-                f"|x0_i| <= divergence_bound = {divergence_bound:g}"
-            )
+        x0 = check_array(
+            "options['x0']",
+            options["x0"],
+            shape=(model.n,),
+            max_abs=divergence_bound,
+            what="the initial state, inside the divergence box",
+        )
     if "mode0" in options:
-        mode0 = options["mode0"]
-        if (
-            isinstance(mode0, (bool, np.bool_))
-            or not isinstance(mode0, (int, np.integer))
-            or not 0 <= mode0 < model.N
-        ):
-            raise ValueError(f"options['mode0'] = {mode0!r}; expected an int in [0, {model.N})")
-        mode0 = int(mode0)
+        mode0 = check_int("options['mode0']", options["mode0"], low=0, high=model.N - 1)
     return x0, mode0
 
 
-def _action_bounds(model: SDJLSModel, action_bound: float | np.ndarray) -> np.ndarray:
-    try:
-        bound = np.broadcast_to(np.asarray(action_bound, dtype=np.float64), (model.m,)).copy()
-    except (TypeError, ValueError):
-        bound = np.full(model.m, np.nan)  # reported below, naming action_bound
-    if not np.all(np.isfinite(bound)) or np.any(bound <= 0):
-        raise ValueError(
-            f"action_bound = {action_bound!r}; expected finite positive bound(s) on |u_i|, a float "
-            f"or an array of shape ({model.m},)"
-        )
-    return bound
+def _plain(value: Any) -> Any:
+    """A JSON-friendly form of a constructor argument (a model becomes its ``to_dict()``, numpy
+    arrays lists, also inside a model given as a dict)."""
+    if isinstance(value, SDJLSModel):
+        return value.to_dict()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, dict):
+        return {key: _plain(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(item) for item in value]
+    return value
+
+
+def own_spec(spec: EnvSpec | None, max_episode_steps: int) -> EnvSpec | None:
+    """``spec`` with JSON-friendly kwargs and ``max_episode_steps`` set when it is None.
+
+    ``gymnasium.make`` gives an env a spec whose ``max_episode_steps`` is None when no
+    ``TimeLimit`` is added; the environment truncates at its own horizon, which is reported
+    there instead, so that ``env.spec.max_episode_steps`` says when episodes end and
+    ``env.spec.to_json()`` works with a model object among the arguments.
+    """
+    if spec is None:
+        return None
+    steps = spec.max_episode_steps if spec.max_episode_steps is not None else max_episode_steps
+    kwargs = {key: _plain(value) for key, value in spec.kwargs.items()}
+    return dataclasses.replace(spec, kwargs=kwargs, max_episode_steps=steps)
+
+
+def may_overflow(
+    model: SDJLSModel, action_high: np.ndarray, divergence_bound: float, horizon: int
+) -> bool:
+    """Whether a step from a state inside the divergence box could overflow float64.
+
+    A bound on every product and sum of :meth:`SDJLSModel.step_one` (next state, constraint
+    values, stage cost) for ``|x| <= divergence_bound``, ``|u| <= action_high`` and standard
+    normal draws below ``_NOISE_DRAW_BOUND``. Only used to skip numpy's error-state switch on
+    the hot path: a step that overflows anyway is still detected and terminated.
+    """
+    noise = np.abs(model.W_sqrt).sum(axis=1) * _NOISE_DRAW_BOUND
+    z = np.concatenate([np.full(model.n, divergence_bound), action_high, noise])
+    with np.errstate(over="ignore", invalid="ignore"):
+        M = np.abs(np.concatenate([model._tables["ABE"], model.G @ model._tables["ABE"]], axis=1))
+        y = M @ z
+        zxu = z[: model.n + model.m]
+        cost = np.abs(model._tables["QR"]) @ zxu @ zxu
+        H = np.abs(model.H0) + horizon * np.abs(model.H_rate)
+        worst = max(float(np.max(y)), float(np.max(cost)), float(np.max(H)))
+    return not worst < 1e300
 
 
 def observation_space(model: SDJLSModel, divergence_bound: float) -> spaces.Box:
@@ -115,8 +189,19 @@ def observation_space(model: SDJLSModel, divergence_bound: float) -> spaces.Box:
 
 
 def action_space(model: SDJLSModel, action_bound: float | np.ndarray) -> spaces.Box:
-    """The Box ``|u_i| <= action_bound`` of float32."""
-    bound = _action_bounds(model, action_bound).astype(np.float32)
+    """The Box ``|u_i| <= action_bound`` of float32.
+
+    Raises
+    ------
+    TypeError
+        ``action_bound`` is not a number or an array of numbers.
+    ValueError
+        A bound is not positive, or not a normal float32 number (above 3.4e38 the Box would be
+        infinite; below 1.2e-38 it would round to a subnormal number or to zero).
+    """
+    bound = check_float32_bound(
+        "action_bound", action_bound, size=model.m, what="bound(s) on |u_i| of the float32 Box"
+    ).astype(np.float32)
     return spaces.Box(-bound, bound, dtype=np.float32)
 
 
@@ -132,7 +217,9 @@ def encode_observation(
     x = np.asarray(x, dtype=np.float64)
     batch = x.shape[:-1]
     obs = np.zeros((*batch, model.n + model.N + 1), dtype=np.float32)
-    obs[..., : model.n] = np.clip(x, -divergence_bound, divergence_bound)
+    # a diverged state shows at the bound: inf at +-bound, NaN at +bound
+    clipped = np.clip(x, -divergence_bound, divergence_bound)
+    obs[..., : model.n] = np.nan_to_num(clipped, copy=False, nan=divergence_bound)
     one_hot = obs[..., model.n : model.n + model.N]
     np.put_along_axis(one_hot, np.broadcast_to(np.asarray(mode), batch)[..., None], 1.0, axis=-1)
     obs[..., -1] = np.asarray(k, dtype=np.float64) / horizon
@@ -160,16 +247,19 @@ def decode_observation(
 
 
 def step_info(model: SDJLSModel, x: np.ndarray, mode: Any, k: Any) -> dict[str, Any]:
-    """The info entries that describe a state ``(x, mode, k)``; batched over a leading axis."""
+    """The info entries that describe a state ``(x, mode, k)``; batched over a leading axis.
+
+    A row whose value is NaN (a diverged, non-finite state) counts as violated.
+    """
     values = model.constraint_values(x, k)
-    inside = max_last(values) <= 0.0
+    inside = max_last(values) <= 0.0  # False when a value is NaN: max propagates it
     return {
         "state": np.array(x, dtype=np.float64),
         "mode": mode,
         "k": k,
         "in_region": inside,
         "constraint_values": values,
-        "violations": values > 0.0,
+        "violations": ~(values <= 0.0),
         "cost": np.where(inside, 0.0, 1.0),
     }
 
@@ -221,12 +311,15 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
     | n .. n+N-1 | one-hot of θ_k | 0 | 1 |
     | n+N | k / horizon (the band moves with k) | 0 | 1 |
 
-    The exact float64 state is `info["state"]`.
+    The exact float64 state is `info["state"]`. A diverged state shows at the bound (an
+    infinite entry at ±divergence_bound, a NaN entry at +divergence_bound), so observations
+    stay inside the space.
 
     ## Rewards
 
     `reward = -(x_k' Q_{θ_k} x_k + u_k' R_{θ_k} u_k)`, a Python float: the negative stage cost
-    of the state the action was applied in.
+    of the state the action was applied in. Always finite: a stage cost that overflows float64
+    is reported as the largest float (`sys.float_info.max`) and ends the episode as diverged.
 
     ## Info
 
@@ -239,11 +332,11 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
     | `k` | time index of the new state |
     | `in_region` | whether `G x <= H_k` holds in every row (x in C1) |
     | `constraint_values` | `G x - H_k` (r,); positive means violated |
-    | `violations` | `constraint_values > 0` (r,) bool |
+    | `violations` | `constraint_values > 0` (r,) bool (a NaN value counts as violated) |
     | `cost` | 1.0 if any row is violated, else 0.0 (Safety-Gymnasium convention) |
     | `stage_cost` | `x_k' Q x_k + u_k' R u_k` of the step (0.0 at reset) |
     | `u` | the applied (clipped) action, float64 (steps only) |
-    | `diverged` | whether `max |x| > divergence_bound` |
+    | `diverged` | whether `max |x| > divergence_bound`, `x` is not finite, or the stage cost overflowed |
 
     ## Starting State
 
@@ -252,20 +345,24 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Episode End
 
-    * Truncation: after `horizon` steps (`SDJLS-Macro-v0` also registers
-      `max_episode_steps = 20`, the same number).
-    * Termination: only on divergence, when `max |x_{k+1}| > divergence_bound`
-      (`info["diverged"] = True`). Rewards stay finite.
+    * Truncation: after `horizon` steps. The environment truncates by itself (the ids register
+      no `TimeLimit`), and `env.spec.max_episode_steps` reports the horizon.
+    * Termination: only on divergence, when `max |x_{k+1}| > divergence_bound`, when `x_{k+1}`
+      is not finite (NaN or inf), or when the stage cost overflows float64
+      (`info["diverged"] = True`). Rewards and observations stay finite.
+    * After the end, `step()` raises `ResetNeededError` (a `gymnasium.error.ResetNeeded` and a
+      `RuntimeError`): call `reset()`. The vector environment resets by itself instead.
 
     ## Arguments
 
-    * `model`: an `SDJLSModel`, a preset name (`"macro"`) or a `to_dict()` dict.
-    * `horizon`: episode length T (default 20). `SDJLS-Macro-v0` registers `max_episode_steps=20`,
-      whose `TimeLimit` wrapper ends episodes after 20 steps whatever `horizon` says (the
-      environment cannot see that wrapper): to change its horizon pass both,
-      `gym.make("SDJLS-Macro-v0", horizon=40, max_episode_steps=40)`.
-    * `action_bound`: bound on |u_i|, float or (m,) (default 200.0).
-    * `divergence_bound`: termination threshold on max |x| (default 1e6).
+    * `model` (required): an `SDJLSModel`, a preset name (`"macro"`) or a `to_dict()` dict. In
+      `env.spec` a model object is stored as its `to_dict()`, so `env.spec.to_json()` and
+      `gym.make(env.spec)` work.
+    * `horizon`: episode length T (default 20), an int >= 1. `gym.make("SDJLS-Macro-v0",
+      horizon=40)` gives 40-step episodes.
+    * `action_bound`: bound on |u_i|, float or (m,) (default 200.0); it must be a normal
+      float32 number (1.2e-38 to 3.4e38), since the action Box is float32.
+    * `divergence_bound`: termination threshold on max |x| (default 1e6, at most 1e30).
     * `render_mode`: `None` or `"rgb_array"` (a matplotlib picture of the episode so far).
 
     ```python
@@ -282,18 +379,20 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
 
+    _spec: EnvSpec | None = None
+
     def __init__(
         self,
-        model: SDJLSModel | str | dict,
+        model: SDJLSModel | str | dict | None = None,
         horizon: int = 20,
         action_bound: float | np.ndarray = 200.0,
         divergence_bound: float = 1e6,
         render_mode: str | None = None,
     ) -> None:
         self.model = resolve_model(model)
-        self.horizon = _check_positive_int("horizon", horizon)
-        self.divergence_bound = _check_divergence_bound(divergence_bound)
-        parse_reset_options(self.model, {"x0": self.model.x0}, self.divergence_bound)
+        self.horizon = check_int("horizon", horizon, low=1)
+        self.divergence_bound = check_divergence_bound(divergence_bound)
+        check_model_x0(self.model, self.divergence_bound)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode = {render_mode!r}; expected None or one of {self.metadata['render_modes']}"
@@ -304,11 +403,26 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         self._low = self.action_space.low.astype(np.float64)
         self._high = self.action_space.high.astype(np.float64)
         self._low_list, self._high_list = self._low.tolist(), self._high.tolist()
+        self._may_overflow = may_overflow(
+            self.model, self._high, self.divergence_bound, self.horizon
+        )
         self._x: np.ndarray | None = None
         self._mode = 0
         self._k = 0
         self._inside = True
+        self._ended: str | None = None  # why the episode ended, until the next reset()
         self._history: list[tuple[np.ndarray, int]] = []
+
+    # ------------------------------------------------------------------ spec
+    @property
+    def spec(self) -> EnvSpec | None:
+        """The ``EnvSpec`` that ``gymnasium.make`` set, with ``max_episode_steps = horizon``
+        (the environment truncates by itself) and JSON-friendly kwargs (see :func:`own_spec`)."""
+        return self._spec
+
+    @spec.setter
+    def spec(self, value: EnvSpec | None) -> None:
+        self._spec = own_spec(value, self.horizon)
 
     # ------------------------------------------------------------------ current state
     @property
@@ -333,26 +447,38 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         # encode_observation for one state, without its batch machinery (the hot path)
         model, bound = self.model, self.divergence_bound
         obs = np.zeros(model.n + model.N + 1, dtype=np.float32)
-        obs[: model.n] = np.clip(self._x, -bound, bound) if diverged else self._x
+        if diverged:  # clipped, NaN at +bound: inside the observation space (n is small)
+            obs[: model.n] = [
+                v if -bound <= v <= bound else -bound if v < 0 else bound for v in self._x.tolist()
+            ]
+        else:
+            obs[: model.n] = self._x
         obs[model.n + self._mode] = 1.0
         obs[-1] = self._k / self.horizon
         return obs
 
-    def _info(self, stage_cost: float, values: np.ndarray | None = None) -> dict[str, Any]:
+    def _info(
+        self, stage_cost: float, diverged: bool, values: np.ndarray | None = None
+    ) -> dict[str, Any]:
         x = self._x
         if values is None:
             values = self.model.constraint_values_one(x, self._k)
-        self._inside = max(values.tolist()) <= 0.0  # x in C1: reused by the next step
+        if diverged:  # NaN values count as violated
+            violations = ~(values <= 0.0)
+            self._inside = not any(violations.tolist())
+        else:
+            violations = values > 0.0
+            self._inside = max(values.tolist()) <= 0.0  # x in C1: reused by the next step
         return {
             "state": x.copy(),
             "mode": self._mode,
             "k": self._k,
             "in_region": self._inside,
             "constraint_values": values,
-            "violations": values > 0.0,
+            "violations": violations,
             "cost": 0.0 if self._inside else 1.0,
             "stage_cost": stage_cost,
-            "diverged": max(map(abs, x.tolist())) > self.divergence_bound,
+            "diverged": diverged,
         }
 
     # ------------------------------------------------------------------ Gymnasium API
@@ -364,13 +490,20 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         self._x = self.model.x0.copy() if x0 is None else x0
         self._mode = self.model.sample_mode0(self.np_random) if mode0 is None else mode0
         self._k = 0
+        self._ended = None
         self._history = [(self._x.copy(), self._mode)]
-        info = self._info(0.0)
-        return self._obs(info["diverged"]), info
+        with np.errstate(over="ignore", invalid="ignore"):
+            info = self._info(0.0, False)
+        return self._obs(False), info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        if self._x is None:
-            raise RuntimeError("call reset() before step()")
+        if self._ended is not None or self._x is None:
+            raise ResetNeededError(
+                f"step() called after the episode ended ({self._ended}); call reset() to start "
+                "a new one"
+                if self._ended is not None
+                else "call reset() before step()"
+            )
         m = self.model.m
         if action is None or isinstance(action, (str, bytes)):
             raise ValueError(
@@ -395,18 +528,35 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
 
         model, rng = self.model, self.np_random
         w = model.sample_noise_one(rng)
-        self._x, self._mode, stage_cost, values = model.step_one(
-            self._x, self._mode, u, self._k, w, rng.random(), self._inside
-        )
+        if self._may_overflow:  # overflow is detected below; numpy's warnings are not needed
+            with np.errstate(over="ignore", invalid="ignore"):
+                self._x, self._mode, stage_cost, values = model.step_one(
+                    self._x, self._mode, u, self._k, w, rng.random(), self._inside
+                )
+        else:
+            self._x, self._mode, stage_cost, values = model.step_one(
+                self._x, self._mode, u, self._k, w, rng.random(), self._inside
+            )
         self._k += 1
         if self.render_mode is not None:
             self._history.append((self._x, self._mode))
 
-        info = self._info(stage_cost, values)
+        # outside the divergence box or not finite: max() may skip a NaN, which the sum does not
+        # (a sum of entries of at most 1e30 is finite)
+        xs = self._x.tolist()
+        diverged = not (max(map(abs, xs)) <= self.divergence_bound and math.isfinite(sum(xs)))
+        if not stage_cost <= MAX_STAGE_COST:  # inf or NaN: saturated, and the episode ends
+            stage_cost, diverged = MAX_STAGE_COST, True
+        info = self._info(stage_cost, diverged, values)
         info["u"] = u
-        terminated = info["diverged"]
         truncated = self._k >= self.horizon
-        return self._obs(info["diverged"]), -stage_cost, terminated, truncated, info
+        if diverged or truncated:
+            self._ended = (
+                f"terminated: diverged at k = {self._k}"
+                if diverged
+                else f"truncated at k = {self._k} = horizon"
+            )
+        return self._obs(diverged), -stage_cost, diverged, truncated, info
 
     def render(self) -> np.ndarray | None:
         if self.render_mode is None:

@@ -18,25 +18,31 @@ and the controllers all call these methods; nothing else re-implements the dynam
 from __future__ import annotations
 
 import bisect
-import json
-import math
 from dataclasses import MISSING, dataclass, field, fields
 from functools import cached_property
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from sdjls_gym._model_checks import (  # noqa: F401 - _fmt, _check_psd: used by the controllers
+    InvalidModelError,
+    InvalidModelTypeError,
+    _check_psd,
+    _fmt,
+    validate_fields,
+)
+from sdjls_gym._validate import MAX_INDEX, check_int, describe
+
 __all__ = [
     "SDJLSModel",
     "InvalidModelError",
-    "load_model",
-    "save_model",
+    "InvalidModelTypeError",
     "draw_categorical",
     "max_last",
 ]
 
-_ROW_SUM_TOL = 1e-9
+#: Entries of the cache of ``H_k`` kept by the one-state fast path before it is emptied.
+_H_CACHE_SIZE = 4096
 
 
 def max_last(a: np.ndarray) -> np.ndarray:
@@ -80,123 +86,20 @@ def draw_categorical(probs: np.ndarray, uniform: np.ndarray | float) -> np.ndarr
     return np.sum(cdf <= u, axis=-1).astype(np.int64)
 
 
-class InvalidModelError(ValueError):
-    """A model (or a model file) is malformed. Subclass of :class:`ValueError`."""
-
-
-def _fmt(value: Any) -> str:
-    """Short printable form of a (possibly large) value for error messages."""
-    text = np.array2string(np.asarray(value), precision=4, threshold=12, separator=", ")
-    text = " ".join(text.split())  # one line, so that messages stay greppable
-    return text if len(text) < 160 else text[:157] + "..."
-
-
-def _as_float_array(name: str, value: Any) -> np.ndarray:
-    if value is None:
-        raise InvalidModelError(f"{name} is missing (None, or null in a file); expected numbers")
-    try:  # a first look without conversion, for complex and missing entries
-        raw = np.asarray(value) if isinstance(value, (list, tuple, np.ndarray)) else None
-    except (TypeError, ValueError):
-        raw = None  # ragged or unreadable: reported below
-    if raw is not None and raw.dtype.kind == "c":
-        raise InvalidModelError(
-            f"{name} has complex entries (dtype {raw.dtype}); every entry must be a real number"
-        )
-    if raw is not None and raw.dtype == object:
-        missing = [i for i, v in np.ndenumerate(raw) if v is None]
-        if missing:
-            raise InvalidModelError(
-                f"{name} has a missing entry (None, or null in a file) at index "
-                f"{tuple(int(j) for j in missing[0])}; every entry must be a finite number"
-            )
-    try:
-        arr = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InvalidModelError(
-            f"{name} could not be read as an array of numbers ({exc}); got {value!r:.120}"
-        ) from None
-    if not np.all(np.isfinite(arr)):
-        bad = np.argwhere(~np.isfinite(arr))[0]
-        raise InvalidModelError(
-            f"{name} has a non-finite entry {arr[tuple(bad)]} at index {tuple(int(i) for i in bad)};"
-            " every entry must be a finite number"
-        )
-    return arr
-
-
-def _per_mode(name: str, arr: np.ndarray, N: int, shape: tuple[int, ...], what: str) -> np.ndarray:
-    """Accept ``shape`` (shared by all modes) or ``(N, *shape)``; return ``(N, *shape)``."""
-    if arr.shape == shape:
-        arr = np.broadcast_to(arr, (N, *shape)).copy()
-    if arr.shape != (N, *shape):
-        raise InvalidModelError(
-            f"{name} has shape {arr.shape}; expected {(N, *shape)} ({what}) "
-            f"or {shape} to use the same matrix in every mode"
-        )
-    return arr
-
-
-def _check_symmetric(name: str, arr: np.ndarray) -> None:
-    for i, M in enumerate(arr):
-        scale = max(1.0, float(np.max(np.abs(M))))
-        asym = float(np.max(np.abs(M - M.T)))
-        if asym > 1e-9 * scale:
-            raise InvalidModelError(
-                f"{name}[{i}] is not symmetric (max |M - M'| = {asym:.3g}); it must be a "
-                f"symmetric matrix, got {_fmt(M)}"
-            )
-
-
-def _check_psd(name: str, arr: np.ndarray, strict: bool) -> None:
-    """arr: (N, d, d). Raise unless every slice is symmetric PSD (PD when ``strict``)."""
-    _check_symmetric(name, arr)
-    for i, M in enumerate(arr):
-        scale = max(1.0, float(np.max(np.abs(M))))
-        eig_min = float(np.linalg.eigvalsh(M)[0]) if M.size else 1.0
-        if strict and eig_min <= 1e-12 * scale:
-            raise InvalidModelError(
-                f"{name}[{i}] is not positive definite (smallest eigenvalue {eig_min:.3g}); "
-                f"it must be symmetric positive definite, got {_fmt(M)}"
-            )
-        if not strict and eig_min < -1e-9 * scale:
-            raise InvalidModelError(
-                f"{name}[{i}] is not positive semidefinite (smallest eigenvalue {eig_min:.3g}); "
-                f"it must be symmetric positive semidefinite, got {_fmt(M)}"
-            )
-
-
-def _check_stochastic(name: str, P: np.ndarray, N: int) -> None:
-    if P.shape != (N, N):
-        raise InvalidModelError(f"{name} has shape {P.shape}; expected ({N}, {N}) for N={N} modes")
-    neg = np.argwhere(P < 0)
-    if neg.size:
-        i, j = (int(v) for v in neg[0])
-        raise InvalidModelError(
-            f"{name}[{i}, {j}] = {P[i, j]:.6g} is negative; transition probabilities must be >= 0"
-        )
-    sums = P.sum(axis=1)
-    bad = np.flatnonzero(np.abs(sums - 1.0) > _ROW_SUM_TOL)
-    if bad.size:
-        i = int(bad[0])
-        raise InvalidModelError(
-            f"{name} row {i} sums to {sums[i]:.12g}; each row of a transition matrix must sum "
-            f"to 1 (tolerance {_ROW_SUM_TOL:g})"
-        )
-
-
 @dataclass(frozen=True, eq=False)
 class SDJLSModel:
     """A discrete-time state-dependent jump linear system with a polyhedral region.
 
-    Shapes use N modes, n states, m inputs, p noise inputs and r constraint rows. Per-mode
-    matrices (``B``, ``E``, ``Q``, ``R``) may also be given without the leading mode axis, in
-    which case the same matrix is used in every mode. Arrays are copied and made read-only.
+    Shapes use N modes, n states, m inputs, p noise inputs and r constraint rows. The per-mode
+    matrices ``A``, ``B``, ``E``, ``Q`` and ``R`` may also be given without the leading mode
+    axis, in which case the same matrix is used in every mode (with ``A`` of shape ``(n, n)``,
+    N is the size of ``P_in``). Arrays are copied and made read-only.
 
     Parameters
     ----------
-    A : (N, n, n)
+    A : (N, n, n) or (n, n)
         State matrices ``A_i``.
-    B : (N, n, m)
+    B : (N, n, m) or (n, m)
         Input matrices ``B_i``.
     P_in : (N, N)
         Transition matrix lambda, used when ``G x_k <= H_k`` holds row-wise (``x_k`` in C1).
@@ -206,13 +109,13 @@ class SDJLSModel:
         Rows of the region ``C1 = {x : G x <= H_k}``.
     H0 : (r,)
         Right-hand side at ``k = 0``.
-    Q : (N, n, n)
+    Q : (N, n, n) or (n, n)
         State weights of the stage cost, symmetric positive semidefinite.
-    R : (N, m, m)
+    R : (N, m, m) or (m, m)
         Input weights of the stage cost, symmetric positive definite.
     x0 : (n,)
         Initial state.
-    E : (N, n, p), optional
+    E : (N, n, p) or (n, p), optional
         Noise input matrices; identity ``(n, n)`` per mode by default (then ``p = n``).
     W : (p, p), optional
         Covariance of ``w_k``; identity by default.
@@ -220,13 +123,22 @@ class SDJLSModel:
         Drift of the right-hand side, ``H_k = H0 + k * H_rate``; zeros by default.
     mode0 : int or (N,) array
         Initial mode ``0 <= mode0 < N``, or a probability vector to draw it from.
-    mode_names : sequence of N str, optional
-        Human-readable names of the modes.
+    mode_names : list or tuple of N str, optional
+        Human-readable names of the modes (``"mode 0"``, ... by default).
+    state_names : list or tuple of n str, optional
+        Human-readable names of the states ``x(1) .. x(n)``; None (the default) when not given.
+
+    Symmetry, positive (semi)definiteness and the row sums are checked with tolerances
+    relative to each matrix's largest entry, so scaling a weight by any positive factor does
+    not change the verdict.
 
     Raises
     ------
     InvalidModelError
         (a :class:`ValueError`) naming the field, the bad value and what is expected.
+    InvalidModelTypeError
+        (an :class:`InvalidModelError` and a :class:`TypeError`) when a field has the wrong type,
+        e.g. a string or None where numbers belong, or names given as a generator.
 
     Examples
     --------
@@ -252,138 +164,15 @@ class SDJLSModel:
     H_rate: np.ndarray | None = None
     mode0: int | np.ndarray = 0
     mode_names: tuple[str, ...] | None = field(default=None)
+    state_names: tuple[str, ...] | None = field(default=None)
 
     # ------------------------------------------------------------------ validation
-    def __post_init__(self) -> None:  # noqa: C901 - a flat list of checks reads best
-        def put(name: str, value: Any) -> None:
+    def __post_init__(self) -> None:
+        raw = {f.name: getattr(self, f.name) for f in fields(self)}
+        for name, value in validate_fields(raw).items():
             if isinstance(value, np.ndarray):
                 value.setflags(write=False)
             object.__setattr__(self, name, value)
-
-        A = _as_float_array("A", self.A)
-        if A.ndim != 3 or A.shape[1] != A.shape[2] or A.shape[0] < 1 or A.shape[1] < 1:
-            raise InvalidModelError(
-                f"A has shape {A.shape}; expected (N, n, n): one square n x n matrix per mode"
-            )
-        N, n = A.shape[0], A.shape[1]
-
-        B = _as_float_array("B", self.B)
-        if B.ndim not in (2, 3) or B.shape[-2] != n or B.shape[-1] < 1:
-            raise InvalidModelError(
-                f"B has shape {B.shape}; expected ({N}, {n}, m) or ({n}, m) to match A of shape "
-                f"{A.shape}"
-            )
-        m = B.shape[-1]
-        B = _per_mode("B", B, N, (n, m), "one n x m input matrix per mode")
-
-        if self.E is None:
-            E = np.broadcast_to(np.eye(n), (N, n, n)).copy()
-        else:
-            E = _as_float_array("E", self.E)
-            if E.ndim not in (2, 3) or E.shape[-2] != n or E.shape[-1] < 1:
-                raise InvalidModelError(
-                    f"E has shape {E.shape}; expected ({N}, {n}, p) or ({n}, p) to match A of "
-                    f"shape {A.shape}"
-                )
-            E = _per_mode("E", E, N, (n, E.shape[-1]), "one n x p noise matrix per mode")
-        p = E.shape[-1]
-
-        if self.W is None:
-            W = np.eye(p)
-        else:
-            W = _as_float_array("W", self.W)
-            if W.shape != (p, p):
-                raise InvalidModelError(
-                    f"W has shape {W.shape}; expected ({p}, {p}), the covariance of the {p} noise "
-                    "inputs (columns of E)"
-                )
-        _check_psd("W", W[None], strict=False)
-
-        P_in = _as_float_array("P_in", self.P_in)
-        P_out = _as_float_array("P_out", self.P_out)
-        _check_stochastic("P_in", P_in, N)
-        _check_stochastic("P_out", P_out, N)
-
-        G = _as_float_array("G", self.G)
-        if G.ndim != 2 or G.shape[1] != n or G.shape[0] < 1:
-            raise InvalidModelError(
-                f"G has shape {G.shape}; expected (r, {n}) with r >= 1 rows of the region G x <= H"
-            )
-        r = G.shape[0]
-        if np.any(np.all(G == 0.0, axis=1)):
-            i = int(np.flatnonzero(np.all(G == 0.0, axis=1))[0])
-            raise InvalidModelError(
-                f"G row {i} is all zeros; every row of G must have a nonzero entry (a zero row "
-                "is not a constraint on the state)"
-            )
-        H0 = _as_float_array("H0", self.H0)
-        if H0.shape != (r,):
-            raise InvalidModelError(
-                f"H0 has shape {H0.shape}; expected ({r},), one entry per row of G"
-            )
-        if self.H_rate is None:
-            H_rate = np.zeros(r)
-        else:
-            H_rate = _as_float_array("H_rate", self.H_rate)
-            if H_rate.shape != (r,):
-                raise InvalidModelError(
-                    f"H_rate has shape {H_rate.shape}; expected ({r},), one entry per row of G"
-                )
-
-        Q = _per_mode("Q", _as_float_array("Q", self.Q), N, (n, n), "one n x n weight per mode")
-        _check_psd("Q", Q, strict=False)
-        R = _per_mode("R", _as_float_array("R", self.R), N, (m, m), "one m x m weight per mode")
-        _check_psd("R", R, strict=True)
-
-        x0 = _as_float_array("x0", self.x0)
-        if x0.shape != (n,):
-            raise InvalidModelError(f"x0 has shape {x0.shape}; expected ({n},)")
-
-        mode0 = self.mode0
-        if isinstance(mode0, (bool, np.bool_)):
-            raise InvalidModelError(
-                f"mode0 = {mode0!r}; expected an int in [0, {N}) or a probability vector"
-            )
-        if isinstance(mode0, (int, np.integer)):
-            if not 0 <= int(mode0) < N:
-                raise InvalidModelError(
-                    f"mode0 = {int(mode0)} is out of range; expected an int in [0, {N}) "
-                    "(modes are numbered from 0) or a probability vector of length N"
-                )
-            mode0 = int(mode0)
-        else:
-            mode0 = _as_float_array("mode0", mode0)
-            if mode0.shape != (N,):
-                raise InvalidModelError(
-                    f"mode0 has shape {mode0.shape}; expected an int in [0, {N}) or a probability "
-                    f"vector of shape ({N},)"
-                )
-            if np.any(mode0 < 0) or abs(mode0.sum() - 1.0) > _ROW_SUM_TOL:
-                raise InvalidModelError(
-                    f"mode0 = {_fmt(mode0)} is not a probability vector; entries must be >= 0 and "
-                    f"sum to 1 (tolerance {_ROW_SUM_TOL:g})"
-                )
-
-        names = self.mode_names
-        if names is None:
-            names = tuple(f"mode {i}" for i in range(N))
-        else:
-            if (
-                isinstance(names, str)
-                or len(names) != N
-                or not all(isinstance(s, str) for s in names)
-            ):
-                raise InvalidModelError(
-                    f"mode_names = {names!r}; expected a sequence of {N} strings, one per mode"
-                )
-            names = tuple(names)
-
-        for name, value in [
-            ("A", A), ("B", B), ("E", E), ("W", W), ("P_in", P_in), ("P_out", P_out), ("G", G),
-            ("H0", H0), ("H_rate", H_rate), ("Q", Q), ("R", R), ("x0", x0), ("mode0", mode0),
-            ("mode_names", names),
-        ]:  # fmt: skip
-            put(name, value)
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -433,12 +222,20 @@ class SDJLSModel:
         Parameters
         ----------
         k : int or (...) int array
+            Time indices, ``0 <= k <= 2**53``.
 
         Returns
         -------
         (..., r) array
+
+        Raises
+        ------
+        TypeError
+            ``k`` is not an int or an integer array (a float, a bool, ...).
+        ValueError
+            ``k`` is negative or above ``2**53`` (checked on the exact integer).
         """
-        k = np.asarray(k, dtype=np.float64)
+        k = np.asarray(_check_k(k), dtype=np.float64)
         if k.ndim == 0:
             return self.H0 + k[..., None] * self.H_rate
         # the same arithmetic column by column: contiguous loops over the batch, not loops of
@@ -715,9 +512,14 @@ class SDJLSModel:
         return y[:n], mode_next, stage_cost, y[n:] - self._H_one(k + 1)
 
     def _H_one(self, k: int) -> np.ndarray:
+        if type(k) is not int:  # a float 2.0 would hit the cache entry of 2
+            k = check_int("k", k, low=0)
         cache = self._one["H"]
         H = cache.get(k)
-        if H is None:
+        if H is None:  # the range is checked once per distinct k; the cache stays bounded
+            check_int("k", k, low=0)
+            if len(cache) >= _H_CACHE_SIZE:
+                cache.clear()
             H = cache[k] = self.H0 + k * self.H_rate
         return H
 
@@ -746,9 +548,11 @@ class SDJLSModel:
         ------
         InvalidModelError
             Unknown or missing fields, or any validation failure (the message names the field).
+        InvalidModelTypeError
+            ``data`` is not a dict, or a field has the wrong type.
         """
         if not isinstance(data, dict):
-            raise InvalidModelError(
+            raise InvalidModelTypeError(
                 f"a model description must be a dict/table, got {type(data).__name__}"
             )
         names = [f.name for f in fields(cls)]
@@ -782,78 +586,36 @@ class SDJLSModel:
         self.__dict__.update(state)
 
     def __repr__(self) -> str:
+        names = "" if self.state_names is None else f", state_names={self.state_names}"
         return (
             f"SDJLSModel(N={self.N}, n={self.n}, m={self.m}, p={self.p}, r={self.r}, "
-            f"mode_names={self.mode_names})"
+            f"mode_names={self.mode_names}{names})"
         )
 
 
-def load_model(path: str | Path) -> SDJLSModel:
-    """Read a model from a ``.json`` or ``.toml`` file (see :meth:`SDJLSModel.to_dict`).
-
-    Raises
-    ------
-    InvalidModelError
-        If the file cannot be parsed or a field is missing or malformed.
-    """
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in (".json", ".toml"):
-        raise InvalidModelError(f"model file {str(path)!r} must end in .json or .toml")
-    try:
-        text = path.read_text(encoding="utf-8")
-        if suffix == ".toml":
-            try:
-                import tomllib
-            except ModuleNotFoundError:  # Python 3.10
-                import tomli as tomllib  # type: ignore[no-redef]
-            data = tomllib.loads(text)
-        else:
-            data = json.loads(text)
-    except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError, TOMLDecodeError
-        raise InvalidModelError(
-            f"model file {str(path)!r} is not valid UTF-8 {suffix[1:].upper()}: {exc}"
-        ) from None
-    if not isinstance(data, dict):
-        raise InvalidModelError(
-            f"model file {str(path)!r} holds a {type(data).__name__}; expected a table/object "
-            "of model fields (A, B, P_in, ...)"
-        )
-    try:
-        return SDJLSModel.from_dict(data)
-    except InvalidModelError as exc:
-        raise InvalidModelError(f"model file {str(path)!r}: {exc}") from None
+def _check_k(k: Any) -> Any:
+    """``k`` as given when it is an int or an integer array in ``[0, 2**53]``; else an error."""
+    if type(k) is int and 0 <= k <= MAX_INDEX:  # the common case, first
+        return k
+    if isinstance(k, (list, tuple)):
+        k = np.asarray(k)
+    if isinstance(k, np.ndarray) and k.ndim:
+        if k.size and k.dtype.kind not in "iu":
+            raise TypeError(
+                f"k = {describe(k)} has dtype {k.dtype}; expected an int or an integer array of "
+                "time indices"
+            )
+        if k.size:
+            for bad in (int(k.min()), int(k.max())):  # exact, before any conversion
+                check_int("k", bad, low=0)
+        return k
+    return check_int("k", k, low=0)
 
 
-def save_model(model: SDJLSModel, path: str | Path) -> None:
-    """Write ``model`` as JSON (``.json``) or TOML (``.toml``) readable by :func:`load_model`."""
-    path = Path(path)
-    data = model.to_dict()
-    if path.suffix.lower() == ".json":
-        path.write_text(json.dumps(data, indent=2) + "\n")
-    elif path.suffix.lower() == ".toml":
-        path.write_text(_to_toml(data))
-    else:
-        raise ValueError(f"path {str(path)!r} must end in .json or .toml")
+def __getattr__(name: str) -> Any:
+    # load_model and save_model live in sdjls_gym.model_files; imported lazily (no cycle)
+    if name in ("load_model", "save_model"):
+        from sdjls_gym import model_files
 
-
-def _to_toml(data: dict[str, Any]) -> str:
-    """Minimal TOML writer for the flat dict of nested number lists that ``to_dict`` returns."""
-
-    def value(v: Any) -> str:
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, int):
-            return str(v)
-        if isinstance(v, float):
-            if not math.isfinite(v):
-                raise ValueError(f"cannot write non-finite number {v} to TOML")
-            return repr(v)
-        if isinstance(v, str):  # a TOML basic string: JSON's escapes, raw non-ASCII
-            return json.dumps(v, ensure_ascii=False)
-        if isinstance(v, list):
-            return "[" + ", ".join(value(item) for item in v) + "]"
-        raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-    lines = [f"{key} = {value(v)}" for key, v in data.items() if v is not None]
-    return "\n".join(lines) + "\n"
+        return getattr(model_files, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

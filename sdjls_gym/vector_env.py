@@ -5,15 +5,19 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from gymnasium.envs.registration import EnvSpec
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from sdjls_gym._validate import check_int, check_optional_int
 from sdjls_gym.env import (
-    _check_divergence_bound,
-    _check_positive_int,
+    MAX_STAGE_COST,
     action_space,
+    check_divergence_bound,
+    check_model_x0,
     encode_observation,
     observation_space,
+    own_spec,
     parse_reset_options,
     resolve_model,
     step_info,
@@ -35,6 +39,9 @@ class SDJLSVectorEnv(VectorEnv):
       model's ``x0`` and ``mode0``; ``reset(options=...)`` applies to the explicit reset only,
       as with Gymnasium's sync vector env), ignores its action and returns its reset
       observation with reward 0 and ``terminated = truncated = False``;
+    * a sub-environment whose state leaves the divergence box or is not finite, or whose stage
+      cost overflows float64, terminates as diverged with a finite reward (the largest float
+      stands for an overflowed cost) and an observation inside the space;
     * infos are a dict of arrays with a leading batch axis, each key ``key`` with a boolean
       mask ``_key`` (``u`` is masked out for sub-environments that were reset this step);
     * randomness comes from one ``numpy.random.Generator`` (``self.np_random``) for the batch,
@@ -50,10 +57,11 @@ class SDJLSVectorEnv(VectorEnv):
     num_envs : int
         Number of sub-environments.
     model, horizon, action_bound, divergence_bound
-        As for :class:`~sdjls_gym.env.SDJLSEnv`.
+        As for :class:`~sdjls_gym.env.SDJLSEnv` (``model`` is required).
     max_episode_steps : int, optional
-        Passed by ``gymnasium.make_vec`` from the registration; episodes are truncated after
-        ``min(horizon, max_episode_steps)`` steps, as a ``TimeLimit`` would do.
+        Episodes are truncated after ``min(horizon, max_episode_steps)`` steps, as a
+        ``TimeLimit`` would do (``gymnasium.make_vec`` passes it when given to it or when
+        an id registers one; the ids of this package do not).
     render_mode : None
         Rendering is not supported for the batch; render one ``SDJLSEnv`` instead.
 
@@ -68,10 +76,12 @@ class SDJLSVectorEnv(VectorEnv):
 
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
 
+    _spec: EnvSpec | None = None
+
     def __init__(
         self,
         num_envs: int = 1,
-        model: SDJLSModel | str | dict = "macro",
+        model: SDJLSModel | str | dict | None = None,
         horizon: int = 20,
         action_bound: float | np.ndarray = 200.0,
         divergence_bound: float = 1e6,
@@ -83,15 +93,12 @@ class SDJLSVectorEnv(VectorEnv):
                 f"render_mode = {render_mode!r}; SDJLSVectorEnv does not render, use SDJLSEnv"
             )
         self.model = resolve_model(model)
-        self.num_envs = _check_positive_int("num_envs", num_envs)
-        self.horizon = _check_positive_int("horizon", horizon)
-        self.episode_steps = self.horizon
-        if max_episode_steps is not None:
-            self.episode_steps = min(
-                self.horizon, _check_positive_int("max_episode_steps", max_episode_steps)
-            )
-        self.divergence_bound = _check_divergence_bound(divergence_bound)
-        parse_reset_options(self.model, {"x0": self.model.x0}, self.divergence_bound)
+        self.num_envs = check_int("num_envs", num_envs, low=1)
+        self.horizon = check_int("horizon", horizon, low=1)
+        steps = check_optional_int("max_episode_steps", max_episode_steps, low=1)
+        self.episode_steps = self.horizon if steps is None else min(self.horizon, steps)
+        self.divergence_bound = check_divergence_bound(divergence_bound)
+        check_model_x0(self.model, self.divergence_bound)
         self.render_mode = None
 
         self.single_observation_space = observation_space(self.model, self.divergence_bound)
@@ -108,12 +115,26 @@ class SDJLSVectorEnv(VectorEnv):
         self._prev_done = np.zeros(B, dtype=bool)
         self._started = False
 
+    # ------------------------------------------------------------------ spec
+    @property
+    def spec(self) -> EnvSpec | None:
+        """The ``EnvSpec`` that ``gymnasium.make_vec`` set, with ``max_episode_steps`` the
+        episode length and JSON-friendly kwargs (see :func:`sdjls_gym.env.own_spec`)."""
+        return self._spec
+
+    @spec.setter
+    def spec(self, value: EnvSpec | None) -> None:
+        self._spec = own_spec(value, self.episode_steps)
+
     # ------------------------------------------------------------------ helpers
-    def _infos(self, stage_cost: np.ndarray) -> dict[str, Any]:
+    def _infos(self, stage_cost: np.ndarray, overflow: np.ndarray | None = None) -> dict[str, Any]:
         raw = step_info(self.model, self._x, self._mode.copy(), self._k.copy())
         self._inside = raw["in_region"]  # region test of the current states, reused by step()
         raw["stage_cost"] = stage_cost
-        raw["diverged"] = max_last(np.abs(self._x)) > self.divergence_bound
+        # NaN-safe: max propagates a NaN, which fails the comparison
+        raw["diverged"] = ~(max_last(np.abs(self._x)) <= self.divergence_bound)
+        if overflow is not None:
+            raw["diverged"] |= overflow
         infos: dict[str, Any] = {}
         everyone = np.ones(self.num_envs, dtype=bool)
         for key, value in raw.items():
@@ -148,7 +169,8 @@ class SDJLSVectorEnv(VectorEnv):
         obs = encode_observation(
             self.model, self._x, self._mode, self._k, self.horizon, self.divergence_bound
         )
-        return obs, self._infos(np.zeros(B))
+        with np.errstate(over="ignore", invalid="ignore"):
+            return obs, self._infos(np.zeros(B))
 
     def step(
         self, actions: np.ndarray
@@ -175,11 +197,16 @@ class SDJLSVectorEnv(VectorEnv):
         if reset.any():  # these rows restart below; keep a diverged state out of the arithmetic
             self._x[reset] = model.x0
         rng = self.np_random
-        stage_cost = model.stage_cost(self._x, self._mode, u)
-        w = model.sample_noise(rng, (B,))
-        x_new, mode_new = model.step(
-            self._x, self._mode, u, self._k, w, rng.random(B), inside=self._inside
-        )
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is detected below
+            stage_cost = model.stage_cost(self._x, self._mode, u)
+            w = model.sample_noise(rng, (B,))
+            x_new, mode_new = model.step(
+                self._x, self._mode, u, self._k, w, rng.random(B), inside=self._inside
+            )
+        # an overflowed (inf or NaN) stage cost is saturated and ends the episode as diverged
+        overflow = ~(stage_cost <= MAX_STAGE_COST)
+        if overflow.any():
+            stage_cost[overflow] = MAX_STAGE_COST
         k_new = self._k + 1
 
         if np.any(reset):
@@ -191,7 +218,8 @@ class SDJLSVectorEnv(VectorEnv):
             stage_cost[reset] = 0.0
         self._x, self._mode, self._k = x_new, mode_new, k_new
 
-        infos = self._infos(stage_cost)
+        with np.errstate(over="ignore", invalid="ignore"):
+            infos = self._infos(stage_cost, overflow & ~reset)
         infos["u"] = u
         infos["_u"] = ~reset
         terminated = infos["diverged"] & ~reset

@@ -2,23 +2,28 @@
 
 from __future__ import annotations
 
-import numbers
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from sdjls_gym._validate import check_array, check_float32_bound, check_number
 from sdjls_gym.env import SDJLSEnv
 
 __all__ = ["ViolationPenalty", "ResidualAction"]
 
 
-def _is_real(value: Any) -> bool:
-    """A real number (not a bool, a string or None)."""
-    return isinstance(value, (numbers.Real, np.floating, np.integer)) and not isinstance(
-        value, (bool, np.bool_)
-    )
+def _action_changing_layers(env: gym.Env) -> list[str]:
+    """Names of the wrappers between ``env`` and its unwrapped env that change the action: an
+    ``ActionWrapper`` (``RescaleAction``, ``ClipAction``, ...) or a different action space."""
+    found = []
+    layer, base = env, env.unwrapped
+    while isinstance(layer, gym.Wrapper):
+        if isinstance(layer, gym.ActionWrapper) or layer.action_space != base.action_space:
+            found.append(type(layer).__name__)
+        layer = layer.env
+    return found
 
 
 class ViolationPenalty(gym.Wrapper):
@@ -32,7 +37,8 @@ class ViolationPenalty(gym.Wrapper):
     env : gymnasium.Env
         An environment that reports ``info["cost"]`` (any SDJLS environment does).
     beta : float
-        Penalty per violating step, finite and >= 0.
+        Penalty per violating step, a finite number >= 0 (``TypeError`` for a bool or a string,
+        ``ValueError`` for a negative, NaN or infinite value, or an int beyond float64).
     """
 
     def __init__(self, env: gym.Env, beta: float) -> None:
@@ -45,9 +51,7 @@ class ViolationPenalty(gym.Wrapper):
 
     @beta.setter
     def beta(self, value: float) -> None:
-        if not (_is_real(value) and np.isfinite(value) and value >= 0):
-            raise ValueError(f"beta = {value!r}; expected a finite penalty >= 0")
-        self._beta = float(value)
+        self._beta = check_number("beta", value, low=0.0, what="penalty per violating step")
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
@@ -58,14 +62,29 @@ class ViolationPenalty(gym.Wrapper):
 class ResidualAction(gym.ActionWrapper):
     """Act on the offset ``nu``: the applied input is ``u = K_theta x + nu`` (eq. 9 of the paper).
 
+    ``u`` is in the units of the raw environment's action, so ``ResidualAction`` must sit
+    directly on the raw environment (``gym.make`` output is fine: its ``TimeLimit``,
+    ``OrderEnforcing`` and checker wrappers leave actions alone). Rescale on top of it, e.g.
+    ``RescaleAction(ResidualAction(env, K), -1.0, 1.0)``.
+
     Parameters
     ----------
     env : gymnasium.Env
-        An SDJLS environment (possibly wrapped; its ``unwrapped`` must be an ``SDJLSEnv``).
+        An SDJLS environment (possibly wrapped; its ``unwrapped`` must be an ``SDJLSEnv``),
+        without wrappers that change the action below this one.
     K : (N, m, n) array
         State-feedback gains, e.g. from ``controllers.synthesize_gains``.
     nu_bound : float
-        The new action space is ``Box(-nu_bound, nu_bound, (m,))``.
+        The new action space is ``Box(-nu_bound, nu_bound, (m,))`` (a normal float32 number).
+
+    Raises
+    ------
+    TypeError
+        ``env`` is not an SDJLS environment, or ``K`` / ``nu_bound`` are not numbers.
+    ValueError
+        A wrapper between ``env`` and the raw environment changes the action (an
+        ``ActionWrapper`` such as ``RescaleAction`` or ``ClipAction``, or another action space),
+        or ``K`` / ``nu_bound`` are malformed.
 
     Notes
     -----
@@ -79,20 +98,19 @@ class ResidualAction(gym.ActionWrapper):
             raise TypeError(
                 f"ResidualAction needs an SDJLSEnv underneath, got {type(base).__name__}"
             )
-        model = base.model
-        try:
-            K = np.asarray(K, dtype=np.float64)
-        except (TypeError, ValueError):
+        changers = _action_changing_layers(env)
+        if changers:
             raise ValueError(
-                f"K = {K!r:.60}; expected an ({model.N}, {model.m}, {model.n}) array of gains"
-            ) from None
-        if K.shape != (model.N, model.m, model.n):
-            raise ValueError(f"K has shape {K.shape}; expected ({model.N}, {model.m}, {model.n})")
-        if not np.all(np.isfinite(K)):
-            raise ValueError("K contains NaN or inf; expected finite gains")
-        if not (_is_real(nu_bound) and np.isfinite(nu_bound) and nu_bound > 0):
-            raise ValueError(f"nu_bound = {nu_bound!r}; expected a finite positive float")
-        self.K = K
+                f"ResidualAction must wrap the SDJLS environment directly: {', '.join(changers)} "
+                "between them changes the action, so u = K x + nu would not be applied in units "
+                "of u; put ResidualAction on the raw env and rescale on top of it, e.g. "
+                "RescaleAction(ResidualAction(env, K), -1.0, 1.0)"
+            )
+        model = base.model
+        self.K = check_array(
+            "K", K, shape=(model.N, model.m, model.n), what="the gains K_i, one m x n per mode"
+        )
+        nu_bound = check_float32_bound("nu_bound", nu_bound, what="bound on |nu_i|")
         bound = np.full(model.m, nu_bound, dtype=np.float32)
         self.action_space = spaces.Box(-bound, bound, dtype=np.float32)
 

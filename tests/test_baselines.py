@@ -152,7 +152,10 @@ def test_too_few_iterations_raises():
         ({"transition": "markov"}, r"transition = 'markov' is not known"),
         ({"transition": np.eye(2)}, r"transition has shape \(2, 2\); expected \(3, 3\)"),
         ({"transition": np.full((3, 3), 0.3)}, r"transition row 0 sums to 0\.9"),
-        ({"transition": -np.eye(3)}, r"transition = .* has a negative entry; expected entries >= 0"),
+        (
+            {"transition": -np.eye(3)},
+            r"transition = .* has a negative entry; expected entries >= 0",
+        ),
         ({"tol": 0.0}, r"tol = 0\.0"),
         ({"max_iter": 0}, r"max_iter = 0 is out of range"),
         ({"horizon": -3}, r"horizon = -3 is out of range"),

@@ -197,7 +197,9 @@ def test_bad_xi_is_rejected(xi):
 
 @pytest.mark.parametrize("xi", ["high", "0.85", True, None])
 def test_xi_that_is_not_a_number_is_a_type_error(xi):
-    with pytest.raises(TypeError, match=r"xi = .* is a(n)? .*; expected a finite number in \(0, 1\)"):
+    with pytest.raises(
+        TypeError, match=r"xi = .* is a(n)? .*; expected a finite number in \(0, 1\)"
+    ):
         tightening(macro(), xi)
 
 
@@ -214,7 +216,9 @@ def test_bad_constraint_is_rejected():
 
 
 def test_model_must_be_a_model():
-    with pytest.raises(TypeError, match=r"model = \{'A': 1\} is a dict; expected an sdjls_gym.SDJLSModel"):
+    with pytest.raises(
+        TypeError, match=r"model = \{'A': 1\} is a dict; expected an sdjls_gym.SDJLSModel"
+    ):
         tightening({"A": 1}, 0.9)
 
 

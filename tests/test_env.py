@@ -18,7 +18,7 @@ from gymnasium.utils.env_checker import check_env as gymnasium_check_env
 from gymnasium.wrappers import RescaleAction
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
-from sdjls_gym import SDJLSEnv, SDJLSModel
+from sdjls_gym import SDJLSEnv, SDJLSModel, SDJLSVectorEnv
 
 # The action space is u_k itself (section 2), so both checkers' advice to normalize it is
 # expected; it is the only warning allowed.
@@ -416,21 +416,29 @@ def test_reset_options_override_x0_and_mode0(paper):
 
 
 @pytest.mark.parametrize(
-    ("options", "message"),
+    ("options", "error", "message"),
     [
-        ({"x0": [1.0, 2.0, 3.0]}, r"x0"),
-        ({"x0": [np.nan, 2.0]}, r"x0"),
-        ({"x0": [np.inf, 2.0]}, r"x0"),
-        ({"mode0": 3}, r"mode0"),
-        ({"mode0": -1}, r"mode0"),
-        ({"mode0": True}, r"mode0"),
-        ({"mode0": 1.0}, r"mode0"),
-        ({"x_0": [1.0, 2.0]}, r"x_0"),
+        ({"x0": [1.0, 2.0, 3.0]}, ValueError, r"^options\['x0'\] has shape \(3,\)"),
+        ({"x0": [np.nan, 2.0]}, ValueError, r"^options\['x0'\] has a non-finite entry nan"),
+        ({"x0": [np.inf, 2.0]}, ValueError, r"^options\['x0'\] has a non-finite entry inf"),
+        ({"x0": [2e6, 2.0]}, ValueError, r"^options\['x0'\] has an entry 2e\+06"),
+        ({"x0": ["1", 2.0]}, TypeError, r"^options\['x0'\] = .* has str entries"),
+        ({"mode0": 3}, ValueError, r"^options\['mode0'\] = 3 is out of range"),
+        ({"mode0": -1}, ValueError, r"^options\['mode0'\] = -1 is out of range"),
+        ({"mode0": 2**70}, ValueError, r"^options\['mode0'\] = 1180591620717411303424 is out"),
+        ({"mode0": np.uint64(2**64 - 1)}, ValueError, r"^options\['mode0'\] = .* is out of range"),
+        ({"mode0": True}, TypeError, r"^options\['mode0'\] = True is a bool"),
+        ({"mode0": 1.0}, TypeError, r"^options\['mode0'\] = 1\.0 is a float"),
+        ({"x_0": [1.0, 2.0]}, ValueError, r"^options has unknown keys \['x_0'\]"),
+        ([1, 2], TypeError, r"^options = \[1, 2\] is a list; expected a dict"),
+        ("x0", TypeError, r"^options = 'x0' is a str; expected a dict"),
     ],
 )
-def test_bad_reset_options_raise(options, message):
+def test_bad_reset_options_raise(options, error, message):
+    """Every reset option is checked by the one validation module, with messages that name the
+    option; a huge Python int or the largest uint64 is out of range, not wrapped."""
     env = gym.make("SDJLS-Macro-v0")
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(error, match=message):
         env.reset(seed=0, options=options)
 
 
@@ -521,3 +529,271 @@ def test_render_leaves_the_matplotlib_backend_alone():
         assert matplotlib.get_backend() == "svg"
     finally:
         plt.switch_backend(original)
+
+
+# --------------------------------------------------------------------------- non-finite states
+
+
+def _blowup_model(A, Q=None, x0=(1e6, 1e6)):
+    """One mode, n = 2, W = 0: x_1 = A x_0 exactly (no noise), with entries near 1e303."""
+    return SDJLSModel(
+        A=[A], B=[[0.0], [1.0]], P_in=[[1.0]], P_out=[[1.0]], G=[[0.0, 1.0]], H0=[1e9],
+        Q=np.eye(2) if Q is None else Q, R=[[1.0]], x0=list(x0), W=np.zeros((2, 2)),
+    )  # fmt: skip
+
+
+# x_0 = [1e6, 1e6]: A x_0 is NaN (1e309 - 1e309), inf (1e309), or the stage cost x_0' Q x_0
+# = 2e312 overflows while the next state 0 is fine
+BLOWUPS = {
+    "nan-state": (_blowup_model([[1e303, -1e303], [1e303, -1e303]]), -2e12),
+    "inf-state": (_blowup_model([[1e303, 0.0], [0.0, 1e303]]), -2e12),
+    "cost-overflow": (
+        _blowup_model(np.zeros((2, 2)), Q=1e300 * np.eye(2)),
+        -1.7976931348623157e308,
+    ),
+    # Q x_0 = [inf, inf] with x_0 = [0, 1e10]: x_0' Q x_0 is inf * 0 + inf = NaN
+    "cost-nan": (
+        _blowup_model(np.zeros((2, 2)), Q=1e300 * np.ones((2, 2)), x0=(0.0, 1e10)),
+        -1.7976931348623157e308,
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(BLOWUPS))
+def test_non_finite_state_or_cost_terminates_as_diverged_in_both_envs(case):
+    """A step to a NaN or inf state, or with a stage cost beyond float64, ends the episode as
+    diverged in the single and in the vector env alike: ``terminated``, ``info["diverged"]``,
+    the same finite reward (minus the pre-step stage cost, or minus the largest float when that
+    overflowed) and an observation inside the observation space. No numpy warning either
+    (RuntimeWarnings are errors in this suite)."""
+    model, reward = BLOWUPS[case]
+    env = SDJLSEnv(model, horizon=5, divergence_bound=1e30)
+    env.reset(seed=0)
+    obs, r, terminated, truncated, info = env.step(np.zeros(1, np.float32))
+    assert (terminated, truncated, info["diverged"]) == (True, False, True)
+    assert isinstance(r, float) and np.isfinite(r) and r == reward
+    assert info["stage_cost"] == -r
+    assert env.observation_space.contains(obs) and np.all(np.isfinite(obs))
+    assert info["cost"] == float(not info["in_region"])
+
+    envs = SDJLSVectorEnv(3, model=model, horizon=5, divergence_bound=1e30)
+    envs.reset(seed=0)
+    obs_v, r_v, term_v, trunc_v, infos = envs.step(np.zeros((3, 1)))
+    assert term_v.all() and not trunc_v.any() and infos["diverged"].all()
+    np.testing.assert_array_equal(r_v, np.full(3, reward))
+    assert envs.observation_space.contains(obs_v) and np.all(np.isfinite(obs_v))
+    np.testing.assert_array_equal(obs_v[0], obs)  # the same picture of the diverged state
+    # the next vector step restarts those rows from x0
+    _, r_v, term_v, _, infos = envs.step(np.zeros((3, 1)))
+    assert not term_v.any() and np.all(r_v == 0.0) and np.all(infos["k"] == 0)
+
+
+def test_nan_state_counts_every_row_as_violated():
+    model, _ = BLOWUPS["nan-state"]
+    env = SDJLSEnv(model, horizon=5, divergence_bound=1e30)
+    env.reset(seed=0)
+    *_, info = env.step(np.zeros(1, np.float32))
+    assert np.isnan(info["state"]).all() and np.isnan(info["constraint_values"]).all()
+    assert info["violations"].tolist() == [True]
+    assert info["in_region"] is False and info["cost"] == 1.0
+
+
+# --------------------------------------------------------------------------- after the end
+
+
+def test_step_after_truncation_raises_until_reset(other_model):
+    """Gymnasium's convention: after ``truncated`` (or ``terminated``) the next ``step()`` raises
+    ``ResetNeeded`` (also a RuntimeError), telling to call ``reset()``; until then every
+    observation is inside the observation space, ``k / horizon`` at most 1."""
+    from gymnasium.error import ResetNeeded
+
+    from sdjls_gym.env import ResetNeededError
+
+    for env in (gym.make("SDJLS-v0", model=other_model, horizon=3), SDJLSEnv(other_model, 3)):
+        for _ in range(2):  # and again after a reset
+            obs, _ = env.reset(seed=1)
+            truncated = False
+            while not truncated:
+                obs, _, terminated, truncated, _ = env.step(np.zeros(2, np.float32))
+                assert env.observation_space.contains(obs)
+            assert obs[-1] == 1.0
+            with pytest.raises(ResetNeeded, match=r"truncated at k = 3 = horizon.*call reset\(\)"):
+                env.step(np.zeros(2, np.float32))
+            with pytest.raises(RuntimeError, match="reset"):
+                env.step(np.zeros(2, np.float32))
+    assert issubclass(ResetNeededError, ResetNeeded) and issubclass(ResetNeededError, RuntimeError)
+
+
+def test_step_after_termination_raises_until_reset():
+    model, _ = BLOWUPS["inf-state"]
+    env = SDJLSEnv(model, horizon=5, divergence_bound=1e30)
+    env.reset(seed=0)
+    assert env.step(np.zeros(1, np.float32))[2] is True
+    with pytest.raises(RuntimeError, match=r"terminated: diverged at k = 1.*call reset\(\)"):
+        env.step(np.zeros(1, np.float32))
+    env.reset()
+    assert env.step(np.zeros(1, np.float32))[2] is True
+
+
+# --------------------------------------------------------------------------- horizon and spec
+
+
+# the paper's gains (typed in conftest), to keep the macro example from diverging
+_K = np.array([[[2.5, -3.2]], [[4.3, -4.5]], [[-5.3, 5.2]]])
+
+
+def _episode_length(env):
+    """Steps until the end under u = K_theta x, and the last observation."""
+    _, info = env.reset(seed=0)
+    steps, done = 0, False
+    while not done:
+        u = (_K[info["mode"]] @ info["state"]).astype(np.float32)
+        obs, _, terminated, truncated, info = env.step(u)
+        steps += 1
+        done = terminated or truncated
+    return steps, obs
+
+
+def test_horizon_alone_sets_the_episode_length():
+    """``gym.make("SDJLS-Macro-v0", horizon=40)`` gives 40-step episodes (no second limit from
+    the registration), ``k / horizon`` reaches 1 and ``env.spec.max_episode_steps`` says 40."""
+    env = gym.make("SDJLS-Macro-v0", horizon=40)
+    steps, last_obs = _episode_length(env)
+    assert steps == 40 and last_obs[-1] == 1.0
+    assert env.spec.max_episode_steps == 40
+    assert gym.make("SDJLS-Macro-v0").spec.max_episode_steps == 20
+    # an explicit max_episode_steps still adds its TimeLimit, and the spec says so
+    short = gym.make("SDJLS-Macro-v0", max_episode_steps=10)
+    assert _episode_length(short)[0] == 10 and short.spec.max_episode_steps == 10
+    # the same through make_vec, in every vectorization mode
+    for mode in ("vector_entry_point", "sync"):
+        envs = gym.make_vec("SDJLS-Macro-v0", num_envs=2, vectorization_mode=mode, horizon=40)
+        _, infos = envs.reset(seed=0)
+        for k in range(1, 41):
+            u = np.einsum("bij,bj->bi", _K[infos["mode"]], infos["state"]).astype(np.float32)
+            _, _, terminated, truncated, infos = envs.step(u)
+            assert truncated.all() == (k == 40) and not terminated.any(), (mode, k)
+        envs.close()
+    envs = gym.make_vec("SDJLS-Macro-v0", num_envs=2, vectorization_mode="vector_entry_point")
+    assert envs.spec.max_episode_steps == 20
+
+
+def test_made_env_with_a_longer_horizon_pickles_and_passes_the_checkers():
+    env = gym.make("SDJLS-Macro-v0", horizon=40)
+    clone = pickle.loads(pickle.dumps(env))
+    assert clone.spec.max_episode_steps == 40 and clone.unwrapped.horizon == 40
+    assert _episode_length(clone)[0] == 40
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        gymnasium_check_env(env.unwrapped)
+        sb3_check_env(env)
+    assert all(ALLOWED.search(m) for m in _messages(record)), _messages(record)
+
+
+def test_sdjls_v0_without_a_model_says_what_to_pass():
+    for make in (
+        lambda: gym.make("SDJLS-v0"),
+        lambda: gym.make_vec("SDJLS-v0", num_envs=2, vectorization_mode="vector_entry_point"),
+        lambda: SDJLSEnv(),
+        lambda: SDJLSVectorEnv(2),
+    ):
+        with pytest.raises(TypeError, match=r"model is missing; pass an SDJLSModel, a preset name"):
+            make()
+
+
+def test_spec_with_a_model_object_is_json_and_remakes_the_same_env(other_model):
+    """``SDJLS-v0`` made with an ``SDJLSModel`` keeps the model in its spec as ``to_dict()``:
+    ``env.spec.to_json()`` works and ``gym.make(env.spec)`` (or the spec read back from JSON)
+    builds the same environment."""
+    from gymnasium.envs.registration import EnvSpec
+
+    env = gym.make("SDJLS-v0", model=other_model, horizon=7, action_bound=np.array([3.0, 4.0]))
+    text = env.spec.to_json()
+    for spec in (env.spec, EnvSpec.from_json(text)):
+        again = gym.make(spec)
+        assert again.unwrapped.model == other_model
+        assert again.unwrapped.horizon == 7 and again.spec.max_episode_steps == 7
+        assert again.action_space == env.action_space
+        a = _episode(env, lambda info: np.ones(2, np.float32), seed=3)
+        b = _episode(again, lambda info: np.ones(2, np.float32), seed=3)
+        _assert_same_episode(a, b)
+    envs = gym.make_vec(
+        "SDJLS-v0", num_envs=2, vectorization_mode="vector_entry_point", model=other_model
+    )
+    assert EnvSpec.from_json(envs.spec.to_json()).kwargs["model"] == other_model.to_dict()
+    # a model given as a dict of numpy arrays is stored as plain lists too
+    arrays = {
+        key: np.asarray(value) if key not in ("mode_names", "state_names") else value
+        for key, value in other_model.to_dict().items()
+    }
+    env = gym.make("SDJLS-v0", model=arrays, horizon=7)
+    assert gym.make(EnvSpec.from_json(env.spec.to_json())).unwrapped.model == other_model
+
+
+def test_the_ids_can_be_made_without_importing_the_package():
+    """``gym.make("sdjls_gym:SDJLS-Macro-v0")`` imports the package itself (a fresh process)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = (
+        "import sys, gymnasium as gym\n"
+        "assert 'sdjls_gym' not in sys.modules\n"
+        "env = gym.make('sdjls_gym:SDJLS-Macro-v0')\n"
+        "print(env.unwrapped.horizon, env.reset(seed=0)[0].shape)\n"
+    )
+    root = str(Path(__file__).resolve().parents[1])
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=root
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["20", "(6,)"]
+
+
+# --------------------------------------------------------------------------- arguments
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "message"),
+    [
+        ({"horizon": 2.0}, TypeError, r"^horizon = 2\.0 is a float; expected an int >= 1"),
+        ({"horizon": True}, TypeError, r"^horizon = True is a bool"),
+        ({"horizon": 0}, ValueError, r"^horizon = 0 is out of range"),
+        ({"horizon": 2**70}, ValueError, r"^horizon = 1180591620717411303424 is too large"),
+        ({"horizon": np.uint64(2**64 - 1)}, ValueError, r"^horizon = .* is too large"),
+        ({"divergence_bound": True}, TypeError, r"^divergence_bound = True is a bool"),
+        ({"divergence_bound": "1e6"}, TypeError, r"^divergence_bound = '1e6' is a str"),
+        ({"divergence_bound": 1e31}, ValueError, r"^divergence_bound = 1e\+31 is out of range"),
+        ({"divergence_bound": 1.0}, ValueError, r"^the model's x0 = .* beyond divergence_bound"),
+        (
+            {"action_bound": 1e300},
+            ValueError,
+            r"^action_bound = 1e\+300 does not fit in float32; expected a number in "
+            r"\[1\.17549e-38, 3\.40282e\+38\]",
+        ),
+        ({"action_bound": 1e-300}, ValueError, r"^action_bound = 1e-300 does not fit in float32"),
+        ({"action_bound": 1e-40}, ValueError, r"^action_bound = 1e-40 does not fit in float32"),
+        ({"action_bound": 10**400}, ValueError, r"^action_bound = 1000.* is not finite"),
+        ({"action_bound": [1e39]}, ValueError, r"^action_bound\[0\] = 1e\+39 does not fit"),
+        ({"action_bound": [0.0]}, ValueError, r"^action_bound\[0\] = 0 is not positive"),
+        ({"action_bound": True}, TypeError, r"^action_bound = True is a bool"),
+        ({"action_bound": "big"}, TypeError, r"^action_bound = 'big' is a str"),
+    ],
+)
+def test_bad_constructor_arguments(kwargs, error, message):
+    """One rule per kind of argument: a float horizon is a TypeError like the controllers', a
+    bool is never a number, and bounds that the float32 spaces cannot hold are rejected (a Box
+    of +-inf or of zeros) with the float32 limits in the message."""
+    with pytest.raises(error, match=message):
+        SDJLSEnv("macro", **kwargs)
+
+
+@pytest.mark.parametrize("bound", [float(np.finfo(np.float32).max), 1.2e-38, 1e30])
+def test_action_bounds_at_the_float32_limits_give_finite_nonzero_boxes(bound):
+    env = SDJLSEnv("macro", action_bound=bound)
+    high = env.action_space.high
+    assert np.all(np.isfinite(high)) and np.all(high > 0) and high[0] == np.float32(bound)
+    env.reset(seed=0)
+    action = np.array([1e30], np.float32)
+    *_, info = env.step(action)
+    assert info["u"][0] == min(float(action[0]), float(np.float32(bound)))

@@ -26,6 +26,7 @@ import gymnasium as gym
 import numpy as np
 import osqp
 import pytest
+from gymnasium.error import ResetNeeded
 
 from controllers import (
     LinearFeedbackController,
@@ -40,7 +41,14 @@ from controllers import (
     tightening,
     verify_mean_square_bound,
 )
-from sdjls_gym import InvalidModelError, SDJLSEnv, SDJLSModel, SDJLSVectorEnv, load_model
+from sdjls_gym import (
+    InvalidModelError,
+    InvalidModelTypeError,
+    SDJLSEnv,
+    SDJLSModel,
+    SDJLSVectorEnv,
+    load_model,
+)
 from sdjls_gym import save_model as _save_model
 from sdjls_gym.systems.macro import PAPER_K, PAPER_RHC, PAPER_X, PAPER_Y, macro
 from sdjls_gym.wrappers import ResidualAction, ViolationPenalty
@@ -68,10 +76,34 @@ def env_step(action):
     return env.step(action)
 
 
+def env_step_after_the_end():
+    env = gym.make("SDJLS-v0", model="macro", horizon=1)
+    env.reset(seed=0)
+    env.step(np.zeros(1, np.float32))
+    return env.step(np.zeros(1, np.float32))
+
+
+def nested(depth, leaf=0.0):
+    value = leaf
+    for _ in range(depth):
+        value = [value]
+    return value
+
+
 def vec_step(actions, num_envs=2):
     envs = SDJLSVectorEnv(num_envs, model="macro")
     envs.reset(seed=0)
     return envs.step(actions)
+
+
+def deep_file(ctx, name):
+    """The paper's example saved, with H0 nested 100,000 levels deep (beyond Python's parsers)."""
+    path = Path(ctx.tmp_path) / name
+    _save_model(SDJLSModel(**ctx.kw), path)
+    deep = "[" * 100_000 + "1.0" + "]" * 100_000
+    key = '"H0": [' if path.suffix == ".json" else "H0 = ["
+    path.write_text(path.read_text().replace(key, f"{key}{deep}, ", 1), encoding="utf-8")
+    return load_model(path)
 
 
 def poke(value, bad):
@@ -117,6 +149,7 @@ def case(call, error, match, id, bug=None):
 
 
 M = InvalidModelError
+T = InvalidModelTypeError  # both an InvalidModelError and a TypeError
 ARRAY_FIELDS = ["A", "B", "E", "W", "P_in", "P_out", "G", "H0", "H_rate", "Q", "R", "x0", "mode0"]
 
 # ------------------------------------------------------------------------------------ the table
@@ -124,9 +157,21 @@ CASES = [
     # ---- model: shapes and mismatched dimensions
     case(lambda c: model(c, A=np.zeros((3, 2, 3))), M, r"^A has shape \(3, 2, 3\)", "A-not-square"),
     case(
-        lambda c: model(c, A=np.eye(2)), M, r"^A has shape \(2, 2\); expected \(N, n, n\)", "A-2d"
+        lambda c: model(c, A=np.ones((2, 3))),
+        M,
+        r"^A has shape \(2, 3\); expected \(N, n, n\).* or \(n, n\)",
+        "A-2d",
     ),
-    case(lambda c: model(c, A=[[[0, 1], [2]]] * 3), M, r"^A could not be read", "A-ragged"),
+    case(
+        lambda c: model(c, A=np.eye(2), P_in=[0.5, 0.5]),
+        M,
+        r"^P_in has shape \(2,\); expected \(N, N\).*A of shape \(2, 2\) is shared",
+        "A-shared-P_in",
+    ),
+    case(lambda c: model(c, A=[[[0, 1], [2]]] * 3), M, r"^A = .* could not be read", "A-ragged"),
+    case(lambda c: model(c, A=nested(5000)), M, r"^A = .* could not be read", "A-deep"),
+    case(lambda c: model(c, A="abc"), T, r"^A = 'abc' is a str", "A-str"),
+    case(lambda c: model(c, Q=np.eye(2, dtype=bool)), T, r"^Q = .* has bool entries", "Q-bool"),
     case(lambda c: model(c, B=np.ones((3, 1))), M, r"^B has shape \(3, 1\)", "B-rows-vs-n"),
     case(lambda c: model(c, B=np.ones((2, 2, 1))), M, r"^B has shape \(2, 2, 1\)", "B-modes-vs-N"),
     case(lambda c: model(c, E=np.eye(3)), M, r"^E has shape \(3, 3\)", "E-rows-vs-n"),
@@ -217,9 +262,16 @@ CASES = [
     case(
         lambda c: model(c, mode0=3),
         M,
-        r"^mode0 = 3 is out of range; expected an int in \[0, 3\)",
+        r"^mode0 = 3 is out of range; expected an int in \[0, 2\] \(modes are numbered from 0",
         "mode0-N",
     ),
+    case(
+        lambda c: model(c, mode0=2**70), M, r"^mode0 = 1180591620717411303424 is out", "mode0-huge"
+    ),
+    case(
+        lambda c: model(c, mode0=np.uint64(2**64 - 1)), M, r"^mode0 = .* is out of", "mode0-uint64"
+    ),
+    case(lambda c: model(c, mode0=1.0), T, r"^mode0 = 1\.0 is a float", "mode0-float"),
     case(lambda c: model(c, mode0=-1), M, r"^mode0 = -1 is out of range", "mode0-negative"),
     case(lambda c: model(c, G=None), M, r"^G is missing \(None, or null in a file\)", "G-none"),
     case(
@@ -230,24 +282,44 @@ CASES = [
     ),
     case(
         lambda c: model(c, Q=np.eye(2) * (1 + 1j)),
-        M,
-        r"^Q has complex entries \(dtype complex128\); every entry must be a real number",
+        T,
+        r"^Q = .* has complex entries; expected an array of real numbers",
         "Q-complex",
     ),
-    case(lambda c: model(c, mode0=True), M, r"^mode0 = True", "mode0-bool"),
+    case(lambda c: model(c, mode0=True), T, r"^mode0 = True is a bool", "mode0-bool"),
     case(
         lambda c: model(c, mode0=[0.5, 0.6, -0.1]),
         M,
         r"^mode0 = .* is not a probability vector",
         "mode0-vec",
     ),
-    case(lambda c: model(c, mode_names=("a", "b")), M, r"^mode_names = \('a', 'b'\)", "mode-names"),
+    case(
+        lambda c: model(c, mode_names=("a", "b")),
+        M,
+        r"^mode_names = \('a', 'b'\) has 2 items; expected 3",
+        "mode-names",
+    ),
+    case(
+        lambda c: model(c, mode_names=(name for name in "abc")),
+        T,
+        r"^mode_names = <generator .*> is a generator; expected a list or tuple of 3 str",
+        "mode-names-generator",
+    ),
+    case(
+        lambda c: model(c, state_names=["income"]),
+        M,
+        r"^state_names = \['income'\] has 1 items; expected 2",
+        "state-names",
+    ),
     case(
         lambda c: SDJLSModel.from_dict([1, 2]),
-        M,
+        T,
         r"must be a dict/table, got list",
         "from-dict-list",
     ),
+    case(lambda c: macro().H(2**70), ValueError, r"^k = 1180591620717411303424 is too", "H-k-huge"),
+    case(lambda c: macro().H(np.uint64(2**64 - 1)), ValueError, r"^k = .* is too", "H-k-uint64"),
+    case(lambda c: macro().H(2.0), TypeError, r"^k = 2\.0 is a float", "H-k-float"),
     # ---- model files: malformed syntax names the file, a malformed field names the field
     case(
         lambda c: json_file(c, "broken.json", '{"A": [[[0, 1], [2'),
@@ -317,19 +389,67 @@ CASES = [
         r"no_G\.toml'?: missing model field\(s\) \['G'\]",
         "toml-missing-field",
     ),
+    case(
+        lambda c: deep_file(c, "deep.json"),
+        M,
+        r"deep\.json'? nests lists or tables 100001 levels deep in field 'H0'",
+        "json-deep",
+    ),
+    case(
+        lambda c: deep_file(c, "deep.toml"),
+        M,
+        r"deep\.toml'? nests lists or tables 100001 levels deep in field 'H0'",
+        "toml-deep",
+    ),
+    case(
+        lambda c: _save_model(c.kw, Path(c.tmp_path) / "m.toml"),
+        TypeError,
+        r"^model = \{.* is a dict; expected an SDJLSModel \(SDJLSModel\.from_dict",
+        "save-dict",
+    ),
+    case(lambda c: _save_model(macro(), 3), TypeError, r"^path = 3 is an int", "save-path"),
     # ---- environment: construction and reset
     case(
         lambda c: SDJLSEnv(3),
         TypeError,
-        r"model must be an SDJLSModel, a preset name or a dict",
+        r"^model = 3 is an int; expected an SDJLSModel, a preset name or a to_dict\(\) dict",
         "env-model",
     ),
-    case(lambda c: SDJLSEnv("macr0"), ValueError, r"model = 'macr0' is not a preset", "env-preset"),
+    case(
+        lambda c: SDJLSEnv(),  # gym.make("SDJLS-v0") re-raises it with the id appended
+        TypeError,
+        r"^model is missing; pass an SDJLSModel, a preset name \(model='macro'\)",
+        "env-no-model",
+    ),
+    case(
+        lambda c: SDJLSEnv("macr0"),
+        ValueError,
+        r"^model = 'macr0' is not known; expected one of 'macro'",
+        "env-preset",
+    ),
     case(
         lambda c: SDJLSEnv("macro", horizon=0),
         ValueError,
-        r"horizon = 0; expected a positive int",
+        r"^horizon = 0 is out of range; expected an int >= 1",
         "env-horizon",
+    ),
+    case(
+        lambda c: SDJLSEnv("macro", horizon=2.0),
+        TypeError,
+        r"^horizon = 2\.0 is a float; expected an int >= 1",
+        "env-horizon-float",
+    ),
+    case(
+        lambda c: SDJLSEnv("macro", horizon=2**70),
+        ValueError,
+        r"^horizon = 1180591620717411303424 is too large",
+        "env-horizon-huge",
+    ),
+    case(
+        lambda c: SDJLSEnv("macro", divergence_bound=True),
+        TypeError,
+        r"^divergence_bound = True is a bool",
+        "env-div-bool",
     ),
     case(
         lambda c: SDJLSEnv("macro", divergence_bound=0.0),
@@ -346,8 +466,21 @@ CASES = [
     case(
         lambda c: SDJLSEnv("macro", action_bound=0.0),
         ValueError,
-        r"action_bound = 0\.0; expected finite positive",
+        r"^action_bound = 0\.0 is out of range; expected a finite number > 0",
         "env-bound-0",
+    ),
+    case(
+        lambda c: SDJLSEnv("macro", action_bound=1e300),
+        ValueError,
+        r"^action_bound = 1e\+300 does not fit in float32; expected a number in \[1\.17549e-38, "
+        r"3\.40282e\+38\]",
+        "env-bound-float32",
+    ),
+    case(
+        lambda c: SDJLSEnv("macro", action_bound=1e-300),
+        ValueError,
+        r"^action_bound = 1e-300 does not fit in float32",
+        "env-bound-subnormal",
     ),
     case(
         lambda c: SDJLSEnv("macro", action_bound=nan),
@@ -363,15 +496,33 @@ CASES = [
     ),
     case(
         lambda c: SDJLSEnv("macro", action_bound="big"),
-        ValueError,
-        r"action_bound",
+        TypeError,
+        r"^action_bound = 'big' is a str",
         "env-bound-string",
     ),
     case(
         lambda c: SDJLSEnv("macro").reset(options={"x0": [1.0]}),
         ValueError,
-        r"options\['x0'\] = \[1\.0\]; expected 2 finite",
+        r"^options\['x0'\] has shape \(1,\); expected \(2,\)",
         "reset-x0",
+    ),
+    case(
+        lambda c: SDJLSEnv("macro").reset(options=[1, 2]),
+        TypeError,
+        r"^options = \[1, 2\] is a list; expected a dict with keys among \['mode0', 'x0'\]",
+        "reset-options-list",
+    ),
+    case(
+        lambda c: SDJLSEnv("macro").reset(options={"mode0": np.uint64(2**64 - 1)}),
+        ValueError,
+        r"^options\['mode0'\] = .* is out of range; expected an int in \[0, 2\]",
+        "reset-mode0-uint64",
+    ),
+    case(
+        lambda c: SDJLSEnv("macro").reset(options={"mode0": True}),
+        TypeError,
+        r"^options\['mode0'\] = True is a bool",
+        "reset-mode0-bool",
     ),
     case(
         lambda c: SDJLSEnv("macro").reset(options={"x0": [nan, 1.0]}),
@@ -434,18 +585,36 @@ CASES = [
         r"action = None; expected the input u_k, 1 finite number\(s\)",
         "step-none",
     ),
+    case(
+        lambda c: env_step_after_the_end(),
+        ResetNeeded,
+        r"^step\(\) called after the episode ended \(truncated at k = 1 = horizon\); call reset",
+        "step-after-end",
+    ),
     # ---- vector environment
     case(
-        lambda c: SDJLSVectorEnv(0),
+        lambda c: SDJLSVectorEnv(0, model="macro"),
         ValueError,
-        r"num_envs = 0; expected a positive int",
+        r"^num_envs = 0 is out of range; expected an int >= 1",
         "vec-num-envs",
     ),
     case(
-        lambda c: SDJLSVectorEnv(2, max_episode_steps=0),
+        lambda c: SDJLSVectorEnv(2, model="macro", max_episode_steps=0),
         ValueError,
-        r"max_episode_steps = 0",
+        r"^max_episode_steps = 0 is out of range",
         "vec-max-steps",
+    ),
+    case(
+        lambda c: SDJLSVectorEnv(2, model="macro", horizon=2.0),
+        TypeError,
+        r"^horizon = 2\.0 is a float",
+        "vec-horizon-float",
+    ),
+    case(
+        lambda c: SDJLSVectorEnv(2),
+        TypeError,
+        r"^model is missing; pass an SDJLSModel",
+        "vec-no-model",
     ),
     case(
         lambda c: vec_step(np.zeros((3, 1), np.float32)),
@@ -472,9 +641,9 @@ CASES = [
         "vec-string",
     ),
     case(
-        lambda c: SDJLSVectorEnv(2).reset(options={"mode0": 5}),
+        lambda c: SDJLSVectorEnv(2, model="macro").reset(options={"mode0": 5}),
         ValueError,
-        r"options\['mode0'\] = 5",
+        r"^options\['mode0'\] = 5 is out of range",
         "vec-reset",
     ),
     # ---- wrappers
@@ -486,9 +655,21 @@ CASES = [
     ),
     case(
         lambda c: ViolationPenalty(gym.make("SDJLS-Macro-v0"), "high"),
-        (TypeError, ValueError),
-        r"beta",
+        TypeError,
+        r"^beta = 'high' is a str",
         "penalty-beta-string",
+    ),
+    case(
+        lambda c: ViolationPenalty(gym.make("SDJLS-Macro-v0"), 10**400),
+        ValueError,
+        r"^beta = 1000.* is not finite; expected a finite number >= 0",
+        "penalty-beta-huge-int",
+    ),
+    case(
+        lambda c: ViolationPenalty(gym.make("SDJLS-Macro-v0"), True),
+        TypeError,
+        r"^beta = True is a bool",
+        "penalty-beta-bool",
     ),
     case(
         lambda c: ResidualAction(gym.make("SDJLS-Macro-v0"), PAPER_K[0]),
@@ -504,9 +685,24 @@ CASES = [
     ),
     case(
         lambda c: ResidualAction(gym.make("SDJLS-Macro-v0"), PAPER_K, nu_bound="big"),
-        (TypeError, ValueError),
-        r"nu_bound",
+        TypeError,
+        r"^nu_bound = 'big' is a str",
         "residual-nu-string",
+    ),
+    case(
+        lambda c: ResidualAction(gym.make("SDJLS-Macro-v0"), PAPER_K, nu_bound=1e39),
+        ValueError,
+        r"^nu_bound = 1e\+39 does not fit in float32",
+        "residual-nu-float32",
+    ),
+    case(
+        lambda c: ResidualAction(
+            gym.wrappers.RescaleAction(gym.make("SDJLS-Macro-v0"), np.float32(-1), np.float32(1)),
+            PAPER_K,
+        ),
+        ValueError,
+        r"^ResidualAction must wrap the SDJLS environment directly: RescaleAction",
+        "residual-over-rescale",
     ),
     # ---- receding-horizon controller: construction
     case(
@@ -575,10 +771,13 @@ CASES = [
     case(lambda c: rhc(alpha=0.0), ValueError, r"alpha = 0\.0 is out of range; .*\(0, ", "alpha-0"),
     case(lambda c: rhc(alpha=-5.0), ValueError, r"alpha = -5\.0 is out of range", "alpha-negative"),
     case(lambda c: rhc(alpha=inf), ValueError, r"alpha = inf is not finite", "alpha-inf"),
+    case(lambda c: rhc(nu_bound=0.0), ValueError, r"nu_bound = 0\.0 is out of range", "nu-bound-0"),
     case(
-        lambda c: rhc(nu_bound=0.0), ValueError, r"nu_bound = 0\.0 is out of range", "nu-bound-0"
+        lambda c: rhc(nu_bound=-1.0),
+        ValueError,
+        r"nu_bound = -1\.0 is out of range",
+        "nu-bound-neg",
     ),
-    case(lambda c: rhc(nu_bound=-1.0), ValueError, r"nu_bound = -1\.0 is out of range", "nu-bound-neg"),
     case(
         lambda c: rhc(Psi=np.array([np.eye(2), -np.eye(2), np.eye(2)])),
         ValueError,
@@ -636,9 +835,7 @@ CASES = [
         r"osqp_settings = .* were rejected by OSQP",
         "osqp-name",
     ),
-    case(
-        lambda c: rhc(osqp_settings=3), TypeError, r"osqp_settings = 3 is an int", "osqp-type"
-    ),
+    case(lambda c: rhc(osqp_settings=3), TypeError, r"osqp_settings = 3 is an int", "osqp-type"),
     case(
         lambda c: rhc(cvxpy_fallback="yes"),
         TypeError,
@@ -690,7 +887,9 @@ CASES = [
         "act-k-uint64-max",
     ),
     case(
-        lambda c: rhc().act_batch(np.zeros((2, 2)), np.zeros(2, int), np.full(2, 2**64 - 1, np.uint64)),
+        lambda c: rhc().act_batch(
+            np.zeros((2, 2)), np.zeros(2, int), np.full(2, 2**64 - 1, np.uint64)
+        ),
         ValueError,
         r"k = np\.uint64\(18446744073709551615\) is out of range",
         "batch-k-uint64-max",

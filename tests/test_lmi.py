@@ -398,7 +398,9 @@ def test_bad_solver(model: SDJLSModel) -> None:
 
 
 def test_not_a_model() -> None:
-    with pytest.raises(TypeError, match=r"model = \{\} is a dict; expected an sdjls_gym.SDJLSModel"):
+    with pytest.raises(
+        TypeError, match=r"model = \{\} is a dict; expected an sdjls_gym.SDJLSModel"
+    ):
         synthesize_gains({})
     with pytest.raises(TypeError, match="SDJLSModel"):
         verify_mean_square_bound(None, PAPER_K)

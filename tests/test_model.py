@@ -107,7 +107,11 @@ _NON_FINITE = [
 _BAD_MODELS = [
     # shapes and dimensions
     pytest.param({"A": np.zeros((3, 2, 3))}, r"^A has shape \(3, 2, 3\)", id="A-not-square"),
-    pytest.param({"A": np.eye(2)}, r"^A has shape \(2, 2\)", id="A-no-mode-axis"),
+    pytest.param({"A": np.ones((2, 3))}, r"^A has shape \(2, 3\)", id="A-2d-not-square"),
+    pytest.param({"A": np.ones(2)}, r"^A has shape \(2,\)", id="A-1d"),
+    pytest.param(
+        {"A": np.eye(2), "P_in": np.ones(3) / 3}, r"^P_in has shape \(3,\)", id="A-shared-P_in-1d"
+    ),
     pytest.param({"B": [[0.0], [1.0], [0.0]]}, r"^B has shape \(3, 1\)", id="B-rows"),
     pytest.param({"B": np.ones((2, 2, 1))}, r"^B has shape \(2, 2, 1\)", id="B-modes"),
     pytest.param({"E": np.eye(3)}, r"^E has shape \(3, 3\)", id="E-rows"),
@@ -124,7 +128,8 @@ _BAD_MODELS = [
     pytest.param({"Q": np.array([np.eye(2)] * 2)}, r"^Q has shape \(2, 2, 2\)", id="Q-modes"),
     pytest.param({"R": np.eye(2)}, r"^R has shape \(2, 2\)", id="R-shape"),
     pytest.param({"x0": [2.0, 2.0, 2.0]}, r"^x0 has shape \(3,\)", id="x0-length"),
-    pytest.param({"A": "abc"}, r"^A could not be read", id="A-not-numbers"),
+    pytest.param({"A": "abc"}, r"^A = 'abc' is a str", id="A-not-numbers"),
+    pytest.param({"A": [[[0, 1], [2]]] * 3}, r"^A = .* could not be read", id="A-ragged"),
     # transition matrices
     pytest.param(
         {"P_in": [[1.2, -0.2, 0.0], [0.25, 0.55, 0.2], [0.35, 0.15, 0.5]]},
@@ -172,10 +177,12 @@ _BAD_MODELS = [
     # initial mode
     pytest.param({"mode0": 3}, r"^mode0 = 3 is out of range", id="mode0-N"),
     pytest.param({"mode0": -1}, r"^mode0 = -1 is out of range", id="mode0-minus-1"),
-    pytest.param({"mode0": np.int64(7)}, r"^mode0 = 7 is out of range", id="mode0-np-int"),
+    pytest.param(
+        {"mode0": np.int64(7)}, r"^mode0 = (np\.int64\()?7\)? is out of range", id="mode0-np-int"
+    ),
     pytest.param({"mode0": True}, r"^mode0 = True", id="mode0-bool"),
     pytest.param({"mode0": np.bool_(False)}, r"^mode0 = (np\.)?False", id="mode0-np-bool"),
-    pytest.param({"mode0": 1.0}, r"^mode0 has shape \(\)", id="mode0-float"),
+    pytest.param({"mode0": 1.0}, r"^mode0 = 1\.0 is a float", id="mode0-float"),
     pytest.param(
         {"mode0": [0.5, 0.6, -0.1]}, r"^mode0 = .* is not a probability vector", id="mode0-neg"
     ),
@@ -584,3 +591,273 @@ def test_sample_next_mode_is_next_mode_with_the_generator_uniforms():
     assert np.array_equal(drawn, replayed)
     with pytest.raises(TypeError, match="expected a numpy.random.Generator"):
         model.sample_next_mode(x, modes, k, 5)
+
+
+# --------------------------------------------------------------------------- one rule per kind
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        pytest.param({"A": "abc"}, r"^A = 'abc' is a str", id="A-str"),
+        pytest.param(
+            {"Q": [[True, False], [False, True]]}, r"^Q = .* has bool entries", id="Q-bool"
+        ),
+        pytest.param({"x0": [2.0, None]}, r"^x0 has a missing entry", id="x0-none-entry"),
+        pytest.param({"mode0": True}, r"^mode0 = True is a bool", id="mode0-bool"),
+        pytest.param({"mode0": "0"}, r"^mode0 = '0' is a str", id="mode0-str"),
+        pytest.param(
+            {"mode_names": (s for s in ("a", "b", "c"))},
+            r"^mode_names = <generator .*> is a generator; expected a list or tuple of 3 str",
+            id="mode-names-generator",
+        ),
+        pytest.param(
+            {"mode_names": ("a", 2, "c")}, r"^mode_names\[1\] = 2 is an int", id="names-int"
+        ),
+        pytest.param({"state_names": {"a", "b"}}, r"^state_names = .* is a set", id="state-set"),
+    ],
+)
+def test_type_errors_are_invalid_model_errors_and_type_errors(paper_kwargs, override, message):
+    """A field of the wrong type is an ``InvalidModelTypeError``: a ``TypeError`` and an
+    ``InvalidModelError``, so ``except InvalidModelError`` still catches every model error."""
+    with pytest.raises(sdjls_gym.InvalidModelTypeError, match=message) as excinfo:
+        SDJLSModel(**{**paper_kwargs, **override})
+    assert isinstance(excinfo.value, TypeError)
+    assert isinstance(excinfo.value, InvalidModelError)
+    assert isinstance(excinfo.value, ValueError)
+
+
+@pytest.mark.parametrize(
+    ("mode0", "message"),
+    [(2**70, r"^mode0 = 1180591620717411303424 is out of range"), (np.uint64(2**64 - 1), "mode0")],
+    ids=["huge-int", "uint64-max"],
+)
+def test_huge_mode0_is_out_of_range_not_an_overflow(paper_kwargs, mode0, message):
+    with pytest.raises(InvalidModelError, match=message) as excinfo:
+        SDJLSModel(**{**paper_kwargs, "mode0": mode0})
+    assert not isinstance(excinfo.value, TypeError)
+
+
+# the same matrices times 1e-12, 1 and 1e12 (and 2**-60, exact): same verdict at every scale
+_WEIGHTS = {
+    "pd": np.array([[2.0, 0.5], [0.5, 1.0]]),
+    "psd-singular": np.array([[1.0, 1.0], [1.0, 1.0]]),
+    "indefinite": np.array([[1.0, 2.0], [2.0, 1.0]]),
+    "asymmetric": np.array([[1.0, 0.5], [0.0, 1.0]]),
+}
+_SCALES = [1e-12, 2.0**-60, 1.0, 1e12]
+
+
+@pytest.mark.parametrize("scale", _SCALES)
+def test_weight_checks_are_relative_to_the_scale_of_the_matrix(paper_kwargs, scale):
+    """``R = 1e-12 I`` is positive definite, as ``I`` is; an indefinite or asymmetric matrix is
+    rejected at every scale, a singular PSD one is a valid ``Q`` / ``W`` but not a valid ``R``."""
+    B2 = np.array([[1.0, 0.0], [0.0, 1.0]])  # m = 2, so that R is 2 x 2
+    base = {**paper_kwargs, "B": B2, "R": np.eye(2)}
+    SDJLSModel(**{**base, "R": scale * np.eye(2)})
+    SDJLSModel(**{**base, "R": scale * _WEIGHTS["pd"]})
+    for field_name in ("Q", "W"):
+        SDJLSModel(**{**base, field_name: scale * _WEIGHTS["psd-singular"]})
+        SDJLSModel(**{**base, field_name: scale * _WEIGHTS["pd"]})
+    with pytest.raises(InvalidModelError, match=r"^R\[0\] is not positive definite"):
+        SDJLSModel(**{**base, "R": scale * _WEIGHTS["psd-singular"]})
+    for field_name in ("Q", "R", "W"):
+        with pytest.raises(InvalidModelError, match=rf"^{field_name}\[0\] is not positive"):
+            SDJLSModel(**{**base, field_name: scale * _WEIGHTS["indefinite"]})
+        with pytest.raises(InvalidModelError, match=rf"^{field_name}\[0\] is not symmetric"):
+            SDJLSModel(**{**base, field_name: scale * _WEIGHTS["asymmetric"]})
+
+
+def test_nearly_singular_R_is_rejected_at_every_scale(paper_kwargs):
+    """diag(1, 1e-13): its smallest eigenvalue is below 1e-12 of its largest entry."""
+    B2 = np.eye(2)
+    for scale in _SCALES:
+        with pytest.raises(InvalidModelError, match=r"^R\[0\] is not positive definite"):
+            SDJLSModel(**{**paper_kwargs, "B": B2, "R": scale * np.diag([1.0, 1e-13])})
+
+
+def _nested(depth, leaf=0.0):
+    value = leaf
+    for _ in range(depth):
+        value = [value]
+    return value
+
+
+@pytest.mark.parametrize("depth", [100, 5000])
+def test_deeply_nested_field_names_the_field(paper_kwargs, depth):
+    with pytest.raises(InvalidModelError, match=r"^A = .* could not be read"):
+        SDJLSModel(**{**paper_kwargs, "A": _nested(depth)})
+    with pytest.raises(InvalidModelError, match=r"^mode_names\[0\] = .* is a list"):
+        SDJLSModel(**{**paper_kwargs, "mode_names": (_nested(depth, "a"), "b", "c")})
+
+
+@pytest.mark.parametrize("suffix", [".json", ".toml"])
+def test_deeply_nested_file_names_the_file_and_the_field(tmp_path, paper_kwargs, suffix):
+    """A file nested deeper than Python's parsers can go (a RecursionError inside json/tomllib)
+    gives an InvalidModelError naming the file and the field."""
+    path = tmp_path / f"deep{suffix}"
+    save_model(SDJLSModel(**paper_kwargs), path)
+    deep = "[" * 100_000 + "1.0" + "]" * 100_000
+    text = path.read_text(encoding="utf-8")
+    if suffix == ".json":
+        text = text.replace('"H0": [', f'"H0": [{deep}, ', 1)
+    else:
+        text = text.replace("H0 = [", f"H0 = [{deep}, ", 1)
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(InvalidModelError, match=rf"deep\{suffix}'.* levels deep in field 'H0'"):
+        load_model(path)
+
+
+def test_save_model_rejects_what_is_not_a_model(tmp_path, paper_kwargs):
+    data = SDJLSModel(**paper_kwargs).to_dict()
+    with pytest.raises(TypeError, match=r"^model = \{.* is a dict; expected an SDJLSModel"):
+        save_model(data, tmp_path / "m.toml")
+    with pytest.raises(TypeError, match=r"^path = 3 is an int"):
+        save_model(SDJLSModel(**paper_kwargs), 3)
+    with pytest.raises(ValueError, match=r"must end in \.json or \.toml"):
+        save_model(SDJLSModel(**paper_kwargs), tmp_path / "m.yaml")
+    assert list(tmp_path.iterdir()) == []
+
+
+_LOCALE_ROUND_TRIP = """
+import locale, sys
+from pathlib import Path
+import sdjls_gym
+from sdjls_gym import SDJLSModel, load_model, save_model
+assert sys.flags.utf8_mode == 0 and locale.getpreferredencoding(False).lower() != "utf-8", (
+    locale.getpreferredencoding(False))
+data = sdjls_gym.macro().to_dict()
+data["mode_names"] = ["normal", "boom", "r\\u00e9cession"]
+data["state_names"] = ["revenu (k-1)", "revenu \\u20ac"]
+model = SDJLSModel.from_dict(data)
+for suffix in (".toml", ".json"):
+    path = Path(sys.argv[1]) / ("model" + suffix)
+    save_model(model, path)
+    assert load_model(path) == model
+    assert "r\\u00e9cession" in path.read_bytes().decode("utf-8")
+print("ok")
+"""
+
+
+def test_non_ascii_names_round_trip_under_the_c_locale(tmp_path):
+    """``save_model`` writes UTF-8 whatever the locale: under ``LC_ALL=C`` without Python's UTF-8
+    mode (the locale encoding is then ASCII) a mode name with an accent is saved and read back."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0", "PYTHONIOENCODING": ""}
+    env["PYTHONPATH"] = str(Path(__file__).resolve().parents[1])
+    out = subprocess.run(
+        [sys.executable, "-c", _LOCALE_ROUND_TRIP, str(tmp_path)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "ok"
+
+
+# --------------------------------------------------------------------------- state names
+
+
+def test_state_names_are_validated_saved_and_compared(tmp_path, paper_kwargs):
+    names = ("income (k-1)", "income")
+    model = SDJLSModel(**{**paper_kwargs, "state_names": list(names)})
+    assert model.state_names == names
+    assert SDJLSModel(**paper_kwargs).state_names is None
+    assert model.to_dict()["state_names"] == list(names)
+    assert SDJLSModel.from_dict(model.to_dict()) == model
+    assert model != SDJLSModel(**paper_kwargs)
+    assert model != SDJLSModel(**{**paper_kwargs, "state_names": ("a", "b")})
+    assert "state_names=('income (k-1)', 'income')" in repr(model)
+    for suffix in (".json", ".toml"):
+        save_model(model, tmp_path / f"m{suffix}")
+        assert load_model(tmp_path / f"m{suffix}").state_names == names
+    with pytest.raises(InvalidModelError, match=r"^state_names = .* has 3 items; expected 2"):
+        SDJLSModel(**{**paper_kwargs, "state_names": ("a", "b", "c")})
+    with pytest.raises(TypeError, match=r"^state_names = 'ab' is a str"):
+        SDJLSModel(**{**paper_kwargs, "state_names": "ab"})
+
+
+def test_macro_preset_names_its_states_after_section_6():
+    """x(1) is last quarter's national income (the one-step delayed x(2)), x(2) the income."""
+    assert sdjls_gym.macro().state_names == ("income (k-1)", "income")
+
+
+# --------------------------------------------------------------------------- shared matrices
+
+
+def test_A_given_once_is_shared_by_every_mode(paper_kwargs, paper):
+    """A of shape (n, n) is used in every mode; N is then the size of P_in."""
+    A = paper.A[1]
+    shared = SDJLSModel(**{**paper_kwargs, "A": A})
+    stacked = SDJLSModel(**{**paper_kwargs, "A": np.array([A, A, A])})
+    assert shared == stacked
+    assert shared.A.shape == (3, 2, 2) and shared.N == 3
+    one_mode = SDJLSModel(
+        A=[[0.5]], B=[[1.0]], P_in=[[1.0]], P_out=[[1.0]], G=[[1.0]], H0=[1.0], Q=[[1.0]],
+        R=[[1.0]], x0=[0.0],
+    )  # fmt: skip
+    assert one_mode.N == 1 and one_mode.A.shape == (1, 1, 1)
+
+
+# --------------------------------------------------------------------------- time indices
+
+
+@pytest.mark.parametrize(
+    ("k", "error", "message"),
+    [
+        (-1, ValueError, r"^k = -1 is out of range; expected an int >= 0"),
+        (2**70, ValueError, r"^k = 1180591620717411303424 is too large"),
+        (2**2000, ValueError, r"^k = \d+\.\.\. is too large"),
+        (np.uint64(2**64 - 1), ValueError, r"is too large"),
+        (np.array([0, 2**62]), ValueError, r"^k = 4611686018427387904 is too large"),
+        (np.array([3, -2]), ValueError, r"^k = -2 is out of range"),
+        (np.array([2**64 - 1], dtype=np.uint64), ValueError, r"is too large"),
+        (2.0, TypeError, r"^k = 2\.0 is a float"),
+        (True, TypeError, r"^k = True is a bool"),
+        (np.array([1.0, 2.0]), TypeError, r"^k = .* has dtype float64"),
+    ],
+    ids=[
+        "negative", "huge", "beyond-float", "uint64-max", "array-huge", "array-negative",
+        "uint64-array", "float", "bool", "float-array",
+    ],
+)  # fmt: skip
+def test_time_index_is_checked_exactly(k, error, message):
+    """``H``, ``constraint_values``, ``in_region`` and ``constraint_values_one`` check ``k`` on
+    the exact integer before any conversion: no OverflowError, no silent wrap or truncation."""
+    model = sdjls_gym.macro()
+    x = np.array([0.0, 3.0])
+    with pytest.raises(error, match=message):
+        model.H(k)
+    with pytest.raises(error, match=message):
+        model.in_region(x, k)
+    if np.ndim(k) == 0:
+        with pytest.raises(error, match=message):
+            model.constraint_values_one(x, k)
+
+
+def test_valid_time_indices_are_accepted():
+    model = sdjls_gym.macro()
+    np.testing.assert_array_equal(model.H(np.uint8(4)), model.H(4))
+    np.testing.assert_array_equal(model.H([0, 1]), [model.H(0), model.H(1)])
+    np.testing.assert_array_equal(model.H(2**53), model.H0 + 2.0**53 * model.H_rate)
+    assert model.H(np.zeros(0, dtype=np.int64)).shape == (0, 2)
+
+
+def test_readme_sections_named_in_the_sources_exist():
+    """A pointer such as ``README, "Some section"`` in ``sdjls_gym`` names a real heading."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    headings = set(re.findall(r"^#+ (.+?)\s*$", (root / "README.md").read_text("utf-8"), re.M))
+    pointers = []
+    for path in sorted((root / "sdjls_gym").rglob("*.py")):
+        text = " ".join(line.strip().lstrip("#:").strip() for line in path.read_text().splitlines())
+        pointers += [(path.name, name) for name in re.findall(r'README[^".]{0,40}"([^"]+)"', text)]
+    assert pointers, "no README pointer found: the test would be vacuous"
+    missing = [(file, name) for file, name in pointers if name not in headings]
+    assert missing == []

@@ -713,7 +713,9 @@ def test_constructor_rejects_bad_arguments(overrides, pattern):
 
 
 def test_constructor_rejects_a_non_model():
-    with pytest.raises(TypeError, match="model = 'macro' is a str; expected an sdjls_gym.SDJLSModel"):
+    with pytest.raises(
+        TypeError, match="model = 'macro' is a str; expected an sdjls_gym.SDJLSModel"
+    ):
         RecedingHorizonController(**_kwargs(model="macro"))
 
 

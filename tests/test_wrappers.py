@@ -100,3 +100,76 @@ def test_residual_action_errors(paper):
     wrapped.reset(seed=0)
     with pytest.raises(ValueError, match="nu"):
         wrapped.step(np.array([np.nan], dtype=np.float32))
+
+
+@pytest.mark.parametrize(
+    ("beta", "error", "message"),
+    [
+        (10**400, ValueError, r"^beta = 1000.* is not finite; expected a finite number >= 0"),
+        (True, TypeError, r"^beta = True is a bool"),
+        ("10", TypeError, r"^beta = '10' is a str"),
+        (None, TypeError, r"^beta = None is a NoneType"),
+    ],
+    ids=["int-beyond-float64", "bool", "str", "none"],
+)
+def test_violation_penalty_beta_follows_the_number_rule(beta, error, message):
+    with pytest.raises(error, match=message):
+        ViolationPenalty(gym.make("SDJLS-Macro-v0"), beta)
+    env = ViolationPenalty(gym.make("SDJLS-Macro-v0"), 10**3)
+    assert env.beta == 1000.0 and type(env.beta) is float
+
+
+def _rescaled(env):
+    import warnings
+
+    from gymnasium.wrappers import RescaleAction
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # RescaleAction's own float32 precision notice
+        return RescaleAction(env, -1.0, 1.0)
+
+
+@pytest.mark.parametrize(
+    ("below", "name"),
+    [
+        (_rescaled, "RescaleAction"),
+        (lambda env: gym.wrappers.ClipAction(env), "ClipAction"),
+        (lambda env: ResidualAction(env, np.zeros((3, 1, 2))), "ResidualAction"),
+        (lambda env: gym.wrappers.TransformAction(env, lambda a: 2 * a, None), "TransformAction"),
+    ],
+    ids=["rescale", "clip", "residual", "transform"],
+)
+def test_residual_action_refuses_wrappers_that_change_the_action_below_it(paper, below, name):
+    """``ResidualAction(RescaleAction(env), K)`` would apply ``u = K x + nu`` through the rescaling
+    (``u = +-200`` at ``nu = 0``): it is refused with a message saying where to put it."""
+    message = (
+        rf"must wrap the SDJLS environment directly: {name}.*"
+        r"RescaleAction\(ResidualAction\(env, K\), -1\.0, 1\.0\)"
+    )
+    with pytest.raises(ValueError, match=message):
+        ResidualAction(below(gym.make("SDJLS-Macro-v0")), paper.K)
+
+
+def test_rescale_on_top_of_residual_action_applies_K_x_at_zero(quiet_paper_model, paper):
+    """The supported order: the agent's 0 is nu = 0, so the applied u is K_theta x exactly."""
+    env = _rescaled(ResidualAction(_quiet_env(quiet_paper_model), paper.K, nu_bound=100.0))
+    _, info = env.reset(seed=0, options={"x0": [1.5, -0.5], "mode0": 1})
+    x = info["state"]
+    *_, info = env.step(np.zeros(1, np.float32))
+    np.testing.assert_allclose(info["u"], paper.K[1] @ x, rtol=1e-12, atol=1e-12)
+    *_, info2 = env.step(np.ones(1, np.float32))  # the agent's 1 is nu = nu_bound
+    np.testing.assert_allclose(info2["u"], paper.K[info["mode"]] @ info["state"] + 100.0, rtol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "message"),
+    [
+        ({"nu_bound": 1e300}, ValueError, r"^nu_bound = 1e\+300 does not fit in float32"),
+        ({"nu_bound": True}, TypeError, r"^nu_bound = True is a bool"),
+        ({"K": "abc"}, TypeError, r"^K = 'abc' is a str"),
+        ({"K": np.full((3, 1, 2), np.inf)}, ValueError, r"^K has a non-finite entry inf"),
+    ],
+)
+def test_residual_action_arguments(paper, kwargs, error, message):
+    with pytest.raises(error, match=message):
+        ResidualAction(gym.make("SDJLS-Macro-v0"), **{"K": paper.K, **kwargs})

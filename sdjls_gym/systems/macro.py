@@ -18,8 +18,9 @@ __all__ = ["macro", "HORIZON", "ACTION_BOUND", "PAPER_X", "PAPER_Y", "PAPER_K", 
 #: Planning horizon of the example: 20 quarters.
 HORIZON = 20
 
-#: Bound on |u_k| of ``SDJLS-Macro-v0``. The paper's controller stays far inside it (see the
-#: README, "Action bound", for the command that measures the largest |u_k| it uses).
+#: Bound on |u_k| of ``SDJLS-Macro-v0``. The paper's controller stays far inside it: the
+#: largest |u_k| it uses is in ``results/paper/REPORT.md`` (``python -m benchmarks.reproduce_paper``)
+#: and in the action row of the README's table under "Dynamics and time indexing".
 ACTION_BOUND = 200.0
 
 #: The paper's solution of Proposition 2 (section 6), printed there to 4 decimals.
@@ -46,7 +47,9 @@ def macro() -> SDJLSModel:
     Returns
     -------
     SDJLSModel
-        N = 3 modes (normal, boom, slump), n = 2, m = 1, p = 2 (E = I, W = I), r = 2.
+        N = 3 modes (normal, boom, slump), n = 2, m = 1, p = 2 (E = I, W = I), r = 2; the
+        states are named ``"income (k-1)"`` (x(1), last quarter's national income) and
+        ``"income"`` (x(2)).
     """
     return SDJLSModel(
         A=[
@@ -65,4 +68,5 @@ def macro() -> SDJLSModel:
         x0=[2.0, 2.0],
         mode0=0,
         mode_names=("normal", "boom", "slump"),
+        state_names=("income (k-1)", "income"),
     )
