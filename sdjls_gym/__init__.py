@@ -32,13 +32,13 @@ __version__ = "0.1.0"
 if "SDJLS-v0" not in gymnasium.registry:
     gymnasium.register(
         id="SDJLS-v0",
-        entry_point="sdjls_gym.env:SDJLSEnv",
+        entry_point="sdjls_gym.env:make_env",
         vector_entry_point="sdjls_gym.vector_env:SDJLSVectorEnv",
     )
 if "SDJLS-Macro-v0" not in gymnasium.registry:
     gymnasium.register(
         id="SDJLS-Macro-v0",
-        entry_point="sdjls_gym.env:SDJLSEnv",
+        entry_point="sdjls_gym.env:make_env",
         vector_entry_point="sdjls_gym.vector_env:SDJLSVectorEnv",
         max_episode_steps=_MACRO_HORIZON,
         kwargs={"model": "macro", "horizon": _MACRO_HORIZON, "action_bound": _MACRO_ACTION_BOUND},
