@@ -14,8 +14,9 @@ What the picture shows:
   and its band (shaded) in that state's colour, named in the legend; rows that mix states are
   listed in a note (their violations are still marked);
 * red circles on the states of the violated rows at every step where ``G x_k <= H_k`` fails;
-* y-limits around the band (widened by a quarter of its width, extended to the data, but never
-  more than two band widths beyond it; without a band, the data up to ``divergence_bound``):
+* y-limits around the band (widened by a quarter of its width, and in steps of a quarter to show
+  the data, but never more than two band widths beyond it; without a band, the data up to
+  ``divergence_bound``):
   points beyond are triangles at the edge, and the first step that leaves the plot, and the step
   where the episode diverged (``max |x| > divergence_bound`` or a non-finite state), are marked
   with a red line and a note;
@@ -48,7 +49,8 @@ DPI = 80
 
 #: An entry of ``G`` counts as zero below this fraction of the largest entry of its row.
 ROW_TOL = 1e-12
-#: The view shows the band widened by this fraction of its width on each side ...
+#: The view shows the band widened by this fraction of its width on each side, and widens in
+#: steps of that size to show the data ...
 VIEW_MARGIN = 0.25
 #: ... extended to the data, but never more than this many band widths beyond the band.
 VIEW_CAP = 2.0
@@ -259,17 +261,20 @@ class EpisodeRenderer:
                 min(float(np.min(r)) for r in ref if r.size),
                 max(float(np.max(r)) for r in ref if r.size),
             )
-            width = hi - lo
-            view = (lo - VIEW_MARGIN * width, hi + VIEW_MARGIN * width)
-            cap = (lo - VIEW_CAP * width, hi + VIEW_CAP * width)
+            step = VIEW_MARGIN * (hi - lo)
+            cap = (lo - VIEW_CAP * (hi - lo), hi + VIEW_CAP * (hi - lo))
+            inside = finite & (xs >= cap[0]) & (xs <= cap[1])
+            d_lo, d_hi = (xs[inside].min(), xs[inside].max()) if inside.any() else (lo, hi)
+            # widened in whole steps (a quarter of the band), so the axes change rarely
+            view = (
+                max(cap[0], lo - step * max(1.0, math.ceil((lo - d_lo) / step))),
+                min(cap[1], hi + step * max(1.0, math.ceil((d_hi - hi) / step))),
+            )
         else:  # no band: the data, up to the divergence bound
-            view = (math.inf, -math.inf)
             cap = (-self.divergence_bound, self.divergence_bound)
-        inside = finite & (xs >= cap[0]) & (xs <= cap[1])
-        if inside.any():
-            view = (min(view[0], float(xs[inside].min())), max(view[1], float(xs[inside].max())))
-        if not math.isfinite(view[0]):
-            view = (-1.0, 1.0)
+            inside = finite & (xs >= cap[0]) & (xs <= cap[1])
+            view = (xs[inside].min(), xs[inside].max()) if inside.any() else (-1.0, 1.0)
+            view = (float(view[0]), float(view[1]))
         view = _widen(*view)
         pad = PAD * (view[1] - view[0])
         below = (finite & (xs < view[0])) | (xs == -np.inf)
