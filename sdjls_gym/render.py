@@ -348,7 +348,8 @@ class EpisodeRenderer:
         ax_m.set_ylabel("mode")
         ax_m.set_xlabel("k")
         ax_m.grid(True, axis="x", alpha=0.3)
-        ax_m.xaxis.set_major_locator(MaxNLocator(integer=True))  # shared with ax
+        # integer k at round steps (1, 2, 5, 10, 20, ...); shared with ax
+        ax_m.xaxis.set_major_locator(MaxNLocator(integer=True, steps=[1, 2, 5, 10]))
         self.ax, self.ax_mode, self._fig = ax, ax_m, fig
         self._band_artists: list[Any] = []
         self._band_handles: list[tuple[Any, str]] = []

@@ -184,6 +184,7 @@ def test_k_ticks_are_integers_and_modes_are_named():
         ticks = [t for t in ax.xaxis.get_majorticklocs() if lo <= t <= hi]
         assert len(ticks) >= 3
         assert all(float(t).is_integer() for t in ticks)
+        assert ticks[0] == 0 and ticks[-1] == HORIZON  # both ends of the episode are labelled
     lo, hi = renderer.ax.get_xlim()
     assert lo <= 0 and HORIZON <= hi < HORIZON + 1  # the horizon, not the steps so far
     labels = [t.get_text() for t in renderer.ax_mode.get_yticklabels()]
