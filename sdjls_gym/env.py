@@ -178,7 +178,7 @@ def step_info(model: SDJLSModel, x: np.ndarray, mode: Any, k: Any) -> dict[str, 
 def _check_render_mode(render_mode: Any) -> str | None:
     if render_mode is None:
         return None
-    if render_mode == "human":
+    if isinstance(render_mode, str) and render_mode == "human":
         raise ValueError(
             'render_mode = "human" is not supported: the picture is drawn off-screen with '
             'matplotlib. Use render_mode="rgb_array": env.render() returns the frame as an '

@@ -308,6 +308,7 @@ def test_human_render_mode_is_rejected_at_construction(make):
         ("rgb_array_list", ValueError),
         ("RGB_ARRAY", ValueError),
         (1, TypeError),
+        (np.array(["human"]), TypeError),
     ],
 )
 def test_other_render_modes_are_rejected(render_mode, error):
