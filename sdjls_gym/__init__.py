@@ -36,13 +36,13 @@ __version__ = "0.1.0"
 if "SDJLS-v0" not in gymnasium.registry:
     gymnasium.register(
         id="SDJLS-v0",
-        entry_point="sdjls_gym.env:SDJLSEnv",
+        entry_point="sdjls_gym.env:make_env",
         vector_entry_point="sdjls_gym.vector_env:SDJLSVectorEnv",
     )
 if "SDJLS-Macro-v0" not in gymnasium.registry:
     gymnasium.register(
         id="SDJLS-Macro-v0",
-        entry_point="sdjls_gym.env:SDJLSEnv",
+        entry_point="sdjls_gym.env:make_env",
         vector_entry_point="sdjls_gym.vector_env:SDJLSVectorEnv",
         # no max_episode_steps: the env truncates at its own horizon (so that horizon=40 alone
         # works) and reports it as env.spec.max_episode_steps

@@ -264,6 +264,30 @@ def step_info(model: SDJLSModel, x: np.ndarray, mode: Any, k: Any) -> dict[str, 
     }
 
 
+def _check_render_mode(render_mode: Any) -> str | None:
+    if render_mode is None:
+        return None
+    if isinstance(render_mode, str) and render_mode == "human":
+        raise ValueError(
+            'render_mode = "human" is not supported: the picture is drawn off-screen with '
+            'matplotlib. Use render_mode="rgb_array": env.render() returns the frame as an '
+            "array, and gymnasium.wrappers.RecordVideo saves episodes as video"
+        )
+    return check_choice("render_mode", render_mode, SDJLSEnv.metadata["render_modes"])
+
+
+def make_env(**kwargs: Any) -> SDJLSEnv:
+    """The entry point of the registered ids: ``SDJLSEnv(**kwargs)``.
+
+    A function rather than the class so that ``gym.make`` hands ``render_mode`` to the
+    constructor unchanged: for a class whose ``metadata`` lists ``"rgb_array"`` but not
+    ``"human"``, ``gym.make`` replaces ``render_mode="human"`` by ``"rgb_array"`` and adds
+    Gymnasium's pygame ``HumanRendering`` wrapper, which fails only at ``reset`` when pygame is
+    missing. Through this function ``"human"`` is rejected at ``make``, with what to use instead.
+    """
+    return SDJLSEnv(**kwargs)
+
+
 class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
     r"""
     ## Description
@@ -363,7 +387,9 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
     * `action_bound`: bound on |u_i|, float or (m,) (default 200.0); it must be a normal
       float32 number (1.2e-38 to 3.4e38), since the action Box is float32.
     * `divergence_bound`: termination threshold on max |x| (default 1e6, at most 1e30).
-    * `render_mode`: `None` or `"rgb_array"` (a matplotlib picture of the episode so far).
+    * `render_mode`: `None` or `"rgb_array"`: `render()` returns a matplotlib picture of the
+      episode so far, `(400, 640, 3) uint8` (see `sdjls_gym.render`); record videos with
+      `gymnasium.wrappers.RecordVideo`. `"human"` is rejected (`ValueError`).
 
     ```python
     import gymnasium as gym
@@ -393,11 +419,7 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         self.horizon = check_int("horizon", horizon, low=1)
         self.divergence_bound = check_divergence_bound(divergence_bound)
         check_model_x0(self.model, self.divergence_bound)
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"render_mode = {render_mode!r}; expected None or one of {self.metadata['render_modes']}"
-            )
-        self.render_mode = render_mode
+        self.render_mode = _check_render_mode(render_mode)
         self.action_space = action_space(self.model, action_bound)
         self.observation_space = observation_space(self.model, self.divergence_bound)
         self._low = self.action_space.low.astype(np.float64)
@@ -412,6 +434,7 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         self._inside = True
         self._ended: str | None = None  # why the episode ended, until the next reset()
         self._history: list[tuple[np.ndarray, int]] = []
+        self._renderer: Any = None  # the figure of render(), built on first use
 
     # ------------------------------------------------------------------ spec
     @property
@@ -558,12 +581,33 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
             )
         return self._obs(diverged), -stage_cost, diverged, truncated, info
 
+    def _get_renderer(self) -> Any:
+        if self._renderer is None:
+            from sdjls_gym.render import EpisodeRenderer
+
+            self._renderer = EpisodeRenderer(self.model, self.horizon, self.divergence_bound)
+        return self._renderer
+
     def render(self) -> np.ndarray | None:
+        """The picture of the episode so far (see :mod:`sdjls_gym.render`).
+
+        Returns
+        -------
+        (400, 640, 3) uint8 RGB image with ``render_mode="rgb_array"``; None without a
+        render mode. One figure per env is reused from frame to frame.
+        """
         if self.render_mode is None:
             gym.logger.warn('render() needs render_mode="rgb_array" at construction')
             return None
-        from sdjls_gym.render import render_episode
-
+        if self._x is None:
+            raise RuntimeError("call reset() before render()")
         xs = np.array([x for x, _ in self._history])
-        modes = np.array([mode for _, mode in self._history])
-        return render_episode(self.model, xs, modes, self.horizon)
+        modes = np.array([mode for _, mode in self._history], dtype=np.int64)
+        return self._get_renderer().frame(xs, modes)
+
+    def close(self) -> None:
+        """Free the picture's figure."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        super().close()
