@@ -51,11 +51,11 @@ import gymnasium as gym
 import numpy as np
 
 from benchmarks.montecarlo import Rollouts, paper_rhc, rollout
+from benchmarks.policies import RawEnvPolicy, _check_policy, as_controller
 from benchmarks.stats import CurveGap, mean_ci, paired_curve_gap, wilson
 from sdjls_gym import SDJLSModel
 from sdjls_gym._validate import check_int, check_mapping, describe, type_name
-from sdjls_gym.env import SDJLSEnv, decode_observation, encode_observation
-from sdjls_gym.wrappers import ResidualAction, ScaleObservationReward, scale_observation
+from sdjls_gym.env import SDJLSEnv
 
 __all__ = [
     "REFERENCE_CONSTRAINT",
@@ -179,226 +179,6 @@ def resolve_env(env_id: str, env_kwargs: dict[str, Any]) -> EnvSpec:
         )
     finally:
         env.close()
-
-
-# ----------------------------------------------------------------------------- policies
-class _ObservationPolicy:
-    """A ``predict`` or callable policy behind the controllers' ``act_batch`` / ``act``."""
-
-    def __init__(self, policy: Any, spec: EnvSpec) -> None:
-        if callable(getattr(policy, "predict", None)):
-            self.call = lambda obs: policy.predict(obs, deterministic=True)[0]
-        elif callable(policy):
-            self.call = policy
-        else:  # checked by as_controller first
-            raise TypeError(f"policy is a {type_name(policy)}")
-        self.spec, self.m = spec, spec.model.m
-        self.batched: bool | None = None  # decided at the first batch
-
-    def _one(self, obs: np.ndarray) -> np.ndarray:
-        a = np.asarray(self.call(obs), dtype=np.float64)
-        if a.size != self.m:
-            raise ValueError(
-                f"the policy returned {describe(a)} (shape {a.shape}) for one observation; "
-                f"expected {self.m} number(s)"
-            )
-        return a.reshape(self.m)
-
-    def _rows(self, obs: np.ndarray) -> np.ndarray:
-        return np.stack([self._one(o) for o in obs])
-
-    def _batch(self, obs: np.ndarray) -> np.ndarray:
-        B = len(obs)
-        if self.batched is False:
-            return self._rows(obs)
-        if self.batched:
-            return np.asarray(self.call(obs), dtype=np.float64).reshape(B, self.m)
-        # the first batch: one call on all rows, checked against single calls on a few rows
-        try:
-            a = np.asarray(self.call(obs), dtype=np.float64)
-            a = a.reshape(B, self.m) if a.shape in ((B, self.m), (B,) * (self.m == 1)) else None
-        except Exception:  # noqa: BLE001 - a policy for one observation may fail on many
-            a = None
-        try:
-            rows, error = self._rows(obs[:8]), None
-        except Exception as exc:  # noqa: BLE001 - a policy for batches may fail on one row
-            rows, error = None, exc
-        if a is not None and rows is not None:
-            scale = max(1.0, float(np.max(np.abs(rows))))
-            self.batched = bool(np.allclose(a[:8], rows, rtol=1e-5, atol=1e-6 * scale))
-        else:
-            self.batched = a is not None
-        if self.batched:
-            return a
-        if error is not None:
-            raise error
-        return np.concatenate([rows, self._rows(obs[8:])]) if B > 8 else rows
-
-    def act_batch(
-        self, x: np.ndarray, mode: np.ndarray, k: np.ndarray
-    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        s = self.spec
-        obs = encode_observation(s.model, x, mode, k, s.horizon, s.divergence_bound)
-        u = self._batch(obs)
-        if not np.all(np.isfinite(u)):
-            row = int(np.argwhere(~np.isfinite(u))[0, 0])
-            raise ValueError(
-                f"the policy returned a non-finite action {describe(u[row])} for the observation "
-                f"{describe(obs[row])}; expected finite numbers"
-            )
-        B = len(x)
-        cost = s.model.stage_cost(x, mode, np.clip(u, -s.action_bound, s.action_bound))
-        return u, {"rho": np.zeros(B), "cost": cost, "ok": np.ones(B, dtype=bool)}
-
-    def act(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, dict[str, Any]]:
-        u, info = self.act_batch(np.asarray(x)[None], np.array([mode]), np.array([k]))
-        return u[0], {key: value[0] for key, value in info.items()}
-
-
-def _check_policy(policy: Any) -> None:
-    if not (
-        callable(getattr(policy, "act_batch", None))
-        or callable(getattr(policy, "predict", None))
-        or callable(policy)
-    ):
-        raise TypeError(
-            f"policy = {describe(policy)} is a {type_name(policy)}; expected an object with "
-            "predict(obs, deterministic=True) (stable-baselines3's), a callable obs -> action, "
-            "or a controller with act_batch(x, mode, k) and act(x, mode, k)"
-        )
-
-
-def as_controller(policy: Any, spec: EnvSpec) -> Any:
-    """``policy`` behind ``act_batch(x, mode, k)`` / ``act(x, mode, k)`` (see the module doc)."""
-    _check_policy(policy)
-    if callable(getattr(policy, "act_batch", None)) and callable(getattr(policy, "act", None)):
-        return policy
-    return _ObservationPolicy(policy, spec)
-
-
-class RawEnvPolicy:
-    """An agent trained behind wrappers, acting on the raw environment (actions in units of u).
-
-    Reads the wrappers of ``env``, the agent's training environment, and undoes them:
-    :class:`~sdjls_gym.wrappers.ScaleObservationReward` (the agent sees the scaled state),
-    ``gymnasium.wrappers.RescaleAction`` (the agent's action, clipped to its action space, is
-    mapped back to the wrapped box) and :class:`~sdjls_gym.wrappers.ResidualAction`
-    (``u = K_theta x + nu``). Wrappers that change only the reward or the episode's end
-    (``ViolationPenalty``, ``TerminateOutside``, ``FiniteHorizon``, ``TimeLimit``, SB3's
-    ``Monitor``) are skipped; any other wrapper that changes the observation or action space is
-    an error.
-
-    Parameters
-    ----------
-    agent : object
-        With ``predict(obs, deterministic=True)``: an SB3 model or policy.
-    env : gymnasium.Env
-        The training environment (wrapped), or one built the same way.
-
-    Examples
-    --------
-    >>> import gymnasium as gym
-    >>> from gymnasium.wrappers import RescaleAction
-    >>> from sdjls_gym.wrappers import ScaleObservationReward
-    >>> env = ScaleObservationReward(RescaleAction(gym.make("SDJLS-Macro-v0"), -1.0, 1.0))
-    >>> class Half:  # always a = 0.5 in [-1, 1]
-    ...     def predict(self, obs, deterministic=True):
-    ...         return np.full((len(obs), 1), 0.5, dtype=np.float32), None
-    >>> u, _ = RawEnvPolicy(Half(), env).act(np.array([2.0, 2.0]), 0, 0)
-    >>> float(u[0])  # 0.5 of the raw bound 200
-    100.0
-    """
-
-    def __init__(self, agent: Any, env: gym.Env) -> None:
-        if not callable(getattr(agent, "predict", None)):
-            raise TypeError(
-                f"agent = {describe(agent)} is a {type_name(agent)}; expected an object with "
-                "predict(obs, deterministic=True), such as a stable-baselines3 model"
-            )
-        if not isinstance(env, gym.Env):
-            raise TypeError(
-                f"env = {describe(env)} is a {type_name(env)}; expected the agent's training "
-                "environment, a gymnasium.Env (for an SB3 VecEnv pass venv.envs[0])"
-            )
-        base = env.unwrapped
-        if not isinstance(base, SDJLSEnv):
-            raise TypeError(f"env has a {type(base).__name__} underneath; expected an SDJLSEnv")
-        self.agent, self.model = agent, base.model
-        self.horizon, self.divergence_bound = int(base.horizon), float(base.divergence_bound)
-        self.action_bound = float(np.max(base.action_space.high))
-        box = env.action_space
-        self.low, self.high = box.low.astype(np.float64), box.high.astype(np.float64)
-        self.scaling: tuple[float, float] | None = None
-        self.actions: list[tuple[str, Any]] = []  # outermost first: how an action reaches u
-        e = env
-        while isinstance(e, gym.Wrapper):
-            inner = e.env
-            if isinstance(e, ScaleObservationReward):
-                self.scaling = (e.x_scale, e.obs_clip)
-            elif isinstance(e, gym.wrappers.RescaleAction):
-                lo, hi = e.action_space.low, e.action_space.high
-                in_lo, in_hi = inner.action_space.low, inner.action_space.high
-                bounds = tuple(np.asarray(v, dtype=np.float64) for v in (lo, hi, in_lo, in_hi))
-                self.actions.append(("rescale", bounds))
-            elif isinstance(e, ResidualAction):
-                self.actions.append(("residual", e.K))
-            elif isinstance(e, gym.wrappers.ClipAction):
-                pass  # the action is clipped to the agent's space anyway
-            elif (
-                isinstance(e, (gym.ObservationWrapper, gym.ActionWrapper))
-                or e.observation_space != inner.observation_space
-                or e.action_space != inner.action_space
-            ):
-                raise ValueError(
-                    f"env has a {type(e).__name__} wrapper, which changes the observation or the "
-                    "action in a way RawEnvPolicy cannot undo; it knows ScaleObservationReward, "
-                    "RescaleAction, ResidualAction and wrappers of the reward"
-                )
-            e = inner
-
-    def observe(self, x: np.ndarray, mode: np.ndarray, k: np.ndarray) -> np.ndarray:
-        """The observations (B, n + N + 1) the agent was trained on, for states (B, n)."""
-        obs = encode_observation(self.model, x, mode, k, self.horizon, self.divergence_bound)
-        return obs if self.scaling is None else scale_observation(obs, self.model.n, *self.scaling)
-
-    def act_batch(
-        self, x: np.ndarray, mode: np.ndarray, k: np.ndarray
-    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """``u`` (B, m) for states ``x`` (B, n), modes (B,), times (B,); info as a controller's."""
-        x = np.asarray(x, dtype=np.float64)
-        mode = np.asarray(mode, dtype=np.int64)
-        a, _ = self.agent.predict(self.observe(x, mode, k), deterministic=True)
-        v = np.clip(np.asarray(a, dtype=np.float64).reshape(len(x), -1), self.low, self.high)
-        nu = np.zeros_like(v)
-        for kind, data in self.actions:
-            if kind == "rescale":
-                lo, hi, in_lo, in_hi = data
-                if np.all(lo == -hi) and np.all(in_lo == -in_hi):  # symmetric: a * bound
-                    v = v * (in_hi / hi)
-                else:
-                    v = in_lo + (in_hi - in_lo) * (v - lo) / (hi - lo)
-            else:  # residual: u = K_theta x + nu
-                nu = v
-                v = np.einsum("bij,bj->bi", data[mode], x) + nu
-        B = len(x)
-        cost = self.model.stage_cost(x, mode, np.clip(v, -self.action_bound, self.action_bound))
-        info = {"nu": nu, "rho": np.zeros(B), "cost": cost, "ok": np.ones(B, dtype=bool)}
-        return v, info
-
-    def act(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, dict[str, Any]]:
-        """One decision: ``act_batch`` on a batch of one."""
-        u, info = self.act_batch(np.asarray(x)[None], np.array([mode]), np.array([k]))
-        return u[0], {key: value[0] for key, value in info.items()}
-
-    def predict(
-        self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, Any]:  # fmt: skip
-        """stable-baselines3's ``predict`` on raw observations (the state at float32 precision)."""
-        single = np.ndim(observation) == 1
-        x, mode, k = decode_observation(self.model, np.atleast_2d(observation), self.horizon)
-        u = self.act_batch(x, mode, k)[0].astype(np.float32)
-        return (u[0] if single else u), state
 
 
 # ----------------------------------------------------------------------------- the protocol
@@ -544,3 +324,99 @@ def evaluate(
     _check_policy(policy)
     spec = resolve_env(env_id, env_kwargs)
     return evaluate_rollouts(as_controller(policy, spec), spec, episodes, seed, env_id)[0]
+
+
+# ----------------------------------------------------------------------------- command line
+SB3_ALGOS = ("a2c", "ddpg", "ppo", "sac", "td3")
+
+
+def _import_attribute(text: str, option: str) -> Any:
+    """``package.module:attribute`` -> the attribute (dots in it follow attributes)."""
+    import importlib
+
+    module, sep, attribute = text.partition(":")
+    if not sep or not module or not attribute:
+        raise SystemExit(f"{option} = {text!r}; expected package.module:attribute or a .zip file")
+    obj: Any = importlib.import_module(module)
+    for part in attribute.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
+def load_cli_policy(policy: str, algo: str | None, train_env: str | None) -> Any:
+    """The policy named on the command line (see :func:`main`)."""
+    if not policy.endswith(".zip"):
+        if algo is not None or train_env is not None:
+            raise SystemExit("--algo and --train-env apply to a stable-baselines3 .zip file only")
+        return _import_attribute(policy, "--policy")
+    if algo is None:
+        raise SystemExit(f"--policy {policy} is a stable-baselines3 file: give --algo {SB3_ALGOS}")
+    import stable_baselines3
+
+    agent = getattr(stable_baselines3, algo.upper()).load(policy, device="cpu")
+    if train_env is None:
+        return agent
+    env = _import_attribute(train_env, "--train-env")
+    return RawEnvPolicy(agent, env() if callable(env) and not isinstance(env, gym.Env) else env)
+
+
+def describe_score(name: str, score: Score) -> list[str]:
+    """The table row of ``score`` (the RL comparison's columns) and where it sits on the curve."""
+    from types import SimpleNamespace
+
+    from benchmarks.rl_report import TABLE_HEADER, table_row
+
+    lines = [*TABLE_HEADER, table_row(SimpleNamespace(name=name, score=score))]
+    g = score.curve_gap
+    if g is None:
+        lines.append("Against the RHC curve: no paired gap (an episode diverged, the violation "
+                     "frequency is outside the curve's range, or the system is not the paper's).")  # fmt: skip
+    else:
+        lines.append(
+            f"Against the RHC curve (individual constraints, xi in {REFERENCE_XIS[0]:g}.."
+            f"{REFERENCE_XIS[-1]:g}): at violation frequency {g.violation:.3f} the curve, at xi = "
+            f"{g.xi:.3f}, costs {g.curve_cost:.4g}; cost minus curve {g.mean:+.1f} (95% bootstrap "
+            f"interval {g.ci95[0]:+.1f} to {g.ci95[1]:+.1f})."
+        )
+    return lines
+
+
+def main(argv: list[str] | None = None) -> Score:
+    import argparse
+    import sys
+    from pathlib import Path
+
+    from benchmarks.versions import package_versions
+
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.evaluate",
+        description="Score a policy with the benchmarks' evaluation protocol.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--policy", required=True,
+                        help="a stable-baselines3 .zip file (with --algo), or "
+                        "package.module:attribute (an object with predict, or a callable)")  # fmt: skip
+    parser.add_argument("--algo", choices=SB3_ALGOS, help="algorithm of a .zip file")
+    parser.add_argument("--train-env", help="package.module:attribute: the .zip agent's training "
+                        "environment (or a function making it), whose wrappers RawEnvPolicy "
+                        "undoes; default: the agent acts on the raw environment")  # fmt: skip
+    parser.add_argument("--episodes", type=int, default=1000, help="evaluation episodes")
+    parser.add_argument("--seed", type=int, default=0, help="noise seed")
+    parser.add_argument("--env-id", default="SDJLS-Macro-v0", help="registered environment")
+    parser.add_argument("--json", type=Path, help="write the score (and the versions) here")
+    opts = parser.parse_args(argv)
+    policy = load_cli_policy(opts.policy, opts.algo, opts.train_env)
+    try:
+        score = evaluate(policy, episodes=opts.episodes, seed=opts.seed, env_id=opts.env_id)
+    except (TypeError, ValueError) as exc:
+        parser.error(str(exc))
+    print("\n".join(describe_score(opts.policy, score)))
+    if opts.json is not None:
+        data = {**score.to_dict(), "policy": opts.policy, "versions": package_versions()}
+        opts.json.write_text(json.dumps(data, indent=1) + "\n")
+    return score
+
+
+if __name__ == "__main__":
+    main()

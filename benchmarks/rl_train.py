@@ -27,8 +27,9 @@ from gymnasium.wrappers import RescaleAction
 from stable_baselines3.common.callbacks import BaseCallback
 
 from benchmarks import rl_hyperparams as HP
-from benchmarks.evaluate import RawEnvPolicy, resolve_env, statistics
+from benchmarks.evaluate import resolve_env, statistics
 from benchmarks.montecarlo import rollout
+from benchmarks.policies import RawEnvPolicy
 from sdjls_gym._validate import check_choice, check_positive
 from sdjls_gym.systems.macro import PAPER_K
 from sdjls_gym.wrappers import (
