@@ -225,3 +225,14 @@ def test_interval_check_takes_the_widest_ratio_in_each_part():
     assert check["diverging"].max_ratio == pytest.approx(6.0)
     assert interval_check(rows[:2])["diverging"] is None
     assert interval_check(rows[3:]) is None
+
+
+def test_paired_curve_gap_at_the_curves_end_point_is_inside_its_range():
+    """A controller at the curve's riskiest point (0.7, 400 episodes) is at that point, gap 0.
+    The mean over episodes and the bootstrap's weighted mean round 0.7 differently
+    (0.7000000000000002 against 0.7); without a tolerance the point was called outside."""
+    rng = np.random.default_rng(2)
+    noise = rng.lognormal(8.0, 0.5, 400)
+    costs, viols = _curve([(0.2, noise + 400), (0.7, noise)])
+    g = paired_curve_gap(noise, np.full(400, 0.7), costs, viols, (0.9, 0.3))
+    assert g is not None and g.mean == pytest.approx(0.0, abs=1e-9) and g.xi == pytest.approx(0.3)
