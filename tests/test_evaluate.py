@@ -234,6 +234,8 @@ def test_readme_example_trains_and_scores_an_agent_in_under_15_lines(tmp_path, m
     exec(compile(block, "README.md: Score your own agent", "exec"), namespace)
     score = namespace["score"]
     assert isinstance(score, Score) and score.episodes >= 100
+    # what the README says of it: 4096 steps are too few, the agent diverges, no paired gap
+    assert score.diverged > 0 and score.curve_gap is None
     assert isinstance(namespace["policy"], RawEnvPolicy)
     assert capsys.readouterr().out.strip()
     assert sys.modules.get("benchmarks.evaluate") is not None
