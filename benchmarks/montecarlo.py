@@ -1,4 +1,4 @@
-"""Closed-loop Monte Carlo on the vector environment, and the statistics the reports use."""
+"""Closed-loop Monte Carlo on the vector environment (the statistics are in ``benchmarks.stats``)."""
 
 from __future__ import annotations
 
@@ -6,21 +6,23 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from sdjls_gym import SDJLSModel, SDJLSVectorEnv
 
-__all__ = ["Rollouts", "rollout", "wilson", "mean_ci", "decide_batch", "paper_rhc"]
+__all__ = ["Rollouts", "rollout", "decide_batch", "paper_rhc"]
 
 
-def paper_rhc(model: SDJLSModel, xi: float, constraint: str = "individual"):
-    """The paper's receding-horizon controller (section 6: PAPER_K, Psi, alpha, |nu| <= 100)."""
+def paper_rhc(
+    model: SDJLSModel, xi: float, constraint: str = "individual", horizon: int | None = None
+):
+    """The paper's receding-horizon controller (section 6: PAPER_K, Psi, alpha, |nu| <= 100),
+    for episodes of ``horizon`` steps (default: the paper's 20)."""
     from controllers import RecedingHorizonController
     from sdjls_gym.systems.macro import HORIZON, PAPER_K, PAPER_RHC
 
     kw = {key: PAPER_RHC[key] for key in ("Psi", "alpha", "nu_bound")}
     return RecedingHorizonController(
-        model, PAPER_K, xi=xi, constraint=constraint, horizon=HORIZON, **kw
+        model, PAPER_K, xi=xi, constraint=constraint, horizon=horizon or HORIZON, **kw
     )
 
 
@@ -99,6 +101,7 @@ def rollout(
     seed: int,
     action_bound: float = 200.0,
     progress: Any = None,
+    divergence_bound: float = 1e6,
 ) -> Rollouts:
     """Simulate ``runs`` closed-loop episodes on :class:`~sdjls_gym.SDJLSVectorEnv`.
 
@@ -112,7 +115,13 @@ def rollout(
     and the controller's decisions for it are discarded (its input is set to 0, so that no
     decision on a diverged state can stop the batch). Every row has ``horizon`` steps.
     """
-    env = SDJLSVectorEnv(num_envs=runs, model=model, horizon=horizon, action_bound=action_bound)
+    env = SDJLSVectorEnv(
+        num_envs=runs,
+        model=model,
+        horizon=horizon,
+        action_bound=action_bound,
+        divergence_bound=divergence_bound,
+    )
     _, info = env.reset(seed=seed)
     n, m, r = model.n, model.m, model.r
     x = np.empty((runs, horizon + 1, n))
@@ -145,41 +154,3 @@ def rollout(
         if progress is not None:
             progress.update(1)
     return Rollouts(x, modes, u_all, rho, J, stage, viol, ok, ended)
-
-
-def wilson(successes: int | np.ndarray, trials: int, confidence: float = 0.95) -> tuple:
-    """Wilson score interval for a binomial proportion; returns ``(low, high)``."""
-    z = stats.norm.ppf(0.5 + confidence / 2)
-    s = np.asarray(successes, dtype=np.float64)
-    phat = s / trials
-    denom = 1 + z**2 / trials
-    center = (phat + z**2 / (2 * trials)) / denom
-    half = z * np.sqrt(phat * (1 - phat) / trials + z**2 / (4 * trials**2)) / denom
-    # the exact limits lie in [0, 1], with 0 at phat = 0 and 1 at phat = 1; round-off misses both
-    lo = np.where(s <= 0, 0.0, np.clip(center - half, 0.0, 1.0))
-    hi = np.where(s >= trials, 1.0, np.clip(center + half, 0.0, 1.0))
-    return (float(lo), float(hi)) if lo.ndim == 0 else (lo, hi)
-
-
-def mean_ci(
-    values: np.ndarray, confidence: float = 0.95, floor: float | None = None
-) -> tuple[float, float, float]:
-    """Mean and Student-t interval ``(mean, low, high)`` of i.i.d. samples.
-
-    ``floor``: a value the mean cannot be below (0 for a cost). The interval is cut there: on
-    heavy-tailed samples (diverging episodes, three seeds) the t interval reaches below it, and
-    cutting off impossible values keeps the coverage as it is.
-    """
-    values = np.asarray(values, dtype=np.float64)
-    if values.size < 2:
-        raise ValueError(
-            f"values has {values.size} sample(s); a Student-t interval needs at least 2"
-        )
-    mean = float(values.mean())
-    half = float(
-        stats.t.ppf(0.5 + confidence / 2, values.size - 1)
-        * values.std(ddof=1)
-        / np.sqrt(values.size)
-    )
-    low = mean - half if floor is None else max(mean - half, float(floor))
-    return mean, low, mean + half

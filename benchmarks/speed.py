@@ -38,6 +38,7 @@ import gymnasium as gym
 import numpy as np
 
 import sdjls_gym
+from benchmarks.versions import package_versions
 from controllers import RecedingHorizonController, synthesize_gains
 from sdjls_gym import SDJLSModel, SDJLSVectorEnv
 from sdjls_gym.systems.macro import PAPER_K, PAPER_RHC
@@ -396,6 +397,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     res: dict[str, Any] = {
         "command": "python -m benchmarks.speed" + ("" if not argv else " " + " ".join(argv)),
         "machine": f"{platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}",
+        "versions": package_versions(),
         "targets": TARGETS,
         "env_step": {"pendulum_us": 1e6 * pend, "sdjls_us": 1e6 * sdj, "ratio": sdj / pend},
     }

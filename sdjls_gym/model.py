@@ -597,7 +597,7 @@ def _check_k(k: Any) -> Any:
     """``k`` as given when it is an int or an integer array in ``[0, 2**53]``; else an error."""
     if type(k) is int and 0 <= k <= MAX_INDEX:  # the common case, first
         return k
-    if isinstance(k, (list, tuple)):
+    if isinstance(k, (list, tuple, range)):
         k = np.asarray(k)
     if isinstance(k, np.ndarray) and k.ndim:
         if k.size and k.dtype.kind not in "iu":

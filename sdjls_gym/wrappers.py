@@ -8,10 +8,30 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from sdjls_gym._validate import check_array, check_float32_bound, check_number
+from sdjls_gym._validate import (
+    check_array,
+    check_choice,
+    check_float32_bound,
+    check_number,
+    check_positive,
+)
 from sdjls_gym.env import SDJLSEnv
 
-__all__ = ["ViolationPenalty", "ResidualAction"]
+__all__ = [
+    "ViolationPenalty",
+    "ResidualAction",
+    # training wrappers of the RL comparison (at the end of this file)
+    "FiniteHorizon",
+    "OBS_CLIP",
+    "REWARD_CLIP",
+    "REWARD_SCALE",
+    "REWARD_TRANSFORM",
+    "ScaleObservationReward",
+    "TERMINATE_BOUND",
+    "TerminateOutside",
+    "X_SCALE",
+    "scale_observation",
+]
 
 
 def _action_changing_layers(env: gym.Env) -> list[str]:
@@ -120,3 +140,141 @@ class ResidualAction(gym.ActionWrapper):
             raise ValueError(f"action (nu) = {action!r}; expected {self.K.shape[1]} finite numbers")
         base = self.env.unwrapped
         return self.K[base.mode] @ base.state + nu
+
+
+# ----------------------------------------------------------------------------- learning scalings
+# The fixed scalings of the RL comparison (``python -m benchmarks.compare_rl``): the
+# observation's state ``x / X_SCALE`` clipped to ``+-OBS_CLIP``, the reward
+# ``-log(1 + c / REWARD_SCALE)`` of the per-step cost ``c = -reward``, and training episodes
+# ended once ``max |x| > TERMINATE_BOUND``.
+X_SCALE = 10.0
+OBS_CLIP = 10.0
+REWARD_SCALE = 100.0
+REWARD_CLIP = 1e30
+REWARD_TRANSFORM = "log"
+TERMINATE_BOUND = 100.0
+
+
+def scale_observation(obs: np.ndarray, n: int, x_scale: float, obs_clip: float) -> np.ndarray:
+    """``[clip(x / x_scale, +-obs_clip), one-hot, k / T]`` of observations ``(..., n + N + 1)``.
+
+    Returns a new float32 array; only the first ``n`` entries (the state) change.
+    """
+    out = np.array(obs, dtype=np.float32, copy=True)
+    out[..., :n] = np.clip(out[..., :n] / x_scale, -obs_clip, obs_clip)
+    return out
+
+
+def _sdjls_base(env: gym.Env, wrapper: str) -> SDJLSEnv:
+    base = env.unwrapped
+    if not isinstance(base, SDJLSEnv):
+        raise TypeError(f"{wrapper} needs an SDJLSEnv underneath, got {type(base).__name__}")
+    return base
+
+
+class ScaleObservationReward(gym.Wrapper):
+    """Fixed scalings for learning: the state in the observation and the reward.
+
+    The observation becomes ``[clip(x / x_scale, +-obs_clip), one-hot of the mode, k / T]`` and
+    the reward ``r`` becomes ``max(r, -reward_clip) / reward_scale`` (``"linear"``) or
+    ``-log(1 + max(-r, 0) / reward_scale)`` with the clip applied first (``"log"``: monotone in
+    the cost, and still informative while the state diverges). The unscaled reward stays in
+    ``info["reward_raw"]``. The defaults are the RL comparison's (:data:`X_SCALE`,
+    :data:`OBS_CLIP`, :data:`REWARD_SCALE`, :data:`REWARD_CLIP`, :data:`REWARD_TRANSFORM`).
+
+    Fixed constants rather than running statistics (``VecNormalize``): the rewards of the first,
+    diverging episodes are ~1e9 times those of a good policy, and running statistics would keep
+    them forever.
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        An SDJLS environment, possibly wrapped (its ``unwrapped`` is an ``SDJLSEnv``).
+    x_scale, obs_clip, reward_scale, reward_clip : float
+        Positive constants.
+    reward_transform : {"log", "linear"}
+
+    Notes
+    -----
+    A policy trained behind this wrapper sees scaled observations; to run it on the raw
+    environment (``benchmarks.evaluate``), wrap it with ``benchmarks.evaluate.RawEnvPolicy``.
+    """
+
+    def __init__(
+        self,
+        env: gym.Env,
+        x_scale: float = X_SCALE,
+        obs_clip: float = OBS_CLIP,
+        reward_scale: float = REWARD_SCALE,
+        reward_clip: float = REWARD_CLIP,
+        reward_transform: str = REWARD_TRANSFORM,
+    ) -> None:
+        super().__init__(env)
+        self.n = _sdjls_base(env, "ScaleObservationReward").model.n
+        self.x_scale = check_positive("x_scale", x_scale)
+        self.obs_clip = check_positive("obs_clip", obs_clip)
+        self.reward_scale = check_positive("reward_scale", reward_scale)
+        self.reward_clip = check_positive("reward_clip", reward_clip)
+        self.reward_transform = check_choice(
+            "reward_transform", reward_transform, ("log", "linear")
+        )
+        low = self.observation(env.observation_space.low)
+        high = self.observation(env.observation_space.high)
+        self.observation_space = spaces.Box(low, high, dtype=np.float32)
+
+    def observation(self, obs: np.ndarray) -> np.ndarray:
+        """The scaled observation(s) of raw observation(s) ``(..., n + N + 1)``."""
+        return scale_observation(obs, self.n, self.x_scale, self.obs_clip)
+
+    def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
+        obs, info = self.env.reset(**kwargs)
+        return self.observation(obs), info
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        info["reward_raw"] = reward
+        reward = max(float(reward), -self.reward_clip) / self.reward_scale
+        if self.reward_transform == "log":  # -log(1 + cost / scale): monotone in the cost
+            reward = -float(np.log1p(-min(reward, 0.0)))
+        return self.observation(obs), reward, terminated, truncated, info
+
+
+class TerminateOutside(gym.Wrapper):
+    """End a training episode once ``max |x| > bound``, charging the rest of the horizon.
+
+    The remaining steps of the horizon are charged at this step's reward, so that ending early
+    is never better than going on. For training only: past the bound the scaled observation is
+    saturated and a bounded input can no longer bring the state back, so without it most of a
+    beginner's experience is spent in diverged states that teach nothing.
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        An SDJLS environment, possibly wrapped.
+    bound : float
+        Positive; the comparison's is :data:`TERMINATE_BOUND`.
+    """
+
+    def __init__(self, env: gym.Env, bound: float = TERMINATE_BOUND) -> None:
+        super().__init__(env)
+        self.horizon = int(_sdjls_base(env, "TerminateOutside").horizon)
+        self.bound = check_positive("bound", bound)
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        if not (terminated or truncated) and np.max(np.abs(info["state"])) > self.bound:
+            reward = reward * (1 + self.horizon - int(info["k"]))
+            terminated = True
+        return obs, reward, terminated, truncated, info
+
+
+class FiniteHorizon(gym.Wrapper):
+    """Report the end of the horizon as a termination (``terminated=True``, ``truncated=False``).
+
+    The time ``k / T`` is part of the observation, so the problem is a finite-horizon one and
+    nothing should be bootstrapped past ``x_T`` (stable-baselines3 bootstraps on truncation).
+    """
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, reward, bool(terminated or truncated), False, info

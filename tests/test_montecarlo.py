@@ -1,12 +1,14 @@
-"""``benchmarks.montecarlo.rollout``: how an episode that diverges is recorded and scored."""
+"""``benchmarks.montecarlo.rollout``: how an episode that diverges is recorded and scored, and the
+intervals of ``benchmarks.stats``."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from benchmarks.montecarlo import Rollouts, mean_ci, rollout, wilson
-from benchmarks.rl_eval import score
+from benchmarks.evaluate import statistics
+from benchmarks.montecarlo import Rollouts, rollout
+from benchmarks.stats import mean_ci, wilson
 from controllers import LinearFeedbackController
 from sdjls_gym import SDJLSModel
 from sdjls_gym.systems.macro import PAPER_K, macro
@@ -77,16 +79,16 @@ def test_rows_that_do_not_diverge_are_unaffected_with_a_random_initial_mode():
 def test_score_counts_every_step_after_divergence():
     model = macro()
     ro = rollout(model, _HalfUnstable(model), RUNS, T, seed=3)
-    stats = score(ro)
+    stats = statistics(ro, 1e6)
     assert stats["diverged"] == RUNS // 2
     # 20 stable rows as simulated, plus 20 rows violated from their divergence on
     stable = ro.any_violation[RUNS // 2 :].sum()
     ended = ro.ended[: RUNS // 2]
     before = ro.any_violation[: RUNS // 2][~ended].sum()
-    assert stats["violation"]["freq"] == (stable + before + ended.sum()) / (RUNS * T)
+    assert stats["violation"] == (stable + before + ended.sum()) / (RUNS * T)
     assert ended.sum() > RUNS // 2  # most diverged rows end several steps early
     assert np.all(ro.violations[: RUNS // 2][ended])  # every row of the band, on ended steps
-    assert np.isfinite(stats["episode_cost"]["mean"])
+    assert np.isfinite(stats["cost_mean"])
 
 
 def test_wilson_limits_stay_in_the_unit_interval():
@@ -132,11 +134,15 @@ def _synthetic(violated: np.ndarray) -> Rollouts:
     )
 
 
+def score(ro: Rollouts) -> dict:
+    return statistics(ro, 1e6)
+
+
 def _widths(stats: dict) -> tuple[float, float]:
-    v = stats["violation"]
-    assert v["episode_t95"][0] <= v["freq"] <= v["episode_t95"][1]
-    assert 0.0 <= v["episode_t95"][0] and v["episode_t95"][1] <= 1.0
-    return v["wilson95"][1] - v["wilson95"][0], v["episode_t95"][1] - v["episode_t95"][0]
+    (lo, hi), (elo, ehi) = stats["violation_wilson95"], stats["violation_episode_t95"]
+    assert elo <= stats["violation"] <= ehi
+    assert 0.0 <= elo and ehi <= 1.0
+    return hi - lo, ehi - elo
 
 
 def test_episode_interval_agrees_with_wilson_only_for_independent_steps():
@@ -155,11 +161,12 @@ def test_episode_interval_agrees_with_wilson_only_for_independent_steps():
 
 
 def test_episode_interval_at_the_ends_and_with_one_episode():
-    all_violated = score(_synthetic(np.ones((5, T), dtype=bool)))["violation"]
-    assert all_violated["episode_t95"] == [1.0, 1.0] and all_violated["freq"] == 1.0
+    all_violated = score(_synthetic(np.ones((5, T), dtype=bool)))
+    assert all_violated["violation_episode_t95"] == (1.0, 1.0)
+    assert all_violated["violation"] == 1.0
     one = np.zeros((3, T), dtype=bool)
     one[0, 0] = True  # shares 0.05, 0, 0: the t interval reaches below 0
-    near_zero = score(_synthetic(one))["violation"]
-    assert near_zero["episode_t95"][0] == 0.0 < near_zero["episode_t95"][1]
+    near_zero = score(_synthetic(one))["violation_episode_t95"]
+    assert near_zero[0] == 0.0 < near_zero[1]
     with pytest.raises(ValueError, match="1 sample"):
         score(_synthetic(np.ones((1, T), dtype=bool)))

@@ -266,3 +266,12 @@ def test_bad_options_are_rejected(capsys):
     with pytest.raises(SystemExit):  # the intervals need two runs
         reproduce_paper.parse_args(["--stat-runs", "1"])
     assert "--stat-runs = 1; expected an integer >= 2" in capsys.readouterr().err
+
+
+def test_summary_records_the_package_versions(run):
+    from benchmarks.versions import PACKAGES
+
+    out, _ = run
+    versions = json.loads((out / "summary.json").read_text())["versions"]
+    assert set(versions) == {"python", *PACKAGES}
+    assert versions["numpy"] and versions["gymnasium"] and versions["python"].count(".") == 2

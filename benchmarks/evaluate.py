@@ -1,0 +1,422 @@
+"""Score any policy on an SDJLS environment with the benchmarks' evaluation protocol.
+
+>>> from benchmarks.evaluate import evaluate
+>>> from controllers import LinearFeedbackController
+>>> from sdjls_gym.systems.macro import PAPER_K, macro
+>>> score = evaluate(LinearFeedbackController(macro(), PAPER_K), episodes=50)
+>>> score.violation > 0.9, score.diverged
+(True, 0)
+
+The protocol, the same for every controller of ``python -m benchmarks.compare_rl`` and for any
+user's agent: ``episodes`` episodes of the *raw* environment (``gym.make(env_id, **env_kwargs)``,
+actions in units of ``u``), simulated together on :class:`~sdjls_gym.SDJLSVectorEnv` from one
+noise seed, so that two policies scored with the same seed see the same noise (common random
+numbers). An episode whose state exceeds the divergence bound ends there; its cost is the cost
+up to then and its remaining steps count as violated. :class:`Score` holds the mean episode cost
+with a 95% Student-t interval and the median; the per-step violation frequency (any row of
+``G x <= H_k``) with its 95% Wilson interval and a Student-t interval over the episodes' shares
+of violated steps; the diverged episodes; the largest ``|u|``; the decision time per state; and,
+on the paper's system, the paired gap to the curve of the paper's receding-horizon controller
+(individual constraints, ``xi`` in :data:`REFERENCE_XIS`) scored on the same episodes.
+
+A policy is one of
+
+* an object with the controllers' ``act_batch(x, mode, k)`` (the project's controllers,
+  :class:`RawEnvPolicy`): called with the exact states, once per step for the whole batch;
+* an object with stable-baselines3's ``predict(obs, deterministic=True)`` (an SB3 model trained
+  on the raw environment, a user's object), or a plain callable ``obs -> action``: called with
+  the environment's observations. A policy that accepts a batch of observations (B, n + N + 1)
+  and returns (B, m) actions is called once per step; this is checked on the first step against
+  row-by-row calls, and a policy that fails the check is called row by row.
+
+An agent trained behind wrappers that rescale its actions or observations
+(``gymnasium.wrappers.RescaleAction``, :class:`~sdjls_gym.wrappers.ScaleObservationReward`,
+:class:`~sdjls_gym.wrappers.ResidualAction`) acts in other units: wrap it with
+``RawEnvPolicy(agent, train_env)``, which reads the wrappers of its training environment.
+
+Command line: ``python -m benchmarks.evaluate --policy PATH.zip --algo ppo`` (an SB3 model;
+``--train-env package.module:attribute`` names its training environment) or
+``--policy package.module:attribute``; ``--json PATH`` writes the score.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from benchmarks.montecarlo import Rollouts, paper_rhc, rollout
+from benchmarks.policies import RawEnvPolicy, _check_policy, as_controller
+from benchmarks.stats import CurveGap, mean_ci, paired_curve_gap, wilson
+from sdjls_gym import SDJLSModel
+from sdjls_gym._validate import check_int, check_mapping, describe, type_name
+from sdjls_gym.env import SDJLSEnv
+
+__all__ = [
+    "REFERENCE_CONSTRAINT",
+    "REFERENCE_XIS",
+    "RawEnvPolicy",
+    "Score",
+    "evaluate",
+    "evaluate_rollouts",
+]
+
+#: The reference curve: the paper's receding-horizon controller with these constraints at these
+#: levels ``xi`` (section 6's gains, Psi, alpha and |nu| <= 100).
+REFERENCE_XIS: tuple[float, ...] = (0.3, 0.5, 0.7, 0.8, 0.85, 0.9, 0.95, 0.99)
+REFERENCE_CONSTRAINT = "individual"
+#: Visited states drawn from the rollouts to time the decisions on.
+TIMING_STATES = 1000
+
+
+@dataclass(frozen=True)
+class Score:
+    """The evaluation of one policy (see the module docstring for the protocol).
+
+    Attributes
+    ----------
+    env_id : str
+    episodes, steps, seed : int
+        Episodes of ``steps`` steps, noise seed.
+    cost_mean, cost_ci95, cost_median
+        Episode cost ``sum_k x_k'Q x_k + u_k'R u_k``: mean, 95% Student-t interval over the
+        episodes (cut at 0), median.
+    violation, violation_wilson95
+        Share of the ``episodes x steps`` steps whose next state violates a row of the band,
+        with its 95% Wilson interval (which treats the steps as independent).
+    violation_episode_t95
+        95% Student-t interval over the episodes' shares of violated steps (cut to [0, 1]),
+        which allows for dependence between the steps of an episode.
+    diverged : int
+        Episodes whose state exceeded the divergence bound.
+    max_abs_u : float
+        Largest ``|u|`` applied.
+    decision_time_batched_s, decision_time_single_s : float
+        Seconds per state: a batch of visited states at once, and one state at a time.
+    curve_gap : CurveGap or None
+        Mean cost minus the reference curve's at this violation frequency, paired over the
+        episodes, with a 95% bootstrap interval (:func:`benchmarks.stats.paired_curve_gap`);
+        None where the frequency is outside the curve's range, an episode diverged, or the
+        system is not the paper's.
+    episode_costs, episode_violations : (episodes,) arrays
+        Each episode's cost and share of violated steps (for paired comparisons).
+    """
+
+    env_id: str
+    episodes: int
+    steps: int
+    seed: int
+    cost_mean: float
+    cost_ci95: tuple[float, float]
+    cost_median: float
+    violation: float
+    violation_wilson95: tuple[float, float]
+    violation_episode_t95: tuple[float, float]
+    diverged: int
+    max_abs_u: float
+    decision_time_batched_s: float
+    decision_time_single_s: float
+    curve_gap: CurveGap | None
+    episode_costs: np.ndarray = field(repr=False, compare=False)
+    episode_violations: np.ndarray = field(repr=False, compare=False)
+
+    def to_dict(self, per_episode: bool = False) -> dict[str, Any]:
+        """Plain JSON types; the per-episode arrays only with ``per_episode``."""
+        out = asdict(self)
+        costs, viols = out.pop("episode_costs"), out.pop("episode_violations")
+        if per_episode:
+            out["episode_costs"] = np.asarray(costs).tolist()
+            out["episode_violations"] = np.asarray(viols).tolist()
+        return json.loads(json.dumps(out))  # tuples become lists
+
+
+# ----------------------------------------------------------------------------- environments
+@dataclass(frozen=True)
+class EnvSpec:
+    """What the rollouts need to know of ``gym.make(env_id, **env_kwargs)``."""
+
+    model: SDJLSModel
+    horizon: int
+    action_bound: float
+    divergence_bound: float
+    paper_system: bool  # the macro example: the reference curve applies
+
+
+def _key(model: SDJLSModel) -> str:
+    return json.dumps(model.to_dict(), sort_keys=True)
+
+
+def resolve_env(env_id: str, env_kwargs: dict[str, Any]) -> EnvSpec:
+    """Make the environment once and read its model, horizon and bounds."""
+    from sdjls_gym.systems.macro import macro
+
+    env = gym.make(env_id, **env_kwargs)
+    try:
+        base = env.unwrapped
+        if not isinstance(base, SDJLSEnv):
+            raise ValueError(
+                f"env_id = {env_id!r} makes a {type(base).__name__}; expected an SDJLS "
+                "environment (an SDJLSEnv underneath)"
+            )
+        limit = env.spec.max_episode_steps if env.spec is not None else None
+        if limit is not None and limit != base.horizon:
+            raise ValueError(
+                f"env_kwargs give horizon = {base.horizon} but episodes end after "
+                f"max_episode_steps = {limit} steps; pass max_episode_steps={base.horizon} too"
+            )
+        bound = np.asarray(base.action_space.high, dtype=np.float64)
+        return EnvSpec(
+            model=base.model,
+            horizon=int(base.horizon),
+            action_bound=float(bound[0]) if np.all(bound == bound[0]) else bound,
+            divergence_bound=float(base.divergence_bound),
+            paper_system=_key(base.model) == _key(macro()),
+        )
+    finally:
+        env.close()
+
+
+# ----------------------------------------------------------------------------- the protocol
+def statistics(ro: Rollouts, divergence_bound: float) -> dict[str, Any]:
+    """Cost, violation and divergence statistics of rollouts (the fields of :class:`Score`)."""
+    costs = ro.episode_cost
+    violations = ro.any_violation
+    total, count = violations.size, int(violations.sum())
+    lo, hi = wilson(count, total)
+    shares = violations.mean(axis=1)
+    _, elo, ehi = mean_ci(shares)  # the episodes are independent; their steps need not be
+    mean, clo, chi = mean_ci(costs, floor=0.0)  # a cost is >= 0
+    return {
+        "episodes": int(ro.runs),
+        "steps": int(violations.shape[1]),
+        "cost_mean": float(mean),
+        "cost_ci95": (float(clo), float(chi)),
+        "cost_median": float(np.median(costs)),
+        "violation": count / total,
+        "violation_wilson95": (float(lo), float(hi)),
+        "violation_episode_t95": (max(float(elo), 0.0), min(float(ehi), 1.0)),
+        "diverged": int(np.any(np.abs(ro.x) > divergence_bound, axis=(1, 2)).sum()),
+        "max_abs_u": float(np.max(np.abs(ro.u))),
+        "episode_costs": costs,
+        "episode_violations": shares,
+    }
+
+
+def decision_states(ro: Rollouts, size: int, seed: int = 0) -> tuple[np.ndarray, ...]:
+    """``size`` visited states ``(x (B, n), mode (B,), k (B,))``, k < T, drawn from ``ro``;
+    none from after a diverged episode ended."""
+    runs, T = ro.ended.shape
+    rng = np.random.default_rng(seed)
+    lived = np.flatnonzero(~ro.ended.ravel())
+    i, k = np.divmod(lived[rng.integers(0, lived.size, size)], T)
+    return ro.x[i, k], ro.mode[i, k].astype(np.int64), k.astype(np.int64)
+
+
+def decision_time(
+    controller: Any, x: np.ndarray, mode: np.ndarray, k: np.ndarray, single: int = 50,
+    repeats: int = 3,
+) -> tuple[float, float]:  # fmt: skip
+    """Seconds per state: the best of ``repeats`` calls of ``act_batch`` on all of ``x`` (B, n)
+    divided by B, and the mean of ``single`` calls of ``act`` on one state."""
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        controller.act_batch(x, mode, k)
+        best = min(best, time.perf_counter() - t0)
+    idx = np.linspace(0, len(x) - 1, min(single, len(x))).astype(int)
+    t0 = time.perf_counter()
+    for i in idx:
+        controller.act(x[i], int(mode[i]), int(k[i]))
+    return float(best / len(x)), float((time.perf_counter() - t0) / len(idx))
+
+
+@functools.lru_cache(maxsize=8)
+def reference_curve(
+    episodes: int, seed: int, horizon: int, action_bound: float, divergence_bound: float
+) -> tuple[tuple[float, ...], np.ndarray, np.ndarray]:
+    """``(xis, costs (P, E), violations (P, E))`` of the reference curve on the paper's system."""
+    from sdjls_gym.systems.macro import macro
+
+    model = macro()
+    costs, viols = [], []
+    for xi in REFERENCE_XIS:
+        ctrl = paper_rhc(model, xi, REFERENCE_CONSTRAINT, horizon=horizon)
+        ro = rollout(model, ctrl, episodes, horizon, seed, action_bound, None, divergence_bound)
+        costs.append(ro.episode_cost)
+        viols.append(ro.any_violation.mean(axis=1))
+    return REFERENCE_XIS, np.stack(costs), np.stack(viols)
+
+
+def evaluate_rollouts(
+    controller: Any, spec: EnvSpec, episodes: int, seed: int, env_id: str = "SDJLS-Macro-v0"
+) -> tuple[Score, Rollouts]:
+    """The protocol on a controller with ``act_batch``: its :class:`Score` and its rollouts."""
+    ro = rollout(
+        spec.model, controller, episodes, spec.horizon, seed, spec.action_bound, None,
+        spec.divergence_bound,
+    )  # fmt: skip
+    stats = statistics(ro, spec.divergence_bound)
+    states = decision_states(ro, min(TIMING_STATES, ro.runs * spec.horizon))
+    batched, single = decision_time(controller, *states)
+    gap = None
+    if spec.paper_system and stats["diverged"] == 0:
+        xis, c_costs, c_viols = reference_curve(
+            episodes, seed, spec.horizon, float(np.max(spec.action_bound)), spec.divergence_bound
+        )
+        gap = paired_curve_gap(
+            stats["episode_costs"], stats["episode_violations"], c_costs, c_viols, xis
+        )
+    score = Score(
+        env_id=env_id,
+        seed=seed,
+        decision_time_batched_s=batched,
+        decision_time_single_s=single,
+        curve_gap=gap,
+        **stats,
+    )
+    return score, ro
+
+
+def evaluate(
+    policy: Any,
+    *,
+    episodes: int = 1000,
+    seed: int = 0,
+    env_id: str = "SDJLS-Macro-v0",
+    env_kwargs: dict[str, Any] | None = None,
+) -> Score:
+    """Score ``policy`` on ``episodes`` episodes of the raw ``env_id`` from noise seed ``seed``.
+
+    Parameters
+    ----------
+    policy : object
+        A controller with ``act_batch(x, mode, k)``, an object with ``predict(obs,
+        deterministic=True)``, or a callable ``obs -> action`` (see the module docstring). An
+        agent trained behind rescaling wrappers goes in as ``RawEnvPolicy(agent, train_env)``.
+    episodes : int
+        At least 2 (the intervals are over episodes).
+    seed : int
+        Noise seed, >= 0; the same seed gives every policy the same noise.
+    env_id : str
+        A registered SDJLS environment.
+    env_kwargs : dict, optional
+        Keyword arguments of ``gym.make(env_id, ...)``.
+
+    Returns
+    -------
+    Score
+
+    Raises
+    ------
+    TypeError, ValueError
+        A bad argument, before any episode is run.
+    """
+    episodes = check_int("episodes", episodes, low=2, what="the intervals are over episodes")
+    seed = check_int("seed", seed, low=0)
+    if not isinstance(env_id, str):
+        raise TypeError(f"env_id = {describe(env_id)} is a {type_name(env_id)}; expected a str")
+    env_kwargs = check_mapping("env_kwargs", env_kwargs)
+    _check_policy(policy)
+    spec = resolve_env(env_id, env_kwargs)
+    return evaluate_rollouts(as_controller(policy, spec), spec, episodes, seed, env_id)[0]
+
+
+# ----------------------------------------------------------------------------- command line
+SB3_ALGOS = ("a2c", "ddpg", "ppo", "sac", "td3")
+
+
+def _import_attribute(text: str, option: str) -> Any:
+    """``package.module:attribute`` -> the attribute (dots in it follow attributes)."""
+    import importlib
+
+    module, sep, attribute = text.partition(":")
+    if not sep or not module or not attribute:
+        raise SystemExit(f"{option} = {text!r}; expected package.module:attribute or a .zip file")
+    obj: Any = importlib.import_module(module)
+    for part in attribute.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
+def load_cli_policy(policy: str, algo: str | None, train_env: str | None) -> Any:
+    """The policy named on the command line (see :func:`main`)."""
+    if not policy.endswith(".zip"):
+        if algo is not None or train_env is not None:
+            raise SystemExit("--algo and --train-env apply to a stable-baselines3 .zip file only")
+        return _import_attribute(policy, "--policy")
+    if algo is None:
+        raise SystemExit(f"--policy {policy} is a stable-baselines3 file: give --algo {SB3_ALGOS}")
+    import stable_baselines3
+
+    agent = getattr(stable_baselines3, algo.upper()).load(policy, device="cpu")
+    if train_env is None:
+        return agent
+    env = _import_attribute(train_env, "--train-env")
+    return RawEnvPolicy(agent, env() if callable(env) and not isinstance(env, gym.Env) else env)
+
+
+def describe_score(name: str, score: Score) -> list[str]:
+    """The table row of ``score`` (the RL comparison's columns) and where it sits on the curve."""
+    from types import SimpleNamespace
+
+    from benchmarks.rl_report import TABLE_HEADER, table_row
+
+    lines = [*TABLE_HEADER, table_row(SimpleNamespace(name=name, score=score))]
+    g = score.curve_gap
+    if g is None:
+        lines.append("Against the RHC curve: no paired gap (an episode diverged, the violation "
+                     "frequency is outside the curve's range, or the system is not the paper's).")  # fmt: skip
+    else:
+        lines.append(
+            f"Against the RHC curve (individual constraints, xi in {REFERENCE_XIS[0]:g}.."
+            f"{REFERENCE_XIS[-1]:g}): at violation frequency {g.violation:.3f} the curve, at xi = "
+            f"{g.xi:.3f}, costs {g.curve_cost:.4g}; cost minus curve {g.mean:+.1f} (95% bootstrap "
+            f"interval {g.ci95[0]:+.1f} to {g.ci95[1]:+.1f})."
+        )
+    return lines
+
+
+def main(argv: list[str] | None = None) -> Score:
+    import argparse
+    import sys
+    from pathlib import Path
+
+    from benchmarks.versions import package_versions
+
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.evaluate",
+        description="Score a policy with the benchmarks' evaluation protocol.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--policy", required=True,
+                        help="a stable-baselines3 .zip file (with --algo), or "
+                        "package.module:attribute (an object with predict, or a callable)")  # fmt: skip
+    parser.add_argument("--algo", choices=SB3_ALGOS, help="algorithm of a .zip file")
+    parser.add_argument("--train-env", help="package.module:attribute: the .zip agent's training "
+                        "environment (or a function making it), whose wrappers RawEnvPolicy "
+                        "undoes; default: the agent acts on the raw environment")  # fmt: skip
+    parser.add_argument("--episodes", type=int, default=1000, help="evaluation episodes")
+    parser.add_argument("--seed", type=int, default=0, help="noise seed")
+    parser.add_argument("--env-id", default="SDJLS-Macro-v0", help="registered environment")
+    parser.add_argument("--json", type=Path, help="write the score (and the versions) here")
+    opts = parser.parse_args(argv)
+    policy = load_cli_policy(opts.policy, opts.algo, opts.train_env)
+    try:
+        score = evaluate(policy, episodes=opts.episodes, seed=opts.seed, env_id=opts.env_id)
+    except (TypeError, ValueError) as exc:
+        parser.error(str(exc))
+    print("\n".join(describe_score(opts.policy, score)))
+    if opts.json is not None:
+        data = {**score.to_dict(), "policy": opts.policy, "versions": package_versions()}
+        opts.json.write_text(json.dumps(data, indent=1) + "\n")
+    return score
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,501 @@
+"""The RL comparison's records, aggregates and outputs: summary.json, summary.csv, REPORT.md.
+
+The report is tables and a short fixed text; the reading of the numbers is written by hand in
+the README.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks import rl_hyperparams as HP
+from benchmarks.evaluate import Score
+from benchmarks.rl_train import RunRecord
+from benchmarks.stats import (
+    FLAT_TOL,
+    CurveStatus,
+    IntervalCheck,
+    mean_ci,
+    paired_difference,
+    wilson,
+)
+
+#: Margin over the target 1 - xi within which a trained agent counts as comparable with the RHC.
+COMPARABLE_MARGIN = 0.05
+
+
+# ----------------------------------------------------------------------------- records
+@dataclass
+class ControllerResult:
+    """A model-based controller, scored; ``xi`` and ``constraint`` for the points of a curve."""
+
+    name: str
+    family: str
+    score: Score
+    xi: float | None = None
+    constraint: str | None = None
+    tightened_band_empty: float | None = None  # share of (mode, k) with an empty tightened band
+    kind: str = "model-based"
+
+
+@dataclass
+class RunResult:
+    """A trained seed, scored."""
+
+    run: RunRecord
+    score: Score
+    kind: str = "rl-seed"
+
+    @property
+    def name(self) -> str:
+        return self.run.name
+
+
+@dataclass
+class Aggregate:
+    """The seeds of one (algorithm, variant), pooled (see :func:`aggregate`)."""
+
+    name: str
+    algo: str
+    variant: str
+    seeds: int
+    episodes: int
+    steps: int
+    cost_mean: float
+    cost_ci95: tuple[float, float]
+    cost_median: float
+    violation: float
+    violation_wilson95: tuple[float, float]
+    violation_seed_range: tuple[float, float]
+    diverged: int
+    timesteps: int
+    train_time_s: float
+    decision_time_batched_s: float
+    decision_time_single_s: float
+    final_beta: float | None
+    kind: str = "rl-aggregate"
+
+
+@dataclass
+class Summary:
+    """Everything the RL comparison computed (written as summary.json)."""
+
+    command: str
+    options: dict[str, Any]
+    versions: dict[str, str | None]
+    timesteps: dict[str, dict[str, int]]
+    hyperparams: dict[str, Any]
+    model_based: list[ControllerResult]
+    rl_runs: list[RunResult]
+    rl_aggregates: list[Aggregate]
+    learning_curves: list[CurveStatus]
+    violation_interval_check: dict[str, IntervalCheck | None] | None
+    best_config: str | None
+    best_config_comparable: bool
+    best_agent: str | None
+    against_best_agent: list[dict[str, Any]]
+    figures: list[str]
+
+    def to_json(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["model_based"] = [_result_json(r) for r in self.model_based]
+        out["rl_runs"] = [_result_json(r) for r in self.rl_runs]
+        return json.loads(json.dumps(out))
+
+
+def _result_json(r: ControllerResult | RunResult) -> dict[str, Any]:
+    if isinstance(r, RunResult):
+        data = {k: v for k, v in r.run.to_json().items() if k != "config"}
+        tail = {k: data.pop(k) for k in ("learning_curve", "dual_ascent")}
+        return {**data, "score": r.score.to_dict(), **tail}
+    data = {k: v for k, v in asdict(r).items() if k != "score"}
+    return {**data, "score": r.score.to_dict()}
+
+
+# ----------------------------------------------------------------------------- aggregation
+def aggregate(runs: list[RunResult]) -> list[Aggregate]:
+    """One row per (algorithm, variant): seeds pooled.
+
+    The cost is the mean over seeds of each seed's mean, with a Student-t 95% interval over seeds
+    (the spread between trainings, which dominates; cut at 0; for a single seed that seed's
+    interval over episodes), and the median of the seeds' medians. The violation frequency is
+    pooled over every seed's steps, with its Wilson interval; ``violation_seed_range`` shows the
+    spread between seeds.
+    """
+    groups: dict[tuple[str, str], list[RunResult]] = {}
+    for r in runs:
+        groups.setdefault((r.run.algo, r.run.variant), []).append(r)
+    rows = []
+    for (algo, variant), rs in groups.items():
+        scores = [r.score for r in rs]
+        means = np.array([s.cost_mean for s in scores])
+        if len(rs) == 1:  # no spread between trainings to show: the episodes' interval
+            mean, (lo, hi) = float(means[0]), scores[0].cost_ci95
+        else:
+            mean, lo, hi = mean_ci(means, floor=0.0)
+        steps = sum(s.episodes * s.steps for s in scores)
+        count = int(round(sum(s.violation * s.episodes * s.steps for s in scores)))
+        vlo, vhi = wilson(count, steps)
+        freqs = [s.violation for s in scores]
+        betas = [r.run.final_beta for r in rs]
+        rows.append(
+            Aggregate(
+                name=f"{algo.upper()} {variant}",
+                algo=algo,
+                variant=variant,
+                seeds=len(rs),
+                episodes=int(sum(s.episodes for s in scores)),
+                steps=scores[0].steps,
+                cost_mean=float(mean),
+                cost_ci95=(float(lo), float(hi)),
+                cost_median=float(np.median([s.cost_median for s in scores])),
+                violation=count / steps,
+                violation_wilson95=(float(vlo), float(vhi)),
+                violation_seed_range=(min(freqs), max(freqs)),
+                diverged=int(sum(s.diverged for s in scores)),
+                timesteps=int(np.mean([r.run.timesteps for r in rs])),
+                train_time_s=float(np.mean([r.run.train_time_s for r in rs])),
+                decision_time_batched_s=float(np.mean([s.decision_time_batched_s for s in scores])),
+                decision_time_single_s=float(np.mean([s.decision_time_single_s for s in scores])),
+                final_beta=None if betas[0] is None else float(np.mean(betas)),
+            )
+        )
+    return rows
+
+
+def comparable(row: Aggregate, target: float) -> bool:
+    """Comparable with the RHC at risk level ``target``: no diverged episode and a violation
+    frequency of at most ``target`` + :data:`COMPARABLE_MARGIN`."""
+    return row.diverged == 0 and row.violation <= target + COMPARABLE_MARGIN
+
+
+def best_config(aggs: list[Aggregate], target: float) -> Aggregate | None:
+    """The configuration with the lowest mean cost among the :func:`comparable` ones; if there is
+    none, the one with the fewest diverged episodes, then the fewest violations."""
+    if not aggs:
+        return None
+    ok = [a for a in aggs if comparable(a, target)]
+    if ok:
+        return min(ok, key=lambda a: a.cost_mean)
+    return min(aggs, key=lambda a: (a.diverged, a.violation))
+
+
+def best_agent(aggs: list[Aggregate], runs: list[RunResult], target: float) -> RunResult | None:
+    """Of :func:`best_config`'s seeds, the one with the median mean cost (the lower middle one
+    for an even count; not the cheapest, which would pick the luckiest training on the very
+    episodes it is scored on)."""
+    best = best_config(aggs, target)
+    if best is None:
+        return None
+    seeds = sorted(
+        (r for r in runs if (r.run.algo, r.run.variant) == (best.algo, best.variant)),
+        key=lambda r: r.score.cost_mean,
+    )
+    return seeds[(len(seeds) - 1) // 2]
+
+
+def against_best_agent(model_based: list[ControllerResult], best: RunResult | None) -> list[dict]:
+    """Each model-based controller's cost minus the best agent's, paired over the episodes,
+    with its 95% bootstrap interval (:func:`benchmarks.stats.paired_difference`)."""
+    if best is None:
+        return []
+    out = []
+    for r in model_based:
+        mean, ci = paired_difference(r.score.episode_costs, best.score.episode_costs)
+        out.append({"name": r.name, "agent": best.name, "mean": mean, "ci95": list(ci)})
+    return out
+
+
+# ----------------------------------------------------------------------------- formatting
+def fmt_steps(n: int) -> str:
+    """Three significant digits: 2500608 -> '2.5M', 60006 -> '60k', 1056 -> '1.06k'."""
+    if n >= 1_000_000:
+        return f"{n / 1e6:.3g}M"
+    if n >= 1000:
+        return f"{n / 1e3:.3g}k"
+    return str(n)
+
+
+def fmt_time(seconds: float) -> str:
+    """Microseconds with one decimal, or seconds from 1 s on."""
+    return f"{seconds * 1e6:.1f}" if seconds < 1 else f"{seconds:.3g} s"
+
+
+def _line(r: Any) -> list[Any]:
+    """The common columns of a row: a controller, a trained seed or an aggregate."""
+    s = r.score if hasattr(r, "score") else r
+    steps = r.run.timesteps if isinstance(r, RunResult) else getattr(r, "timesteps", 0)
+    train = r.run.train_time_s if isinstance(r, RunResult) else getattr(r, "train_time_s", 0.0)
+    return [r.name, s.episodes, s.cost_mean, s.cost_ci95, s.cost_median, s.violation,
+            s.violation_wilson95, s.diverged, steps, train, s.decision_time_batched_s,
+            s.decision_time_single_s]  # fmt: skip
+
+
+TABLE_HEADER = [
+    "| controller | episodes | mean episode cost (95% CI) | median cost | violation frequency "
+    "(95% Wilson) | diverged | training steps | training time (s) | decision time per state, "
+    "batched / single (us) |",
+    "|---|---|---|---|---|---|---|---|---|",
+]
+
+
+def table_row(r: Any) -> str:
+    """One line of the results table (:data:`TABLE_HEADER`)."""
+    name, eps, mean, (lo, hi), median, v, (vlo, vhi), div, steps, train, dtb, dts = _line(r)
+    return (
+        f"| {name} | {eps} | {mean:.4g} ({lo:.4g} to {hi:.4g}) | {median:.4g} | {v:.3f} "
+        f"({vlo:.3f}-{vhi:.3f}) | {div} | {fmt_steps(steps) if steps else '-'} | {train:.0f} | "
+        f"{fmt_time(dtb)} / {fmt_time(dts)} |"
+    )
+
+
+def table(rows: list[Any]) -> list[str]:
+    return [*TABLE_HEADER, *(table_row(r) for r in rows)]
+
+
+CSV_HEADER = [
+    "name", "kind", "algo", "variant", "seed", "xi", "episodes", "episode_cost_mean",
+    "episode_cost_lo", "episode_cost_hi", "episode_cost_median", "violation", "violation_lo",
+    "violation_hi", "diverged", "timesteps", "train_time_s", "decision_time_batched_s",
+    "decision_time_single_s", "final_beta", "curve_gap", "curve_gap_lo", "curve_gap_hi",
+    "violation_episode_lo", "violation_episode_hi",
+]  # fmt: skip
+
+
+def csv_row(r: Any) -> list[Any]:
+    name, eps, mean, (lo, hi), median, v, (vlo, vhi), div, steps, train, dtb, dts = _line(r)
+    run = r.run if isinstance(r, RunResult) else r
+    score = getattr(r, "score", None)
+    gap = None if score is None else score.curve_gap
+    beta = getattr(run, "final_beta", None)
+    return [
+        name, r.kind, getattr(run, "algo", ""), getattr(run, "variant", ""),
+        getattr(run, "seed", ""), "" if getattr(r, "xi", None) is None else r.xi, eps,
+        f"{mean:.6g}", f"{lo:.6g}", f"{hi:.6g}", f"{median:.6g}", f"{v:.6f}", f"{vlo:.6f}",
+        f"{vhi:.6f}", div, steps, f"{train:.1f}", f"{dtb:.3g}", f"{dts:.3g}",
+        "" if beta is None else f"{beta:.6g}",
+        *(["", "", ""] if gap is None else [f"{g:.6g}" for g in (gap.mean, *gap.ci95)]),
+        *(["", ""] if score is None else [f"{e:.6f}" for e in score.violation_episode_t95]),
+    ]  # fmt: skip
+
+
+def write_csv(path: Path, rows: list[Any]) -> None:
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(CSV_HEADER)
+        for r in rows:
+            w.writerow(csv_row(r))
+
+
+def _signed(x: float) -> str:
+    """``+12`` / ``-3``; round-off around 0 reads ``+0``, not ``-0``."""
+    return f"{x:+.0f}" if round(x) != 0 else "+0"
+
+
+def _curve_gap_table(rows: list[ControllerResult | RunResult]) -> list[str]:
+    lines = [
+        "| controller | violation frequency | mean episode cost | curve's cost there | "
+        "cost minus curve (95% bootstrap) | xi of the curve there |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        g = r.score.curve_gap
+        if g is None:
+            continue
+        xi = "-" if g.xi is None else f"{g.xi:.3f}"
+        lines.append(
+            f"| {r.name} | {g.violation:.3f} | {r.score.cost_mean:.4g} | {g.curve_cost:.4g} | "
+            f"{_signed(g.mean)} ({_signed(g.ci95[0])} to {_signed(g.ci95[1])}) | {xi} |"
+        )
+    return lines
+
+
+def _curve_table(status: list[CurveStatus]) -> list[str]:
+    lines = [
+        "| agent | training steps | late window (steps) | violation frequency, late | "
+        "change | diverged share, late | change | median cost change | flat |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for s in status:
+        dc = s.cost_rel_change
+        if dc is None:
+            cost = "- (median episode diverges)"
+        else:
+            cost = f"{100 * dc:.1f}%" if dc < 10 else "> 1000%"
+        lo, hi = s.late_window
+        lines.append(
+            f"| {s.algo.upper()} {s.variant} | {fmt_steps(s.timesteps)} | {fmt_steps(lo)}-"
+            f"{fmt_steps(hi)} | {s.violation_late:.3f} | {s.violation_change:.4f} | "
+            f"{s.diverged_share_late:.2f} | {s.diverged_share_change:.4f} | {cost} | "
+            f"{'yes' if s.flat else '**no**'} |"
+        )
+    return lines
+
+
+CAPTIONS = {
+    "fig_cost_violation.png": "Mean episode cost against violation frequency: the model-based "
+    "curves over xi, one point per other controller (trained agents: seeds pooled), 95% interval "
+    "bars; hollow markers: agents whose learning curve is not flat by the test",
+    "fig_learning_curves.png": "Learning curves: median evaluation cost and violation frequency "
+    "against training steps (mean over seeds, band from min to max)",
+    "fig_lagrangian_beta.png": "Lagrangian variant: beta, and the violation frequency it is "
+    "updated from (the deterministic policy's, solid; the exploring policy's, dashed)",
+    "fig_income.png": "Incomes under the RHC (individual, xi = 0.85) and under the best agent "
+    "(see Best agent)",
+}
+
+
+def write_report(summary: Summary, xi: float, reference: str) -> str:
+    """REPORT.md: the fixed text of the protocol, then tables; ``reference`` is the family of
+    the curve the gaps are measured against (its own points are left out: 0 by construction)."""
+    o = summary.options
+    target = 1 - xi
+    mb = summary.model_based
+    main_mb = [r for r in mb if r.xi in (None, xi)]
+    runs_by = sorted(summary.rl_runs, key=lambda r: r.name)
+    lines = [
+        "# The receding-horizon controller against RL agents (SDJLS-Macro-v0)",
+        "",
+        f"Generated by `{summary.command}`. Versions: "
+        + ", ".join(f"{k} {v}" for k, v in summary.versions.items())
+        + ".",
+        "",
+        f"Every controller is scored by `benchmarks.evaluate.evaluate` on the same "
+        f"{o['eval_episodes']} episodes of 20 steps (noise seed {o['seed']}, common random "
+        "numbers). Episode cost: the sum of x'Qx + u'Ru; mean with a 95% Student-t interval over "
+        "episodes (aggregates of trained seeds: over the seeds' means; cut at 0) and median "
+        "(aggregates: median of the seeds' medians). Violation frequency: share of steps whose "
+        "state leaves the band G x <= H_k, with a 95% Wilson interval (aggregates: pooled over "
+        "seeds). Diverged: episodes with |x| > 1e6; such an episode ends there and its remaining "
+        "steps count as violated. Decision time: per state, batched over 1000 visited states and "
+        "one state at a time. Training time: mean wall time per run on one CPU thread, with the "
+        "evaluations made during training. Agents learn from -log(1 + c / 100) of the penalized "
+        "per-step cost c; every number here is the true cost. Hyperparameters and budgets: "
+        "`benchmarks/rl_hyperparams.py`; how they were chosen: `HISTORY.md`.",
+        "",
+        "## Results",
+        "",
+        *table(main_mb + summary.rl_aggregates),
+        "",
+        "## Against the RHC curve",
+        "",
+        "Cost minus the curve of the RHC with individual constraints over xi, interpolated at the "
+        "controller's own violation frequency, paired over the common episodes (rows without "
+        "a diverged episode, inside the curve's range).",
+        "",
+        *_curve_gap_table([r for r in mb if r.family != reference] + runs_by),
+        "",
+        "## Best agent",
+        "",
+        f"Comparable: no diverged episode and violation frequency <= {target + COMPARABLE_MARGIN:.2f}. "
+        f"Cheapest comparable configuration: {summary.best_config or '-'}"
+        + ("" if summary.best_config_comparable else " (none comparable: fewest diverged)")
+        + f"; its seed with the median cost: {summary.best_agent or '-'}.",
+        "",
+        "| controller | cost minus the best agent's (95% bootstrap) |",
+        "|---|---|",
+        *(
+            f"| {d['name']} | {_signed(d['mean'])} ({_signed(d['ci95'][0])} to "
+            f"{_signed(d['ci95'][1])}) |"
+            for d in summary.against_best_agent
+        ),
+        "",
+        "## Tightened band",
+        "",
+        "| controller | share of (mode, k) with an empty tightened band |",
+        "|---|---|",
+        *(
+            f"| {r.name} | {r.tightened_band_empty:.2f} |"
+            for r in mb
+            if r.tightened_band_empty is not None
+        ),
+        "",
+        "## Lagrangian agents",
+        "",
+        "| agent | final beta (mean of seeds) | violation frequency | seeds' range | target |",
+        "|---|---|---|---|---|",
+        *(
+            f"| {a.name} | {a.final_beta:.4g} | {a.violation:.3f} | "
+            f"{a.violation_seed_range[0]:.3f}-{a.violation_seed_range[1]:.3f} | {target:.2f} |"
+            for a in summary.rl_aggregates
+            if a.variant == "lagrangian"
+        ),
+        "",
+        "## Violation intervals",
+        "",
+        "Ratio of the width of a Student-t interval over the episodes' shares of violated steps "
+        "to the Wilson interval's width, largest per group.",
+        "",
+        "| group | rows | largest ratio | row |",
+        "|---|---|---|---|",
+        *(
+            f"| {part} | {c.rows} | {c.max_ratio:.2f} | {c.name} |"
+            for part, c in (summary.violation_interval_check or {}).items()
+            if c is not None
+        ),
+        "",
+        "## Learning curves",
+        "",
+        f"Late window: the points after 70% of training, against as many points before it. Flat: "
+        f"violation change < {FLAT_TOL['violation']:g}, diverged-share change < "
+        f"{FLAT_TOL['diverged']:g} and, where the median episode does not diverge, median cost "
+        f"change < {100 * FLAT_TOL['cost_rel']:g}%.",
+        "",
+        *_curve_table(summary.learning_curves),
+        "",
+        "## Training time",
+        "",
+        "| run | training steps | wall time (s) | CPU time (s) | of it evaluations (s) |",
+        "|---|---|---|---|---|",
+        *(
+            f"| {r.name} | {fmt_steps(r.run.timesteps)} | {r.run.train_time_s:.0f} | "
+            + ("-" if r.run.cpu_time_s is None else f"{r.run.cpu_time_s:.0f}")
+            + " | "
+            + ("-" if r.run.eval_time_s is None else f"{r.run.eval_time_s:.0f}")
+            + " |"
+            for r in runs_by
+        ),
+        "",
+        "## Figures",
+        "",
+    ]
+    for name in summary.figures:
+        lines += [f"![{CAPTIONS[name]}]({name})", "", f"*{CAPTIONS[name]}*", ""]
+    lines += [
+        "## The model-based controllers",
+        "",
+        *table(mb),
+        "",
+        "## Every trained run",
+        "",
+        *table(summary.rl_runs),
+        "",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def hyperparams_record(algos: list[str], variants: list[str]) -> dict[str, Any]:
+    """The hyperparameters a summary records."""
+    from benchmarks.rl_train import _jsonable
+
+    return _jsonable(
+        {
+            "algorithms": {a: HP.HYPERPARAMS[a] for a in algos},
+            "variant_changes": {
+                f"{a} {v}": changes
+                for (a, v), changes in HP.HYPERPARAMS_VARIANT.items()
+                if a in algos and v in variants
+            },
+            "env": HP.ENV,
+            "betas": HP.BETAS,
+            "lagrangian": HP.LAGRANGIAN,
+            "residual_nu_bound": HP.RESIDUAL_NU_BOUND,
+            "learning_curve": HP.LEARNING_CURVE,
+        }
+    )

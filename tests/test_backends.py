@@ -1,0 +1,84 @@
+"""The trainings' backends: the same runs and scores in one process, two processes and Ray.
+
+Each training is seeded, rebuilt from its spec and uses one torch thread, so the backend and the
+number of workers must not change a result. The Ray test starts a local instance of 2 CPUs
+(never another address) and ships this checkout's packages to its workers.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from benchmarks import backends, compare_rl  # noqa: E402
+
+ARGS = [
+    "--quick", "--algos", "ppo", "td3", "--variants", "reward", "residual", "--seeds", "1",
+    "--timesteps", "1050", "--eval-episodes", "50", "--no-progress",
+]  # fmt: skip
+
+
+def _runs(out) -> list[dict]:
+    """The runs of a summary without what measures the machine (times)."""
+    runs = json.loads((out / "summary.json").read_text())["rl_runs"]
+    drop = ("train_time_s", "wall_time_s", "cpu_time_s", "eval_time_s")
+    for r in runs:
+        for key in drop:
+            r.pop(key)
+        for p in r["learning_curve"]:
+            p.pop("wall_s")
+        r["score"] = {k: v for k, v in r["score"].items() if not k.startswith("decision_time")}
+    return runs
+
+
+@pytest.mark.slow
+def test_backends_and_worker_counts_give_the_same_runs(tmp_path):
+    pytest.importorskip("ray")
+    compare_rl.main([*ARGS, "--workers", "1", "--out", str(tmp_path / "one")])
+    compare_rl.main([*ARGS, "--workers", "2", "--out", str(tmp_path / "two")])
+    compare_rl.main([*ARGS, "--backend", "ray", "--workers", "2", "--out", str(tmp_path / "ray")])
+    one, two, ray = (_runs(tmp_path / name) for name in ("one", "two", "ray"))
+    assert [r["name"] for r in one] == ["ppo_reward_s0", "ppo_residual_s0", "td3_reward_s0",
+                                        "td3_residual_s0"]  # fmt: skip
+    for a, b, c in zip(one, two, ray, strict=True):
+        assert a["fingerprint"] == b["fingerprint"] == c["fingerprint"]
+        assert len(a["learning_curve"]) == 4
+        # float32 networks on one thread: identical here; pytest.approx allows for a machine
+        # whose BLAS sums in another order
+        for other in (b, c):
+            assert other["learning_curve"] == pytest.approx(a["learning_curve"], rel=1e-5)
+            assert other["score"]["cost_mean"] == pytest.approx(a["score"]["cost_mean"], rel=1e-5)
+            assert other["score"]["violation"] == pytest.approx(a["score"]["violation"], abs=1e-3)
+    # a run interrupted on one backend resumes on the other: nothing is trained again
+    stamps = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "ray" / "runs").iterdir()}
+    compare_rl.main([*ARGS, "--workers", "1", "--out", str(tmp_path / "ray")])
+    assert {p.name: p.stat().st_mtime_ns for p in (tmp_path / "ray" / "runs").iterdir()} == stamps
+
+
+def test_ray_missing_names_the_extra(monkeypatch, tmp_path):
+    import builtins
+
+    real = builtins.__import__
+
+    def no_ray(name, *args, **kwargs):
+        if name == "ray":
+            raise ImportError("No module named 'ray'")
+        return real(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_ray)
+    with pytest.raises(ImportError, match=r'pip install -e "\.\[cluster\]"'):
+        backends.train_all([], tmp_path, backend="ray")
+    with pytest.raises(ValueError, match="backend = 'dask'"):
+        backends.train_all([], tmp_path, backend="dask")
+
+
+def test_a_worker_stops_when_asked(monkeypatch):
+    """The process backend's stop signal reaches a training through its callback."""
+    from benchmarks import rl_train
+
+    spec = rl_train.RunSpec("ppo", "residual", 0, 10_000_000, 1, 5, 1)
+    with pytest.raises(rl_train.TrainingStopped, match="ppo_residual_s0 was stopped"):
+        rl_train.train_run(spec, should_stop=lambda: True)
