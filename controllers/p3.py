@@ -46,8 +46,8 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 class Family:
     """P3 for one ``(mode, x_k in C1)`` pair: ``Pi`` and every matrix of the QP are fixed.
 
-    Arrays are read-only. ``lin = [K; W; C]`` gives ``K x``, ``W x`` and ``C x`` in one product
-    (the single-state path); ``w0`` is ``w`` at ``x = 0`` without the band (``H_{k+1} - t`` is
+    Arrays are read-only. ``lin = [K; W; Atilde; Q]`` gives ``K x``, ``W x``, ``Atilde x`` and
+    ``Q x`` in one product (the single-state path); ``w0`` is ``w`` at ``x = 0`` without the band (``H_{k+1} - t`` is
     added per ``k``); ``rho_row`` is the index of the one-sided row ``-rho <= 0`` in the
     engine's ``C``.
     """
@@ -63,11 +63,18 @@ class Family:
     H_nu: np.ndarray  # (m, m)
     noise_term: float  # tr(Pi E W E')
     engine: QPFamily
-    lin: np.ndarray  # (m + d + c + n, n)
+    Q: np.ndarray  # (n, n)
+    R: np.ndarray  # (m, m)
+    A_tilde: np.ndarray  # (n, n)
+    B: np.ndarray  # (n, m)
+    lin: np.ndarray  # (m + d + c + 2n, n): rows [K; W; Atilde; Q]
     w0: np.ndarray  # (d + c,)
     rho_row: int
     H_list: list = field(default_factory=list)  # H_nu as nested lists (m x m)
     GB_list: list = field(default_factory=list)  # G B as nested lists (r x m)
+    R_list: list = field(default_factory=list)  # R as nested lists (m x m)
+    Pi_list: list = field(default_factory=list)  # Pi as nested lists (n x n)
+    B_list: list = field(default_factory=list)  # B as nested lists (n x m)
     offsets: dict = field(default_factory=dict)  # k -> w0(k)
 
 
@@ -122,12 +129,43 @@ def build_family(
         H_nu=_frozen(H_nu),
         noise_term=noise_term,
         engine=engine,
-        lin=_frozen(np.vstack([K, W, C])),
+        Q=_frozen(model.Q[mode]),
+        R=_frozen(R),
+        A_tilde=_frozen(At),
+        B=_frozen(Bm),
+        lin=_frozen(np.vstack([K, W, At, model.Q[mode]])),
         w0=_frozen(w0),
         rho_row=engine.c - 1,  # the lower side of the rho row comes last
         H_list=H_nu.tolist(),
         GB_list=GB.tolist(),
+        R_list=R.tolist(),
+        Pi_list=Pi.tolist(),
+        B_list=Bm.tolist(),
     )
+
+
+#: Largest ratio of the cost's cancelling terms to the cost itself (see :func:`cost_condition`):
+#: the cost of an answer is then exact to about ``ratio * 2.2e-16**2 <= 5e-10`` relative.
+MAX_COST_CONDITION = 1e22
+
+
+def cost_condition(fam: Family) -> float:
+    """How much of the cost ``J`` cancels, per unit ``|x|^2``: the weights of ``u = K x + nu``
+    and of the next mean ``Atilde x + B nu``, at the unconstrained optimum ``nu = -L x``, against
+    the cost that remains, ``S = Q + (K - L)'R(K - L) + (Atilde - B L)'Pi(Atilde - B L)``. A
+    rounding ``eps`` of ``u`` and of the mean changes ``J`` by about ``eps**2`` times it, relative
+    (a dominant input weight R makes the optimal ``u`` cancel ``K x`` almost exactly)."""
+    G = fam.R @ fam.K + fam.B.T @ fam.Pi @ fam.A_tilde
+    L = np.linalg.solve(fam.H_nu, G)
+    KL, AL = fam.K - L, fam.A_tilde - fam.B @ L
+    S = fam.Q + KL.T @ fam.R @ KL + AL.T @ fam.Pi @ AL
+    norm = lambda M: float(np.linalg.norm(M, 2)) if M.size else 0.0  # noqa: E731
+    big = (
+        norm(fam.H_nu) * (norm(fam.K) + norm(L)) ** 2
+        + norm(fam.Pi) * (norm(fam.A_tilde) + norm(fam.B) * norm(L)) ** 2
+    )
+    small = norm(0.5 * (S + S.T))
+    return np.inf if small == 0.0 else big / small
 
 
 def check_magnitudes(
@@ -145,9 +183,20 @@ def check_magnitudes(
                 worst, where = (np.inf if not np.isfinite(v) else v), (fam.mode, name)
         if not np.isfinite(fam.noise_term):
             worst, where = np.inf, (fam.mode, "noise_term")
-    if worst <= limit:
-        return
     model = ctrl.model
+    if worst <= limit:
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            cond = max(cost_condition(fam) for fam in families)
+        if cond <= MAX_COST_CONDITION:
+            return
+        raise ValueError(
+            f"the costs of the receding-horizon QP would lose their digits: terms about "
+            f"{cond:.1e} times the cost cancel (Psi up to {float(np.max(np.abs(ctrl.Psi))):.3g}, "
+            f"model.R up to {float(np.max(np.abs(model.R))):.3g}, model.Q up to "
+            f"{float(np.max(np.abs(model.Q))):.3g}); the ratio must be at most "
+            f"{MAX_COST_CONDITION:.0e}: bring the input weight R and the terminal weights Psi "
+            "closer to the state weight Q"
+        )
     sizes = {
         "Psi": ctrl.Psi,
         "K": ctrl.K,

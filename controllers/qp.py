@@ -149,11 +149,39 @@ class ActiveSetMaps:
         return z.tolist()
 
 
+def _equilibrate(P: np.ndarray, CS: np.ndarray, sweeps: int = 30) -> tuple[np.ndarray, np.ndarray]:
+    """Scalings ``(Dc, Dr)`` of the variables and of the active rows: Ruiz equilibration of the
+    active rows ``CS`` (every row and every column of ``Dr CS Dc`` then has its largest entry
+    near 1); a variable in no active row is scaled by its curvature, ``1 / sqrt(P_ii)``.
+    Variables of very different sizes (an offset of 1 next to a slack of 1e12, rows scaled by
+    1e-11) then get comparable scaled sizes, and rank and conditioning are judged in them."""
+    d, s = P.shape[0], CS.shape[0]
+    absC = np.abs(CS)
+    Dc, Dr = np.ones(d), np.ones(s)
+    used = absC.max(axis=0, initial=0.0) > 0.0
+    for _ in range(sweeps):
+        scaled = absC * Dr[:, None] * Dc[None, :]
+        row = scaled.max(axis=1, initial=0.0)
+        col = scaled.max(axis=0, initial=0.0)
+        fr = np.sqrt(np.where(row > 0.0, row, 1.0))
+        fc = np.sqrt(np.where(col > 0.0, col, 1.0))
+        if np.all(np.abs(fr - 1.0) < 1e-6) and np.all(np.abs(fc - 1.0) < 1e-6):
+            break
+        Dr, Dc = Dr / fr, Dc / fc
+    diag = np.abs(np.diag(P))
+    free = ~used & (diag > 0.0)
+    Dc[free] = 1.0 / np.sqrt(diag[free])
+    return Dc, Dr
+
+
 def active_set_maps(P: np.ndarray, C: np.ndarray, rows: tuple[int, ...]) -> ActiveSetMaps | None:
     """The maps of :class:`ActiveSetMaps` for ``min 1/2 z'Pz + q'z  s.t.  C_S z = h_S``.
 
-    Returns None when the active set is not a candidate: its rows are linearly dependent, or the
-    reduced Hessian on their null space is not positive definite (the minimizer is not unique).
+    Computed on the equilibrated KKT system (:func:`_equilibrate`; ``z = Dc z~``), by the
+    null-space method on row-normalized constraints. Returns None when the active set is not a
+    candidate: its rows are linearly dependent, or the reduced Hessian on their null space is not
+    positive definite (the minimizer is not unique); both tests are made on the scaled system,
+    so they do not depend on the units of the variables or of the rows.
     """
     d, c = P.shape[0], C.shape[0]
     s = len(rows)
@@ -161,54 +189,62 @@ def active_set_maps(P: np.ndarray, C: np.ndarray, rows: tuple[int, ...]) -> Acti
         return None
     idx = np.array(rows, dtype=np.int64)
     CS = C[idx]
-    norms = np.sqrt(np.einsum("ij,ij->i", CS, CS)) if s else np.zeros(0)
+    Dc, Dr = _equilibrate(P, CS)
+    Pt = P * Dc[:, None] * Dc[None, :]
+    Ct = CS * Dr[:, None] * Dc[None, :]
+    norms = np.sqrt(np.einsum("ij,ij->i", Ct, Ct)) if s else np.zeros(0)
     if s and not np.all(norms > 0.0):
         return None
-    Dn = 1.0 / norms if s else norms
-    Chat = CS * Dn[:, None]
+    Dn = Dr / norms if s else norms  # the full row scaling of the active rows
+    Chat = CS * Dn[:, None] * Dc[None, :]
     select = np.zeros((s, c))
     select[np.arange(s), idx] = 1.0
+    eye_q = np.hstack([np.diag(Dc), np.zeros((d, c))])  # q~ = Dc q
+    eye_h = np.hstack([np.zeros((c, d)), np.eye(c)])
     if s:
         Q, Rfull = np.linalg.qr(Chat.T, mode="complete")
         R1 = Rfull[:s, :s]
-        diag = np.abs(np.diag(R1))
-        if not np.all(diag > _RANK_TOL):  # rows normalized: a scale-free rank test
+        if not np.all(np.abs(np.diag(R1)) > _RANK_TOL):  # normalized rows: a scale-free test
             return None
         Q1, Q2 = Q[:, :s], Q[:, s:]
-        # z_p = Q1 R1^{-T} D h_S
-        Zp_h = Q1 @ np.linalg.solve(R1.T, Dn[:, None] * select)  # (d, c)
+        R1inv_T = np.linalg.inv(R1.T)
+        Zp_h = Q1 @ (R1inv_T @ (Dn[:, None] * select))  # z~_p = Q1 R1^{-T} D h_S
+        # magnitude of the terms summed to compute z~_p, per datum (absolute values carried
+        # through every product, so that cancellations are not mistaken for small terms)
+        Tp_h = np.abs(Q1) @ (np.abs(R1inv_T) @ (Dn[:, None] * select))
     else:
         Q1, Q2, R1 = np.zeros((d, 0)), np.eye(d), np.zeros((0, 0))
-        Zp_h = np.zeros((d, c))
+        Zp_h, Tp_h = np.zeros((d, c)), np.zeros((d, c))
+    Tp = np.hstack([np.zeros((d, d)), Tp_h])
     k = d - s
     if k:
-        M = Q2.T @ P @ Q2
+        M = Q2.T @ Pt @ Q2
         M = 0.5 * (M + M.T)
         eig = np.linalg.eigvalsh(M)
         if not (eig[-1] > 0.0 and eig[0] > _PD_TOL * eig[-1]):
             return None
-        Minv = np.linalg.inv(M)
-        Y_q = -Minv @ Q2.T  # (k, d)
-        Y_h = Y_q @ P @ Zp_h  # (k, c)
-        Z_q, Z_h = Q2 @ Y_q, Zp_h + Q2 @ Y_h
+        Y = -np.linalg.inv(M) @ Q2.T  # y = Y (q~ + P~ z~_p)
+        Zt_q = Q2 @ (Y * Dc[None, :])
+        Zt_h = Zp_h + Q2 @ (Y @ Pt @ Zp_h)
+        Tz = Tp + np.abs(Q2) @ (np.abs(Y) @ (np.abs(eye_q) + np.abs(Pt) @ Tp))
     else:
-        Z_q, Z_h = np.zeros((d, d)), Zp_h
-    Z = np.hstack([Z_q, Z_h])  # (d, d + c)
-    eye_q = np.hstack([np.eye(d), np.zeros((d, c))])
-    eye_h = np.hstack([np.zeros((c, d)), np.eye(c)])
-    absZ = np.abs(Z)
+        Zt_q, Zt_h = np.zeros((d, d)), Zp_h
+        Tz = Tp
+    Zt = np.hstack([Zt_q, Zt_h])  # z~ = Zt w, (d, d + c)
+    Z = Zt * Dc[:, None]  # z = Dc z~
     primal = C @ Z - eye_h
-    # the terms of C_i z - h_i: |C_i| times the largest term of any component of z (a component
-    # that is zero in exact arithmetic carries the round-off of the others), and |h_i|
-    primal_T = np.abs(C).sum(axis=1, keepdims=True) * absZ.max(axis=0, keepdims=True) + eye_h
+    # the terms of C_i z - h_i: |C_i| Dc times the largest term of any scaled component of z (a
+    # component that is zero in exact arithmetic carries the round-off of the others), and |h_i|
+    primal_T = (np.abs(C) @ Dc)[:, None] * Tz.max(axis=0, keepdims=True) + eye_h
     # the active rows hold with equality by construction: only the others are tested
     primal[idx] = 0.0
     primal_T[idx] = 0.0
     if s:
-        # stationarity P z + q + Chat' lam_hat = 0  =>  lam_hat = -R1^{-1} Q1'(P z + q)
+        # stationarity P~ z~ + q~ + Chat' lam_hat = 0  =>  lam_hat = -R1^{-1} Q1'(P~ z~ + q~);
+        # lam_hat has the sign of the multiplier of the unscaled row
         Lmap = np.linalg.solve(R1, Q1.T)  # (s, d)
-        lam = -Lmap @ (P @ Z + eye_q)
-        lam_T = np.abs(Lmap) @ (np.abs(P) @ absZ + eye_q)
+        lam = -Lmap @ (Pt @ Zt + eye_q)
+        lam_T = np.abs(Lmap) @ (np.abs(Pt) @ Tz + np.abs(eye_q))
         R = np.vstack([primal, -lam])
         T = np.vstack([primal_T, lam_T])
     else:
@@ -293,6 +329,10 @@ class QPFamily:
         self.C = np.vstack([self.A[self.upper_idx], -self.A[self.lower_idx]])
         self.c = self.C.shape[0]
         self.absC = np.abs(self.C)
+        # OSQP sees every row of A scaled to unit largest entry (the same constraints; OSQP's
+        # absolute tolerances then mean the same thing for every row)
+        norms = np.abs(self.A).max(axis=1) if self.A.size else np.zeros(0)
+        self._row_scale = np.where(norms > 0.0, 1.0 / np.where(norms > 0.0, norms, 1.0), 1.0)
         self.osqp_settings = dict(osqp_settings)
         self.n_candidates = candidate_count(self.c, self.d)
         # floats of the stacked maps (residuals, their term scales, solutions) and of the two
@@ -372,7 +412,10 @@ class QPFamily:
         """Rows of ``C`` that are nearly active at the approximate solution ``z``."""
         h = w[self.d :]
         slack = h - self.C @ z
-        terms = self.absC.sum(axis=1) * float(np.max(np.abs(z), initial=0.0)) + np.abs(h)
+        # each row's own terms, with a floor from the largest component (a slack of 1e-106
+        # where the row's terms are 1e-106 is zero for OSQP)
+        zmax = float(np.max(np.abs(z), initial=0.0))
+        terms = self.absC @ np.abs(z) + np.abs(h) + 1e-6 * self.absC.sum(axis=1) * zmax
         return np.flatnonzero(slack <= NEAR_ACTIVE_TOL * terms)
 
     def local(self, z: np.ndarray, w: np.ndarray, y: np.ndarray | None = None) -> Solution | None:
@@ -425,6 +468,7 @@ class QPFamily:
         """OSQP on instance ``w``: ``(z, y, status)``, ``z = y = None`` on failure."""
         q = np.array(w[: self.d])
         lo, hi = self.bounds(np.asarray(w[self.d :]))
+        lo, hi = lo * self._row_scale, hi * self._row_scale
         try:
             if not np.all(np.maximum(lo, -OSQP_INFTY) <= np.minimum(hi, OSQP_INFTY)):
                 raise ValueError("bounds rejected by OSQP (l > u after clipping)")
@@ -434,7 +478,12 @@ class QPFamily:
                     settings["max_iter"] = 10 * int(settings["max_iter"])
                 solver = osqp.OSQP()
                 solver.setup(
-                    sp.csc_matrix(np.triu(self.P)), q, sp.csc_matrix(self.A), lo, hi, **settings
+                    sp.csc_matrix(np.triu(self.P)),
+                    q,
+                    sp.csc_matrix(self.A * self._row_scale[:, None]),
+                    lo,
+                    hi,
+                    **settings,
                 )
                 if not retry:
                     self._osqp = solver
@@ -450,7 +499,7 @@ class QPFamily:
         if res.info.status_val != osqp.SolverStatus.OSQP_SOLVED or not np.all(np.isfinite(z)):
             self._osqp = None  # do not warm start from a failed iterate
             return None, None, status
-        return z, np.asarray(res.y, dtype=np.float64), status
+        return z, np.asarray(res.y, dtype=np.float64) * self._row_scale, status
 
     # ------------------------------------------------------------------ the chain
     def solve(

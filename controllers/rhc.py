@@ -339,14 +339,15 @@ class RecedingHorizonController(Controller):
         return np.maximum(max_last(excess), 0.0)
 
     def _objective(self, fam: Family, x: np.ndarray, nu: np.ndarray, rho: np.ndarray) -> np.ndarray:
-        """``J_k`` (B,) of P3 at ``(nu, rho)``, every constant term included (see
-        :class:`controllers.p3.Family`)."""
-        g = x @ fam.grad.T
+        """``J_k`` (B,) of P3 at ``(nu, rho)``, every constant term included, written with ``u``
+        and the next state's mean themselves (see :meth:`_cost_one`)."""
+        u = x @ fam.K.T + nu
+        mean = x @ fam.A_tilde.T + nu @ fam.B.T
         return (
-            np.sum((x @ fam.C) * x, axis=1)
+            np.sum((x @ fam.Q) * x, axis=1)
+            + np.sum((u @ fam.R) * u, axis=1)
+            + np.sum((mean @ fam.Pi) * mean, axis=1)
             + fam.noise_term
-            + np.sum((nu @ fam.H_nu) * nu, axis=1)
-            + np.sum(g * nu, axis=1)
             + self.alpha * rho
         )
 
@@ -384,11 +385,24 @@ class RecedingHorizonController(Controller):
                 sum(map(mul, row, nu)) - hj for row, hj in zip(fam.GB_list, h, strict=True)
             )
             rho = max(excess, 0.0)
-        xCx = sum(map(mul, x.tolist(), y[m + len(w) :]))  # y = [K x; W x; C x]
-        nuHnu = sum(v * sum(map(mul, row, nu)) for v, row in zip(nu, fam.H_list, strict=True))
-        g = y[m : m + m]  # the first m entries of W x are the gradient g
-        cost = xCx + fam.noise_term + nuHnu + sum(map(mul, g, nu)) + self.alpha * rho
-        return nu, rho, cost
+        return nu, rho, self._cost_one(fam, x.tolist(), y, nu, rho)
+
+    def _cost_one(self, fam: Family, x: list, y: list, nu: list, rho: float) -> float:
+        """``J_k`` of P3 for one state, in plain floats from ``y = [K x; W x; Atilde x; Q x]``:
+        ``x'Qx + u'Ru + mean'Pi mean + tr(Pi E W E') + alpha rho`` with ``u = K x + nu`` and
+        ``mean = Atilde x + B nu``. Written with ``u`` and ``mean`` themselves (not expanded in
+        ``nu``), so that large weights do not cancel (a dominant R makes u small)."""
+        m, n = self.model.m, self.model.n
+        start = len(y) - 2 * n
+        u = [a + b for a, b in zip(y[:m], nu, strict=True)]
+        mean = [
+            a + sum(map(mul, row, nu))
+            for a, row in zip(y[start : start + n], fam.B_list, strict=True)
+        ]
+        xQx = sum(map(mul, x, y[start + n :]))
+        uRu = sum(v * sum(map(mul, row, u)) for v, row in zip(u, fam.R_list, strict=True))
+        mPm = sum(v * sum(map(mul, row, mean)) for v, row in zip(mean, fam.Pi_list, strict=True))
+        return xQx + uRu + mPm + fam.noise_term + self.alpha * rho
 
     def _check_inputs(self, x: Any, mode: Any, k: Any) -> tuple[np.ndarray, int, int]:
         """The checks of the base class, with a shortcut for the common case: ``x`` a finite
@@ -412,7 +426,7 @@ class RecedingHorizonController(Controller):
         m = self.model.m
         inside = max(self.model.constraint_values_one(x, k).tolist()) <= 0.0  # in C1 at time k
         fam = self._families[(mode, inside)]
-        y = fam.lin @ x  # [K x; W x; C x]
+        y = fam.lin @ x  # [K x; W x; Atilde x; Q x]
         w0 = fam.offsets.get(k)
         if w0 is None:
             w0 = self._offset(fam, k)
