@@ -6,6 +6,7 @@ Controllers read an :class:`sdjls_gym.SDJLSModel`; they never simulate.
 from controllers.base import Controller
 from controllers.baselines import LinearFeedbackController, MJLSLQRController
 from controllers.chance import row_satisfaction_probability, tightened_set_empty, tightening
+from controllers.env_policy import ControllerPolicy, policy_for
 from controllers.lmi import (
     GainSynthesisResult,
     LMIError,
@@ -33,10 +34,12 @@ __all__ += [
 ]
 __all__ += [
     "Controller",
+    "ControllerPolicy",
     "LinearFeedbackController",
     "MJLSLQRController",
     "RecedingHorizonController",
     "UnconstrainedRecedingHorizonController",
+    "policy_for",
     "row_satisfaction_probability",
     "tightened_set_empty",
     "tightening",
