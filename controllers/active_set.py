@@ -74,6 +74,7 @@ class ActiveSetQP:
             T[i, : m.T.shape[0]] = m.T
             R[i, m.R.shape[0] :] = 0.0  # padding rows: residual 0, always passes
         self._R, self._T = R, T
+        self._R_flat = R.reshape(-1, width)
         self._Z = np.stack([m.Z for m in maps]) if maps else np.zeros((0, d, width))
         # the largest tolerance any residual of a candidate can get for |w| <= 1 (per candidate):
         # a residual above loose * max|w| fails without computing its own tolerance
@@ -165,7 +166,7 @@ class ActiveSetQP:
         """The active set of the lowest-index candidate that passes the KKT test at one instance
         ``w`` (d + c,), or None. Independent of earlier calls."""
         w = np.asarray(w, dtype=np.float64)
-        res = self._R @ w  # (nc, nres)
+        res = (self._R_flat @ w).reshape(self.n_candidates, -1)  # (nc, nres)
         worst = res.max(axis=1)
         loose = self._loose * float(np.max(np.abs(w), initial=0.0))
         for cand in np.flatnonzero(worst <= loose).tolist():

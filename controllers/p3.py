@@ -14,7 +14,7 @@ and on whether ``x_k`` is in C1; its data ``w = [q; h]`` (linear term and one-si
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -46,8 +46,8 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 class Family:
     """P3 for one ``(mode, x_k in C1)`` pair: ``Pi`` and every matrix of the QP are fixed.
 
-    Arrays are read-only. ``lin = [K; W; Atilde; Q]`` gives ``K x``, ``W x``, ``Atilde x`` and
-    ``Q x`` in one product (the single-state path); ``w0`` is ``w`` at ``x = 0`` without the band (``H_{k+1} - t`` is
+    Arrays are read-only. ``lin = [K; W; C; Atilde; Q]`` gives ``K x``, ``W x``, ``C x``,
+    ``Atilde x`` and ``Q x`` in one product (the single-state path); ``w0`` is ``w`` at ``x = 0`` without the band (``H_{k+1} - t`` is
     added per ``k``); ``rho_row`` is the index of the one-sided row ``-rho <= 0`` in the
     engine's ``C``.
     """
@@ -67,7 +67,7 @@ class Family:
     R: np.ndarray  # (m, m)
     A_tilde: np.ndarray  # (n, n)
     B: np.ndarray  # (n, m)
-    lin: np.ndarray  # (m + d + c + 2n, n): rows [K; W; Atilde; Q]
+    lin: np.ndarray  # (m + d + c + 3n, n): rows [K; W; C; Atilde; Q]
     w0: np.ndarray  # (d + c,)
     rho_row: int
     H_list: list = field(default_factory=list)  # H_nu as nested lists (m x m)
@@ -76,6 +76,9 @@ class Family:
     Pi_list: list = field(default_factory=list)  # Pi as nested lists (n x n)
     B_list: list = field(default_factory=list)  # B as nested lists (n x m)
     offsets: dict = field(default_factory=dict)  # k -> w0(k)
+    #: whether the cost may be computed expanded in nu (x'Cx + nu'H nu + g'nu): its terms cancel
+    #: by at most EXPAND_COST_CONDITION (cost_condition), so the expansion keeps ~1e-10 relative
+    expand_cost: bool = False
 
 
 def build_family(
@@ -117,7 +120,7 @@ def build_family(
     W[:m] = grad
     if chance:
         W[d : d + r] = -GA  # eq. (constraint:feasibility)
-    return Family(
+    fam = Family(
         mode=mode,
         inside=inside,
         Pi=_frozen(Pi),
@@ -133,7 +136,7 @@ def build_family(
         R=_frozen(R),
         A_tilde=_frozen(At),
         B=_frozen(Bm),
-        lin=_frozen(np.vstack([K, W, At, model.Q[mode]])),
+        lin=_frozen(np.vstack([K, W, C, At, model.Q[mode]])),
         w0=_frozen(w0),
         rho_row=engine.c - 1,  # the lower side of the rho row comes last
         H_list=H_nu.tolist(),
@@ -142,7 +145,13 @@ def build_family(
         Pi_list=Pi.tolist(),
         B_list=Bm.tolist(),
     )
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        expand = bool(cost_condition(fam) <= EXPAND_COST_CONDITION)
+    return replace(fam, expand_cost=expand)
 
+
+#: Largest cost_condition at which the cost is computed expanded in nu (error ~ 1e6 * 2.2e-16).
+EXPAND_COST_CONDITION = 1e6
 
 #: Largest ratio of the cost's cancelling terms to the cost itself (see :func:`cost_condition`):
 #: the cost of an answer is then exact to about ``ratio * 2.2e-16**2 <= 5e-10`` relative.

@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from itertools import combinations
 from typing import Any
 
@@ -132,21 +132,24 @@ class ActiveSetMaps:
     Z: np.ndarray
     R: np.ndarray
     T: np.ndarray
+    RZ: np.ndarray = field(init=False, repr=False)  # [R; Z]: residuals and z in one product
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "RZ", np.vstack([self.R, self.Z]))
 
     def check(self, w: np.ndarray) -> list[float] | None:
         """``z`` (a list of d floats) if the active set passes the KKT test at ``w``, else None."""
-        r = self.R @ w
-        worst = float(r.max()) if r.size else -math.inf
-        if not (worst <= 0.0):  # NaN included
-            if not math.isfinite(worst):
-                return None
-            tol = KKT_TOL * (self.T @ np.abs(w))
-            if not np.all(r <= tol):
-                return None
-        z = self.Z @ w
-        if not np.all(np.isfinite(z)):
+        v = (self.RZ @ w).tolist()
+        nr = self.R.shape[0]
+        worst = max(v[:nr], default=-math.inf)
+        z = v[nr:]
+        if not math.isfinite(worst + sum(z)):  # NaN or inf anywhere
             return None
-        return z.tolist()
+        if worst > 0.0:  # a residual above 0: within round-off of its terms?
+            tol = KKT_TOL * (self.T @ np.abs(w))
+            if not np.all(np.asarray(v[:nr]) <= tol):
+                return None
+        return z
 
 
 def _equilibrate(P: np.ndarray, CS: np.ndarray, sweeps: int = 30) -> tuple[np.ndarray, np.ndarray]:
@@ -262,6 +265,7 @@ class EnumerationBudget:
     def __init__(self, limit: int = ENUMERATION_BUDGET_FLOATS) -> None:
         self.limit = limit
         self._held: OrderedDict[int, tuple[QPFamily, int]] = OrderedDict()
+        self._total = 0
 
     def __getstate__(self) -> dict[str, Any]:
         return {"limit": self.limit}
@@ -272,13 +276,16 @@ class EnumerationBudget:
     def use(self, family: QPFamily, size: int) -> None:
         """Record that ``family`` holds an enumeration of ``size`` floats (now the most recently
         used) and drop the least recently used others while the total is above the limit."""
-        self._held[id(family)] = (family, size)
-        self._held.move_to_end(id(family))
-        total = sum(s for _, s in self._held.values())
-        while total > self.limit and len(self._held) > 1:
+        key = id(family)
+        if key in self._held:
+            self._held.move_to_end(key)
+            return
+        self._held[key] = (family, size)
+        self._total += size
+        while self._total > self.limit and len(self._held) > 1:
             _, (old, s) = self._held.popitem(last=False)
             old._enum = None
-            total -= s
+            self._total -= s
 
 
 @dataclass(frozen=True)
@@ -349,7 +356,7 @@ class QPFamily:
         self._reset_state()
 
     def _reset_state(self) -> None:
-        self._maps: OrderedDict[tuple[int, ...], ActiveSetMaps | None] = OrderedDict()
+        self._maps: dict[tuple[int, ...], ActiveSetMaps | None] = {}
         self._osqp: osqp.OSQP | None = None
         self._enum: Any = None  # the ActiveSetQP of a full enumeration, built on first use
         self.warm: tuple[int, ...] | None = None
@@ -380,15 +387,13 @@ class QPFamily:
 
     # ------------------------------------------------------------------ exact solves
     def maps(self, rows: tuple[int, ...]) -> ActiveSetMaps | None:
-        """The exact maps of an active set (cached, least recently used dropped first)."""
+        """The exact maps of an active set (cached; the cache is emptied when it is full)."""
         cache = self._maps
-        if rows in cache:
-            cache.move_to_end(rows)
-            return cache[rows]
-        out = active_set_maps(self.P, self.C, rows)
-        cache[rows] = out
-        if len(cache) > MAX_CACHED_MAPS:
-            cache.popitem(last=False)
+        out = cache.get(rows, False)
+        if out is False:
+            if len(cache) >= MAX_CACHED_MAPS:
+                cache.clear()
+            out = cache[rows] = active_set_maps(self.P, self.C, rows)
         return out
 
     def verify(self, rows: tuple[int, ...], w: np.ndarray) -> list[float] | None:

@@ -325,22 +325,46 @@ class RecedingHorizonController(Controller):
             return nu * np.minimum(1.0, self.nu_bound / np.maximum(norm, 1e-300))
         return np.clip(nu, -self.nu_bound, self.nu_bound)
 
-    def _min_rho(self, fam: Family, x: np.ndarray, k: np.ndarray, nu: np.ndarray) -> np.ndarray:
+    def _min_rho(
+        self,
+        fam: Family,
+        x: np.ndarray,
+        k: np.ndarray,
+        nu: np.ndarray,
+        hbar: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Smallest ``rho >= 0`` (B,) that makes ``nu`` (B, m) feasible in eq.
-        (constraint:feasibility); an excess within round-off of its row's terms is 0."""
+        (constraint:feasibility); an excess within round-off of its row's terms is 0.
+        ``hbar = H_{k+1} - t`` when the caller has it already."""
         if not self._chance_constrained:
             return np.zeros(nu.shape[0])
-        hbar = self._hbar(fam, k)
-        GAx = x @ fam.GA.T
-        GBnu = nu @ fam.GB.T
+        if hbar is None:
+            hbar = self._hbar(fam, k)
+        GAx, GBnu = x @ fam.GA.T, nu @ fam.GB.T
         excess = GAx + GBnu - hbar
-        terms = np.abs(x) @ np.abs(fam.GA).T + np.abs(nu) @ np.abs(fam.GB).T + np.abs(hbar)
-        excess = np.where(excess <= KKT_TOL * terms, 0.0, excess)
+        # round-off of a row's terms is not a use of the slack: a cheap first test with the
+        # sizes of the partial sums, then, for the few excesses above it, the terms themselves
+        real = excess > KKT_TOL * (np.abs(GAx) + np.abs(GBnu) + np.abs(hbar))
+        if real.any():
+            i, j = np.nonzero(real)
+            terms = (
+                np.abs(x[i]) @ np.abs(fam.GA).T + np.abs(nu[i]) @ np.abs(fam.GB).T + np.abs(hbar[i])
+            )[np.arange(i.size), j]
+            real[i, j] = excess[i, j] > KKT_TOL * terms
+        excess = np.where(real, excess, 0.0)
         return np.maximum(max_last(excess), 0.0)
 
     def _objective(self, fam: Family, x: np.ndarray, nu: np.ndarray, rho: np.ndarray) -> np.ndarray:
-        """``J_k`` (B,) of P3 at ``(nu, rho)``, every constant term included, written with ``u``
-        and the next state's mean themselves (see :meth:`_cost_one`)."""
+        """``J_k`` (B,) of P3 at ``(nu, rho)``, every constant term included (see
+        :meth:`_cost_one` for the two ways of writing it)."""
+        if fam.expand_cost:
+            return (
+                np.sum((x @ fam.C) * x, axis=1)
+                + fam.noise_term
+                + np.sum((nu @ fam.H_nu) * nu, axis=1)
+                + np.sum((x @ fam.grad.T) * nu, axis=1)
+                + self.alpha * rho
+            )
         u = x @ fam.K.T + nu
         mean = x @ fam.A_tilde.T + nu @ fam.B.T
         return (
@@ -390,10 +414,16 @@ class RecedingHorizonController(Controller):
     def _cost_one(self, fam: Family, x: list, y: list, nu: list, rho: float) -> float:
         """``J_k`` of P3 for one state, in plain floats from ``y = [K x; W x; Atilde x; Q x]``:
         ``x'Qx + u'Ru + mean'Pi mean + tr(Pi E W E') + alpha rho`` with ``u = K x + nu`` and
-        ``mean = Atilde x + B nu``. Written with ``u`` and ``mean`` themselves (not expanded in
-        ``nu``), so that large weights do not cancel (a dominant R makes u small)."""
+        ``mean = Atilde x + B nu``. Expanded in ``nu`` (``x'Cx + nu'H nu + g'nu + ...``, cheaper)
+        where the family's terms do not cancel (``fam.expand_cost``), else written with ``u`` and
+        ``mean`` themselves, so that large weights do not cancel (a dominant R makes u small)."""
         m, n = self.model.m, self.model.n
         start = len(y) - 2 * n
+        if fam.expand_cost:
+            xCx = sum(map(mul, x, y[start - n : start]))
+            nuHnu = sum(v * sum(map(mul, row, nu)) for v, row in zip(nu, fam.H_list, strict=True))
+            g = y[m : 2 * m]  # the first m entries of W x are the gradient
+            return xCx + fam.noise_term + nuHnu + sum(map(mul, g, nu)) + self.alpha * rho
         u = [a + b for a, b in zip(y[:m], nu, strict=True)]
         mean = [
             a + sum(map(mul, row, nu))
@@ -602,13 +632,15 @@ class RecedingHorizonController(Controller):
             stop = start + count
             fam = self._families[(key // 2, bool(key % 2))]
             xf, kf = xs[start:stop], ks[start:stop]
+            hbar_f = None
             enum = fam.engine.enumeration()
             if enum is not None:
                 wT = np.empty((fam.w0.shape[0], count))  # [q; h] of the family's QP
                 wT[:] = fam.w0[:, None]
                 wT[:m] = fam.grad @ xf.T
                 if self._chance_constrained:
-                    wT[d : d + r] = (self._hbar(fam, kf) - xf @ fam.GA.T).T
+                    hbar_f = self._hbar(fam, kf)
+                    wT[d : d + r] = (hbar_f - xf @ fam.GA.T).T
                 z, found = enum.solve(wT.T)
                 nu_f = self._project_nu(
                     z[:, :m] if found.all() else np.where(found[:, None], z[:, :m], 0.0)
@@ -619,7 +651,9 @@ class RecedingHorizonController(Controller):
                 i = int(order[start + j])
                 _, info_j = self.act(x[i], int(mode[i]), int(k[i]))
                 nu_f[j], status[i], ok[i] = info_j["nu"], info_j["status"], info_j["ok"]
-            rho_f = self._min_rho(fam, xf, kf, nu_f)  # the optimal rho for this nu
+            if hbar_f is None and self._chance_constrained:
+                hbar_f = self._hbar(fam, kf)
+            rho_f = self._min_rho(fam, xf, kf, nu_f, hbar_f)  # the optimal rho for this nu
             nu_s[start:stop], rho_s[start:stop] = nu_f, rho_f
             cost_s[start:stop] = self._objective(fam, xf, nu_f, rho_f)
             np.add(xf @ fam.K.T, nu_f, out=u_s[start:stop])  # eq. (eq:stabilization_input)
