@@ -54,7 +54,7 @@ from benchmarks.montecarlo import Rollouts, paper_rhc, rollout
 from benchmarks.policies import RawEnvPolicy, _check_policy, as_controller
 from benchmarks.stats import CurveGap, mean_ci, paired_curve_gap, wilson
 from sdjls_gym import SDJLSModel
-from sdjls_gym._validate import check_int, check_mapping, describe, type_name
+from sdjls_gym._validate import a_type, check_int, check_mapping, describe
 from sdjls_gym.env import SDJLSEnv
 
 __all__ = [
@@ -319,7 +319,7 @@ def evaluate(
     episodes = check_int("episodes", episodes, low=2, what="the intervals are over episodes")
     seed = check_int("seed", seed, low=0)
     if not isinstance(env_id, str):
-        raise TypeError(f"env_id = {describe(env_id)} is a {type_name(env_id)}; expected a str")
+        raise TypeError(f"env_id = {describe(env_id)} is {a_type(env_id)}; expected a str")
     env_kwargs = check_mapping("env_kwargs", env_kwargs)
     _check_policy(policy)
     spec = resolve_env(env_id, env_kwargs)

@@ -13,7 +13,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from sdjls_gym._validate import describe, type_name
+from sdjls_gym._validate import a_type, describe
 from sdjls_gym.env import SDJLSEnv, decode_observation, encode_observation
 from sdjls_gym.wrappers import ResidualAction, ScaleObservationReward, scale_observation
 
@@ -29,7 +29,7 @@ class _ObservationPolicy:
         elif callable(policy):
             self.call = policy
         else:  # checked by as_controller first
-            raise TypeError(f"policy is a {type_name(policy)}")
+            raise TypeError(f"policy is {a_type(policy)}")
         self.spec, self.m = spec, spec.model.m
         self.batched: bool | None = None  # decided at the first batch
 
@@ -106,7 +106,7 @@ def _check_policy(policy: Any) -> None:
         or callable(policy)
     ):
         raise TypeError(
-            f"policy = {describe(policy)} is a {type_name(policy)}; expected an object with "
+            f"policy = {describe(policy)} is {a_type(policy)}; expected an object with "
             "predict(obs, deterministic=True) (stable-baselines3's), a callable obs -> action, "
             "or a controller with act_batch(x, mode, k) and act(x, mode, k)"
         )
@@ -156,12 +156,12 @@ class RawEnvPolicy:
     def __init__(self, agent: Any, env: gym.Env) -> None:
         if not callable(getattr(agent, "predict", None)):
             raise TypeError(
-                f"agent = {describe(agent)} is a {type_name(agent)}; expected an object with "
+                f"agent = {describe(agent)} is {a_type(agent)}; expected an object with "
                 "predict(obs, deterministic=True), such as a stable-baselines3 model"
             )
         if not isinstance(env, gym.Env):
             raise TypeError(
-                f"env = {describe(env)} is a {type_name(env)}; expected the agent's training "
+                f"env = {describe(env)} is {a_type(env)}; expected the agent's training "
                 "environment, a gymnasium.Env (for an SB3 VecEnv pass venv.envs[0])"
             )
         base = env.unwrapped

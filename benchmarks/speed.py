@@ -102,7 +102,7 @@ class CvxpyParametric:
     def __init__(self, ctrl: RecedingHorizonController, mode: int, inside: bool) -> None:
         import cvxpy as cp
 
-        fam = ctrl._family(mode, inside)
+        fam = ctrl._families[(mode, inside)]
         m, r = ctrl.model.m, ctrl.model.r
         self.nu, self.rho = cp.Variable(m), cp.Variable(nonneg=True)
         self.g, self.rhs = cp.Parameter(m), cp.Parameter(r)
@@ -115,10 +115,11 @@ class CvxpyParametric:
     def solve(self, x: np.ndarray, k: int) -> np.ndarray:
         import cvxpy as cp
 
-        d = self.ctrl._data(self.fam, x[None], np.array([k]))
-        self.g.value, self.rhs.value = d.g[0], (d.hbar - d.GAx)[0]
+        fam = self.fam
+        self.g.value = fam.grad @ x
+        self.rhs.value = self.ctrl._hbar(fam, np.array([k]))[0] - fam.GA @ x
         self.problem.solve(solver=cp.CLARABEL, tol_gap_abs=1e-11, tol_gap_rel=1e-11, tol_feas=1e-11)
-        return d.Kx[0] + self.nu.value
+        return fam.K @ x + self.nu.value
 
 
 def closed_loop_states(model: SDJLSModel, ctrl, count: int, seed: int):

@@ -3,8 +3,10 @@
 Controllers read an :class:`sdjls_gym.SDJLSModel`; they never simulate.
 """
 
+from controllers.base import Controller
 from controllers.baselines import LinearFeedbackController, MJLSLQRController
 from controllers.chance import row_satisfaction_probability, tightened_set_empty, tightening
+from controllers.env_policy import ControllerPolicy, policy_for
 from controllers.lmi import (
     GainSynthesisResult,
     LMIError,
@@ -31,10 +33,13 @@ __all__ += [
     "verify_mean_square_bound",
 ]
 __all__ += [
+    "Controller",
+    "ControllerPolicy",
     "LinearFeedbackController",
     "MJLSLQRController",
     "RecedingHorizonController",
     "UnconstrainedRecedingHorizonController",
+    "policy_for",
     "row_satisfaction_probability",
     "tightened_set_empty",
     "tightening",

@@ -32,9 +32,10 @@ from typing import Any
 import numpy as np
 from scipy import special, stats
 
+from sdjls_gym._validate import check_choice, check_int, check_probability
 from sdjls_gym.model import SDJLSModel
 
-from .baselines import _check_int, _check_model
+from .base import check_model
 
 __all__ = [
     "CONSTRAINT_KINDS",
@@ -47,37 +48,15 @@ __all__ = [
 CONSTRAINT_KINDS = ("individual", "joint", "bonferroni")
 
 
-def _check_xi(xi: Any) -> float:
-    """Return ``xi`` as a float in the open interval (0, 1) or raise a ValueError naming it."""
-    if isinstance(xi, (bool, np.bool_)):
-        raise ValueError(
-            f"xi = {xi!r} is a bool; xi is a probability level strictly between 0 and 1"
-        )
-    if isinstance(xi, (str, bytes)):
-        raise ValueError(
-            f"xi = {xi!r} is a string; xi is a probability level strictly between 0 and 1"
-        )
-    try:
-        value = float(xi)
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"xi = {xi!r:.60} is not a number; xi is a probability level strictly between 0 and 1"
-        ) from None
-    if not (math.isfinite(value) and 0.0 < value < 1.0):
-        raise ValueError(
-            f"xi = {value!r} is out of range; the chance-constraint level xi must lie strictly "
-            "between 0 and 1 (xi = 0 imposes nothing and xi = 1 cannot be met under Gaussian noise)"
-        )
-    return value
-
-
-def _check_constraint(constraint: Any) -> str:
-    if not isinstance(constraint, str) or constraint not in CONSTRAINT_KINDS:
-        raise ValueError(
-            f"constraint = {constraint!r} is not a known kind of chance constraint; expected one "
-            f"of {CONSTRAINT_KINDS}"
-        )
-    return constraint
+def check_xi(xi: Any) -> float:
+    """``xi`` as a float strictly between 0 and 1 (TypeError for a non-number, ValueError out
+    of range; the message names ``xi``)."""
+    return check_probability(
+        "xi",
+        xi,
+        what="the chance-constraint level; xi = 0 imposes nothing and xi = 1 cannot be met "
+        "under Gaussian noise",
+    )
 
 
 def _row_std(model: SDJLSModel) -> np.ndarray:
@@ -117,9 +96,9 @@ def tightening(model: SDJLSModel, xi: float, constraint: str = "individual") -> 
     >>> tightening(macro(), 0.85).round(4)[0]
     array([1.0364, 1.0364])
     """
-    model = _check_model(model)
-    xi = _check_xi(xi)
-    constraint = _check_constraint(constraint)
+    model = check_model(model)
+    xi = check_xi(xi)
+    constraint = check_choice("constraint", constraint, CONSTRAINT_KINDS)
 
     if constraint == "individual":
         # eq. (constraint:det_univariate): F^{-1}_{G_j E_i w}(xi), G_j E_i w ~ N(0, G_j E_i W E_i' G_j')
@@ -177,10 +156,10 @@ def tightened_set_empty(
     """
     from scipy.optimize import linprog
 
-    model = _check_model(model)
-    xi = _check_xi(xi)
-    constraint = _check_constraint(constraint)
-    k_next = _check_int("k_next", k_next, 0)
+    model = check_model(model)
+    xi = check_xi(xi)
+    constraint = check_choice("constraint", constraint, CONSTRAINT_KINDS)
+    k_next = check_int("k_next", k_next, low=0)
     t = tightening(model, xi, constraint)
     H = model.H(k_next)
     out = np.empty(model.N, dtype=bool)
@@ -225,7 +204,7 @@ def row_satisfaction_probability(
         Probability that each row holds. A row whose variance ``G_j E W E' G_j'`` is 0 is
         deterministic: 1.0 if ``G_j mean_next <= H_{k+1, j}``, else 0.0.
     """
-    model = _check_model(model)
+    model = check_model(model)
     mean_next = np.asarray(mean_next, dtype=np.float64)
     if mean_next.ndim < 1 or mean_next.shape[-1] != model.n:
         raise ValueError(

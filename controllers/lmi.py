@@ -21,7 +21,6 @@ Appendix A (here :attr:`MeanSquareCertificate.mu`).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -29,8 +28,9 @@ import cvxpy as cp
 import numpy as np
 
 from sdjls_gym import SDJLSModel
+from sdjls_gym._validate import check_array, check_number, describe
 
-from .baselines import _check_model
+from .base import check_model
 
 __all__ = [
     "GainSynthesisResult",
@@ -200,27 +200,24 @@ class MeanSquareCertificate:
 
 # ---------------------------------------------------------------------------------- helpers
 def _check_scalar(name: str, value: object, *, positive: bool, what: str) -> float:
-    """``value`` as a finite float that is > 0 (``positive``) or >= 0; else ValueError."""
-    bad = isinstance(value, (bool, np.bool_))
-    try:
-        out = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        bad = True
-        out = math.nan
-    if bad or not math.isfinite(out) or out < 0.0 or (positive and out == 0.0):
-        raise ValueError(f"{name} = {value!r}; expected {what}")
-    return out
+    """``value`` as a finite float that is > 0 (``positive``) or >= 0."""
+    return check_number(name, value, low=0.0, low_open=positive, what=what)
 
 
 def _check_eps(eps: float) -> float:
-    return _check_scalar("eps", eps, positive=True, what="a positive finite number")
+    return _check_scalar("eps", eps, positive=True, what="margin of the strict LMIs")
 
 
 def _pick_solver(solver: str | None) -> str:
     installed = cp.installed_solvers()
     if solver is None:
         return "CLARABEL" if "CLARABEL" in installed else "SCS"
-    if not isinstance(solver, str) or solver.upper() not in installed:
+    if not isinstance(solver, str):
+        raise TypeError(
+            f"solver = {describe(solver)} is a {type(solver).__name__}; expected the name of an "
+            f"installed cvxpy solver, one of {installed}"
+        )
+    if solver.upper() not in installed:
         raise ValueError(
             f"solver = {solver!r} is not an installed cvxpy solver; expected one of {installed}"
         )
@@ -228,18 +225,7 @@ def _pick_solver(solver: str | None) -> str:
 
 
 def _as_array(name: str, value: object, shape: tuple[int, ...], what: str) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} could not be read as an array of numbers ({exc})") from None
-    if arr.shape != shape:
-        raise ValueError(f"{name} has shape {arr.shape}; expected {shape} ({what})")
-    if not np.all(np.isfinite(arr)):
-        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
-        raise ValueError(
-            f"{name} has a non-finite entry {arr[bad]} at index {bad}; every entry must be finite"
-        )
-    return arr
+    return check_array(name, value, shape=shape, what=what)
 
 
 def _sym(M: np.ndarray) -> np.ndarray:
@@ -348,7 +334,7 @@ def check_proposition2(model: SDJLSModel, X: np.ndarray, Y: np.ndarray) -> float
     >>> check_proposition2(macro(), PAPER_X, PAPER_Y) < 0
     True
     """
-    model = _check_model(model)
+    model = check_model(model)
     N, n, m = model.N, model.n, model.m
     X = _as_array("X", X, (N, n, n), "one symmetric n x n matrix X_i per mode")
     Y = _as_array("Y", Y, (N, m, n), "one m x n matrix Y_i per mode")
@@ -424,7 +410,7 @@ def synthesize_gains(
     >>> res.K.shape, res.margin < 0
     ((3, 1, 2), True)
     """
-    model = _check_model(model)
+    model = check_model(model)
     eps = _check_eps(eps)
     if objective not in _OBJECTIVES:
         raise ValueError(f"objective = {objective!r}; expected one of {_OBJECTIVES}")
@@ -528,7 +514,7 @@ def second_moment_spectral_radius(model: SDJLSModel, K: np.ndarray) -> float:
     ValueError
         If ``K`` has the wrong shape or a non-finite entry.
     """
-    model = _check_model(model)
+    model = check_model(model)
     N, n, m = model.N, model.n, model.m
     K = _as_array("K", K, (N, m, n), "one m x n gain K_i per mode")
     At = _closed_loop(model, K)
@@ -635,7 +621,7 @@ def verify_mean_square_bound(
       because ``Upsilon`` is exactly ``L_i`` or ``M_i``, ``||Upsilon|| <= alpha2``, Young's
       inequality, ``V <= c2 ||x||^2`` and ``c1 ||x||^2 <= V``) check out as printed.
     """
-    model = _check_model(model)
+    model = check_model(model)
     N, n, m = model.N, model.n, model.m
     K = _as_array("K", K, (N, m, n), "one m x n gain K_i per mode")
     eps = _check_eps(eps)

@@ -31,6 +31,7 @@ import numpy as np
 
 __all__ = [
     "MAX_INDEX",
+    "a_type",
     "check_array",
     "check_bool",
     "check_choice",
@@ -62,6 +63,12 @@ def type_name(value: Any) -> str:
     return t.__qualname__ if module == "builtins" else f"{module.split('.')[0]}.{t.__qualname__}"
 
 
+def a_type(value: Any) -> str:
+    """``'a str'``, ``'an int'``, ``'a numpy.float32'``: the type of ``value`` with its article."""
+    name = type_name(value)
+    return ("an " if name[0].lower() in "aeiou" else "a ") + name
+
+
 def describe(value: Any, width: int = 80) -> str:
     """A short ``repr`` of ``value`` for an error message (one line, at most ``width`` chars)."""
     try:
@@ -86,7 +93,7 @@ def _as_real(name: str, value: Any, expected: str) -> float:
     if isinstance(value, np.ndarray) and value.ndim == 0 and not _is_bool(value):
         value = value[()]
     if _is_bool(value) or not isinstance(value, (numbers.Real, np.integer, np.floating)):
-        kind = "a bool" if _is_bool(value) else f"a {type_name(value)}"
+        kind = "a bool" if _is_bool(value) else a_type(value)
         raise TypeError(f"{name} = {describe(value)} is {kind}; expected {expected}")
     try:
         return float(value)
@@ -205,18 +212,18 @@ def check_int(
     if isinstance(value, np.ndarray) and value.ndim == 0 and not _is_bool(value):
         value = value[()]
     if _is_bool(value) or not isinstance(value, (numbers.Integral, np.integer)):
-        kind = "a bool" if _is_bool(value) else f"a {type_name(value)}"
+        kind = "a bool" if _is_bool(value) else a_type(value)
         raise TypeError(f"{name} = {describe(value)} is {kind}; expected {expected}")
     out = int(value)  # exact, for numpy's unsigned types too
     if low is not None and out < low:
         raise ValueError(f"{name} = {describe(value)} is out of range; expected {expected}")
     if high is not None and out > high:
-        if high != MAX_INDEX:
-            raise ValueError(f"{name} = {describe(value)} is out of range; expected {expected}")
-        raise ValueError(
-            f"{name} = {describe(value)} is too large; expected {expected}, at most 2**53, the "
-            "largest index that float64 holds exactly"
-        )
+        if high == MAX_INDEX:
+            raise ValueError(
+                f"{name} = {describe(value)} is too large; expected {expected}, at most 2**53, "
+                "the largest index that float64 holds exactly"
+            )
+        raise ValueError(f"{name} = {describe(value)} is out of range; expected {expected}")
     return out
 
 
@@ -232,9 +239,7 @@ def check_bool(name: str, value: Any) -> bool:
     if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype == np.bool_:
         value = value[()]
     if not isinstance(value, (bool, np.bool_)):
-        raise TypeError(
-            f"{name} = {describe(value)} is a {type_name(value)}; expected True or False"
-        )
+        raise TypeError(f"{name} = {describe(value)} is {a_type(value)}; expected True or False")
     return bool(value)
 
 
@@ -251,7 +256,7 @@ def check_choice(name: str, value: Any, allowed: Iterable[str]) -> str:
     allowed = tuple(allowed)
     expected = "one of " + ", ".join(repr(a) for a in allowed)
     if not isinstance(value, str):
-        raise TypeError(f"{name} = {describe(value)} is a {type_name(value)}; expected {expected}")
+        raise TypeError(f"{name} = {describe(value)} is {a_type(value)}; expected {expected}")
     if value not in allowed:
         raise ValueError(f"{name} = {value!r} is not known; expected {expected}")
     return value
@@ -273,7 +278,7 @@ def check_mapping(name: str, value: Any, allowed: Iterable[str] | None = None) -
         return {}
     if not isinstance(value, Mapping):
         expected = "a dict" + (f" with keys among {sorted(allowed)}" if allowed is not None else "")
-        raise TypeError(f"{name} = {describe(value)} is a {type_name(value)}; expected {expected}")
+        raise TypeError(f"{name} = {describe(value)} is {a_type(value)}; expected {expected}")
     out = dict(value)
     for key in out:
         if not isinstance(key, str):
@@ -296,11 +301,11 @@ def check_str_sequence(name: str, value: Any, length: int | None = None) -> tupl
     """
     expected = f"a list or tuple of {length if length is not None else ''} str".replace("  ", " ")
     if not isinstance(value, (list, tuple)):
-        raise TypeError(f"{name} = {describe(value)} is a {type_name(value)}; expected {expected}")
+        raise TypeError(f"{name} = {describe(value)} is {a_type(value)}; expected {expected}")
     for i, item in enumerate(value):
         if not isinstance(item, str):
             raise TypeError(
-                f"{name}[{i}] = {describe(item)} is a {type_name(item)}; expected {expected}"
+                f"{name}[{i}] = {describe(item)} is {a_type(item)}; expected {expected}"
             )
     if length is not None and len(value) != length:
         raise ValueError(f"{name} = {describe(value)} has {len(value)} items; expected {length}")
@@ -329,7 +334,7 @@ def check_array(
     suffix = f" ({what})" if what else ""
     if isinstance(value, (str, bytes)) or value is None:
         raise TypeError(
-            f"{name} = {describe(value)} is a {type_name(value)}; expected an array of numbers{suffix}"
+            f"{name} = {describe(value)} is {a_type(value)}; expected an array of numbers{suffix}"
         )
     try:
         raw = np.asarray(value)

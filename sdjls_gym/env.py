@@ -14,6 +14,7 @@ from gymnasium.envs.registration import EnvSpec
 from gymnasium.error import ResetNeeded
 
 from sdjls_gym._validate import (
+    a_type,
     check_array,
     check_choice,
     check_float32_bound,
@@ -21,7 +22,6 @@ from sdjls_gym._validate import (
     check_mapping,
     check_number,
     describe,
-    type_name,
 )
 from sdjls_gym.model import SDJLSModel, max_last
 
@@ -79,7 +79,7 @@ def resolve_model(model: SDJLSModel | str | dict | None) -> SDJLSModel:
             f"to_dict() dict, {example}"
         )
     raise TypeError(
-        f"model = {describe(model)} is a {type_name(model)}; expected an SDJLSModel, a preset "
+        f"model = {describe(model)} is {a_type(model)}; expected an SDJLSModel, a preset "
         f"name or a to_dict() dict, {example}"
     )
 

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from sdjls_gym._model_checks import InvalidModelError
-from sdjls_gym._validate import describe, type_name
+from sdjls_gym._validate import a_type, describe
 from sdjls_gym.model import SDJLSModel
 
 __all__ = ["load_model", "save_model"]
@@ -20,7 +20,7 @@ SUFFIXES = (".json", ".toml")
 def _as_path(path: Any) -> Path:
     if not isinstance(path, (str, os.PathLike)):
         raise TypeError(
-            f"path = {describe(path)} is a {type_name(path)}; expected a str or pathlib.Path "
+            f"path = {describe(path)} is {a_type(path)}; expected a str or pathlib.Path "
             "ending in .json or .toml"
         )
     return Path(path)
@@ -88,7 +88,7 @@ def save_model(model: SDJLSModel, path: str | os.PathLike) -> None:
     if not isinstance(model, SDJLSModel):
         hint = " (SDJLSModel.from_dict builds one from a dict)" if isinstance(model, dict) else ""
         raise TypeError(
-            f"model = {describe(model)} is a {type_name(model)}; expected an SDJLSModel{hint}"
+            f"model = {describe(model)} is {a_type(model)}; expected an SDJLSModel{hint}"
         )
     path = _as_path(path)
     suffix = path.suffix.lower()

@@ -152,7 +152,10 @@ def test_too_few_iterations_raises():
         ({"transition": "markov"}, r"transition = 'markov' is not known"),
         ({"transition": np.eye(2)}, r"transition has shape \(2, 2\); expected \(3, 3\)"),
         ({"transition": np.full((3, 3), 0.3)}, r"transition row 0 sums to 0\.9"),
-        ({"transition": -np.eye(3)}, r"transition = .* must have finite entries >= 0"),
+        (
+            {"transition": -np.eye(3)},
+            r"transition = .* has a negative entry; expected entries >= 0",
+        ),
         ({"tol": 0.0}, r"tol = 0\.0"),
         ({"max_iter": 0}, r"max_iter = 0 is out of range"),
         ({"horizon": -3}, r"horizon = -3 is out of range"),
@@ -187,6 +190,16 @@ def test_predict_matches_act(which):
     np.testing.assert_allclose(actions, np.array(expected), rtol=1e-6)
 
 
-def test_predict_without_horizon_asks_for_it():
-    with pytest.raises(ValueError, match="pass horizon="):
-        LinearFeedbackController(macro(), PAPER_K).predict(np.zeros((2, 6), np.float32))
+def test_predict_of_a_time_invariant_controller_needs_no_horizon():
+    """u = K_theta x does not depend on k: predict decodes no time and needs no horizon, whatever
+    the observation's time entry (the README shows these controllers without horizon)."""
+    rng = np.random.default_rng(0)
+    obs = np.zeros((5, 6), np.float32)
+    obs[:, :2] = rng.normal(size=(5, 2))
+    modes = np.array([0, 1, 2, 1, 0])
+    obs[np.arange(5), 2 + modes] = 1.0
+    obs[:, -1] = [0.0, 0.025, 0.5, 0.7, 1.0]  # any time, even off a 1/20 grid
+    for ctrl in (LinearFeedbackController(macro(), PAPER_K), MJLSLQRController(macro())):
+        actions, _ = ctrl.predict(obs)
+        expected = np.einsum("bij,bj->bi", ctrl.K[modes], obs[:, :2].astype(np.float64))
+        np.testing.assert_allclose(actions, expected.astype(np.float32), rtol=1e-6)

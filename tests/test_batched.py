@@ -192,20 +192,35 @@ def test_vector_env_with_act_batch_equals_single_env_with_act_on_the_same_noise(
             np.testing.assert_allclose(sinfo["state"], xs[t + 1, i], atol=1e-6)
 
 
-def test_active_set_solve_accepts_stacked_data():
-    """``ActiveSetQP.solve(w)`` with ``w = [q; h]`` gives the same bits as ``solve(q, l, u)``."""
-    from controllers.active_set import ActiveSetQP
+def test_active_set_solve_of_a_batch_equals_the_single_instance_path():
+    """``ActiveSetQP.solve(w)`` on a batch (C- or Fortran-ordered ``w = [q; h]``) gives the same
+    active sets as the single-instance enumeration and the same optimum as cvxpy, on a small QP
+    with a singular Hessian (the slack-like second variable)."""
+    import cvxpy as cp
+
+    from controllers.qp import QPFamily
+    from controllers.rhc import DEFAULT_OSQP_SETTINGS
 
     P = np.array([[2.0, 0.0], [0.0, 0.0]])
     A = np.array([[1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])
     lo, hi = np.array([-np.inf, -1.0, 0.0]), np.array([0.5, 1.0, np.inf])
-    qp = ActiveSetQP(P, A, np.isfinite(lo), np.isfinite(hi))
+    fam = QPFamily(P, A, np.isfinite(lo), np.isfinite(hi), DEFAULT_OSQP_SETTINGS)
+    qp = fam.enumeration()
     rng = np.random.default_rng(0)
     q = np.column_stack([rng.normal(size=50) * 3, np.full(50, 10.0)])
     lower, upper = np.tile(lo, (50, 1)), np.tile(hi, (50, 1))
     upper[:, 0] = rng.normal(size=50)
-    z1, ok1 = qp.solve(q, lower, upper)
-    w = np.concatenate([q, qp.one_sided_bounds(lower, upper)], axis=1)
-    for arr in (w, np.ascontiguousarray(w.T).T):
-        z2, ok2 = qp.solve(arr)
-        assert np.array_equal(ok1, ok2) and np.array_equal(z1, z2, equal_nan=True)
+    w = np.concatenate([q, fam.one_sided_bounds(lower, upper)], axis=1)
+    z1, ok1 = qp.solve(w)
+    z2, ok2 = qp.solve(np.ascontiguousarray(w.T).T)
+    assert ok1.all() and np.array_equal(ok1, ok2) and np.array_equal(z1, z2)
+    for i in range(50):
+        rows = qp.solve_one(w[i])
+        np.testing.assert_allclose(fam.verify(rows, w[i]), z1[i], rtol=0, atol=1e-12)
+        z = cp.Variable(2)
+        prob = cp.Problem(
+            cp.Minimize(cp.square(z[0]) + q[i] @ z),
+            [A[0] @ z <= upper[i, 0], cp.abs(z[0]) <= 1.0, z[1] >= 0.0],
+        )
+        prob.solve(solver=cp.CLARABEL)
+        assert 0.5 * z1[i] @ P @ z1[i] + q[i] @ z1[i] == pytest.approx(prob.value, abs=1e-7)

@@ -446,4 +446,9 @@ def test_quick_run_marks_the_rhc_points_whose_tightened_band_is_empty(quick_run)
     for r in rows:
         assert r.tightened_band_empty == float(r.xi > edge[r.constraint]), r.name
     empty = [r for r in rows if r.tightened_band_empty == 1.0]
-    assert len({(r.score.cost_mean, r.score.violation) for r in empty}) == 1
+    # the same controller up to round-off: the slack absorbs the excess tightening, and nu
+    # does not depend on xi (it differs in the last bits only)
+    ref = empty[0].score
+    for r in empty:
+        assert r.score.violation == ref.violation, r.name
+        assert r.score.cost_mean == pytest.approx(ref.cost_mean, rel=1e-12), r.name

@@ -612,7 +612,7 @@ def test_sample_next_mode_is_next_mode_with_the_generator_uniforms():
             id="mode-names-generator",
         ),
         pytest.param(
-            {"mode_names": ("a", 2, "c")}, r"^mode_names\[1\] = 2 is a int", id="names-int"
+            {"mode_names": ("a", 2, "c")}, r"^mode_names\[1\] = 2 is an int", id="names-int"
         ),
         pytest.param({"state_names": {"a", "b"}}, r"^state_names = .* is a set", id="state-set"),
     ],
@@ -712,7 +712,7 @@ def test_save_model_rejects_what_is_not_a_model(tmp_path, paper_kwargs):
     data = SDJLSModel(**paper_kwargs).to_dict()
     with pytest.raises(TypeError, match=r"^model = \{.* is a dict; expected an SDJLSModel"):
         save_model(data, tmp_path / "m.toml")
-    with pytest.raises(TypeError, match=r"^path = 3 is a int"):
+    with pytest.raises(TypeError, match=r"^path = 3 is an int"):
         save_model(SDJLSModel(**paper_kwargs), 3)
     with pytest.raises(ValueError, match=r"must end in \.json or \.toml"):
         save_model(SDJLSModel(**paper_kwargs), tmp_path / "m.yaml")

@@ -324,7 +324,32 @@ def test_paper_monte_carlo_slack():
 
 
 # ---------------------------------------------------------------------- robustness
-def test_forced_osqp_failure_falls_back_to_nu_zero():
+def _no_enumeration(monkeypatch):
+    """Make the enumeration find nothing, so that the fallbacks after it are reached."""
+    from controllers.active_set import ActiveSetQP
+
+    monkeypatch.setattr(ActiveSetQP, "solve_one", lambda self, w: None)
+
+
+def test_forced_osqp_failure_is_solved_exactly_by_the_enumeration():
+    """OSQP failing (iteration limit) does not reach cvxpy or nu = 0 while the enumeration of
+    the family's active sets settles the state: the answer is the exact optimum."""
+    model = macro()
+    normal = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
+    failing = RecedingHorizonController(
+        model, PAPER_K, **PAPER_RHC, osqp_settings={"max_iter": 1}, cvxpy_fallback=False
+    )
+    x = np.array([1.0, 4.0])
+    _, i1 = normal.act(x, 2, 3)
+    _, i2 = failing.act(x, 2, 3)
+    assert i2["solver"] == "active_set" and i2["ok"]
+    assert i2["status"] == "solved (osqp status 'maximum iterations reached')"
+    np.testing.assert_array_equal(i2["nu"], i1["nu"])
+    assert i2["cost"] == i1["cost"] and i2["rho"] == i1["rho"]
+
+
+def test_forced_osqp_failure_falls_back_to_nu_zero(monkeypatch):
+    _no_enumeration(monkeypatch)
     model = macro()
     ctrl = RecedingHorizonController(
         model, PAPER_K, **PAPER_RHC, osqp_settings={"max_iter": 1}, cvxpy_fallback=False
@@ -343,16 +368,18 @@ def test_forced_osqp_failure_falls_back_to_nu_zero():
     assert math.isfinite(info["cost"]) and info["cost"] == pytest.approx(expected, rel=1e-12)
 
 
-def test_forced_osqp_failure_is_rescued_by_cvxpy():
+def test_forced_osqp_failure_is_rescued_by_cvxpy(monkeypatch):
+    _no_enumeration(monkeypatch)
     model = macro()
     normal = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
     rescued = RecedingHorizonController(model, PAPER_K, **PAPER_RHC, osqp_settings={"max_iter": 1})
     x = np.array([1.0, 4.0])
     _, i1 = normal.act(x, 2, 3)
     _, i2 = rescued.act(x, 2, 3)
-    assert "cvxpy" in i2["status"] and "maximum iterations" in i2["status"]
-    np.testing.assert_allclose(i2["nu"], i1["nu"], atol=1e-6)
-    assert i2["cost"] == pytest.approx(i1["cost"], abs=1e-6)
+    assert "cvxpy" in i2["status"] and "maximum iterations" in i2["status"] and i2["ok"]
+    # cvxpy's active set is re-solved exactly: the same answer as the healthy controller
+    np.testing.assert_array_equal(i2["nu"], i1["nu"])
+    assert i2["cost"] == i1["cost"]
 
 
 def test_warm_started_families_are_reused():
@@ -361,7 +388,9 @@ def test_warm_started_families_are_reused():
     rng = np.random.default_rng(4)
     for _ in range(30):
         ctrl.act(rng.normal(size=2) * 5, int(rng.integers(3)), int(rng.integers(20)))
-    assert 1 <= len(ctrl._osqp) <= 2 * model.N  # one OSQP object per (mode, in_region)
+    engines = [fam.engine for fam in ctrl._families.values()]
+    assert len(engines) == 2 * model.N  # one QP family per (mode, in_region)
+    assert any(e._osqp is not None for e in engines)  # set up on first use, then kept
 
 
 # ---------------------------------------------------------------------- active-set warm start
@@ -467,26 +496,27 @@ def test_a_wrong_remembered_active_set_is_rejected():
         _, expected = ctrl.act(x, mode, k)
         assert_same_answer(expected, ref.act(x, mode, k)[1], 1e-6)
         key = (mode, expected["in_region"])
-        right, qp = ctrl._warm[key], ctrl._families[key].solver
-        seen.add(tuple(qp.active_sets[right].tolist()))
-        for wrong in range(qp.n_candidates):
-            ctrl._warm[key] = wrong
+        engine = ctrl._families[key].engine
+        right = engine.warm
+        seen.add(right)
+        for wrong in engine.enumeration().active_sets:
+            engine.warm = wrong
             _, info = ctrl.act(x, mode, k)
             assert info["solver"] == ("active_set_warm" if wrong == right else "osqp"), wrong
-            assert ctrl._warm[key] == right
+            assert engine.warm == right
             np.testing.assert_array_equal(info["nu"], expected["nu"])
             assert info["cost"] == expected["cost"] and info["rho"] == expected["rho"]
     assert len(seen) == len(states)
 
 
 def test_answer_from_a_failed_osqp_identification_comes_from_the_enumeration(monkeypatch):
-    """If the active set read from OSQP's multipliers does not verify, the full enumeration
-    settles the state (same answer, reported as "active_set") and its set is remembered."""
-    from controllers.active_set import ActiveSetQP
+    """If no active set read from OSQP's solution verifies, the full enumeration settles the
+    state (same answer, reported as "active_set") and its set is remembered."""
+    from controllers.qp import QPFamily
 
     model = macro()
     healthy = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
-    monkeypatch.setattr(ActiveSetQP, "candidate_from_duals", lambda *args: None)
+    monkeypatch.setattr(QPFamily, "local", lambda *args, **kwargs: None)
     ctrl = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
     x = np.array([0.0, 1.0])
     _, info = ctrl.act(x, 1, 5)
@@ -496,14 +526,24 @@ def test_answer_from_a_failed_osqp_identification_comes_from_the_enumeration(mon
     assert ctrl.act(x, 1, 5)[1]["solver"] == "active_set_warm"
 
 
-def test_bounds_that_osqp_rejects_are_a_failure_not_the_previous_answer():
+def test_bounds_that_osqp_rejects_are_a_failure_not_the_previous_answer(monkeypatch):
     """OSQP's update() silently keeps the previous data when it rejects new bounds (l > u once
-    clipped to 1e30: a state of size 1e31 here); that must be reported as an OSQP failure and
-    go down the fallback chain, not return the previous state's solution as "solved"."""
+    clipped to 1e30: a state of size 1e31 here); that must be reported as an OSQP failure,
+    answered exactly by the enumeration, and without it go down the fallback chain, never
+    return the previous state's solution as "solved"."""
     kw = {**PAPER_RHC, "nu_bound": 1.0}
     ctrl = RecedingHorizonController(macro(), np.zeros((3, 1, 2)), **kw, cvxpy_fallback=False)
     ctrl._warm_start = False  # OSQP at every call
     assert ctrl.act(np.array([10.0, -10.0]), 1, 3)[1]["solver"] == "osqp"
+    _, info = ctrl.act(np.array([1e31, -1e31]), 1, 3)
+    assert info["solver"] == "active_set", info["status"]
+    assert info["status"] == (
+        "solved (osqp status 'error ValueError: bounds rejected by OSQP (l > u after clipping)')"
+    )
+    # nu = -1 pushes the next income (mean 0 + nu) towards the band's lower row as far as U allows
+    assert info["nu"][0] == -1.0 and info["rho"] > 1e31
+    _no_enumeration(monkeypatch)
+    ctrl.act(np.array([10.0, -10.0]), 1, 3)
     _, info = ctrl.act(np.array([1e31, -1e31]), 1, 3)
     assert info["solver"] == "fallback", info["status"]
     assert info["status"].startswith("fallback_nu0: osqp status 'error ValueError: bounds rejected")
@@ -608,10 +648,20 @@ def test_predict_decodes_time_for_the_band():
     assert abs(a10[0] - a0[0]) > 1.0
 
 
-def test_predict_needs_horizon():
-    ctrl = RecedingHorizonController(macro(), PAPER_K, **PAPER_RHC)
-    with pytest.raises(ValueError, match="horizon="):
-        ctrl.predict(np.zeros(6, dtype=np.float32))
+def test_predict_without_horizon_assumes_the_environments_default():
+    """Built without horizon, predict decodes time with the environments' default horizon (20)
+    and refuses a time entry that is not a multiple of 1/20 (an environment with another
+    horizon), naming the fix."""
+    model = macro()
+    ctrl = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
+    x = np.array([2.0, 2.0])
+    np.testing.assert_allclose(
+        ctrl.predict(_observation(model, x, 0, 7, 20))[0], ctrl.act(x, 0, 7)[0], rtol=1e-6
+    )
+    with pytest.raises(ValueError, match=r"k / horizon = 0\.0125 does not decode.*pass horizon="):
+        ctrl.predict(_observation(model, x, 0, 1, 80))
+    with pytest.raises(ValueError, match=r"k / horizon = 1\.05 does not decode"):
+        ctrl.predict(_observation(model, x, 0, 21, 20))
 
 
 def test_predict_rejects_wrong_observation_size():
@@ -635,17 +685,17 @@ NAN_K[1, 0, 1] = np.nan
 @pytest.mark.parametrize(
     "overrides, pattern",
     [
-        ({"xi": 0.0}, r"xi = 0\.0 .*strictly between 0 and 1"),
-        ({"xi": 1.0}, r"xi = 1\.0 .*strictly between 0 and 1"),
-        ({"xi": -0.1}, r"xi = -0\.1 .*strictly between 0 and 1"),
-        ({"xi": 1.5}, r"xi = 1\.5 .*strictly between 0 and 1"),
-        ({"alpha": 0.0}, r"alpha = 0\.0 .*> 0"),
-        ({"alpha": -5.0}, r"alpha = -5\.0 .*> 0"),
+        ({"xi": 0.0}, r"xi = 0\.0 .*in \(0, 1\)"),
+        ({"xi": 1.0}, r"xi = 1\.0 .*in \(0, 1\)"),
+        ({"xi": -0.1}, r"xi = -0\.1 .*in \(0, 1\)"),
+        ({"xi": 1.5}, r"xi = 1\.5 .*in \(0, 1\)"),
+        ({"alpha": 0.0}, r"alpha = 0\.0 .*in \(0, 1e\+12\]"),
+        ({"alpha": -5.0}, r"alpha = -5\.0 .*in \(0, 1e\+12\]"),
         ({"alpha": float("inf")}, r"alpha = inf"),
-        ({"nu_bound": 0.0}, r"nu_bound = 0\.0 .*> 0"),
+        ({"nu_bound": 0.0}, r"nu_bound = 0\.0 .*in \(0, 1e\+12\]"),
         ({"nu_bound": -1.0}, r"nu_bound = -1\.0"),
         ({"Psi": BAD_PSI}, r"Psi\[1\] is not positive definite"),
-        ({"Psi": np.array([[[1.0, 0.5], [0.0, 1.0]]] * 3)}, r"Psi\[0\] is not symmetric"),
+        ({"Psi": np.array([[[1.0, 0.5], [0.0, 1.0]]] * 3)}, r"Psi\[0\] = .* is not symmetric"),
         ({"Psi": np.eye(2)}, r"Psi has shape \(2, 2\); expected \(3, 2, 2\)"),
         ({"K": PAPER_K[:, :, :1]}, r"K has shape \(3, 1, 1\); expected \(3, 1, 2\)"),
         ({"K": PAPER_K[0]}, r"K has shape \(1, 2\)"),
@@ -663,7 +713,9 @@ def test_constructor_rejects_bad_arguments(overrides, pattern):
 
 
 def test_constructor_rejects_a_non_model():
-    with pytest.raises(TypeError, match="model must be an sdjls_gym.SDJLSModel"):
+    with pytest.raises(
+        TypeError, match="model = 'macro' is a str; expected an sdjls_gym.SDJLSModel"
+    ):
         RecedingHorizonController(**_kwargs(model="macro"))
 
 
@@ -678,18 +730,20 @@ def test_unconstrained_constructor_validates_too():
     "args, error, pattern",
     [
         (([1.0, 2.0, 3.0], 0, 0), ValueError, r"x has shape \(3,\); expected \(2,\)"),
-        (([1.0, np.nan], 0, 0), ValueError, r"x = .*non-finite"),
+        (([1.0, np.nan], 0, 0), ValueError, r"x has a non-finite entry"),
         (([1.0, 2.0], 3, 0), ValueError, r"mode = 3 is out of range"),
         (([1.0, 2.0], -1, 0), ValueError, r"mode = -1 is out of range"),
-        (([1.0, 2.0], 1.0, 0), TypeError, r"mode = 1\.0 must be an int"),
+        (([1.0, 2.0], 1.0, 0), TypeError, r"mode = 1\.0 is a float; expected an int"),
         (([1.0, 2.0], 0, -1), ValueError, r"k = -1 is out of range"),
+        (([1.0, 2.0], 0, 2**53 + 1), ValueError, r"k = 9007199254740993 is too large"),
         # the same through the fast check of float64 arrays and numpy ints
-        ((np.array([1.0, np.nan]), 0, 0), ValueError, r"x = .*non-finite"),
-        ((np.array([np.inf, -np.inf]), 0, 0), ValueError, r"x = .*non-finite"),
+        ((np.array([1.0, np.nan]), 0, 0), ValueError, r"x has a non-finite entry"),
+        ((np.array([np.inf, -np.inf]), 0, 0), ValueError, r"x has a non-finite entry"),
         ((np.array([1.0, 2.0, 3.0]), 0, 0), ValueError, r"x has shape \(3,\); expected \(2,\)"),
-        ((np.array([1.0, 2.0]), np.int64(3), 0), ValueError, r"mode = 3 is out of range"),
-        ((np.array([1.0, 2.0]), True, 0), TypeError, r"mode = True must be an int"),
-        ((np.array([1.0, 2.0]), 0, np.int32(-1)), ValueError, r"k = -1 is out of range"),
+        ((np.array([1.0, 2.0]), np.int64(3), 0), ValueError, r"mode = np\.int64\(3\) is out of"),
+        ((np.array([1.0, 2.0]), True, 0), TypeError, r"mode = True is a bool"),
+        ((np.array([1.0, 2.0]), 0, np.int32(-1)), ValueError, r"k = np\.int32\(-1\) is out of"),
+        ((np.array([1.0, 2.0]), 0, np.uint64(2**64 - 1)), ValueError, r"k = np\.uint64\(1844"),
     ],
 )
 def test_act_rejects_bad_inputs(args, error, pattern):

@@ -1,0 +1,294 @@
+"""The base of every controller: ``act`` / ``act_batch`` / ``predict``, input checks, threads.
+
+Every controller of this package is a :class:`Controller`:
+
+* ``act(x, mode, k) -> (u, info)`` for one state, with ``info["nu"]``, ``info["rho"]``,
+  ``info["cost"]`` and ``info["status"]``;
+* ``act_batch(x, modes, k) -> (u, info)`` for a batch (arrays with a leading batch axis);
+* ``predict(observation, state=None, episode_start=None, deterministic=True)`` in the
+  stable-baselines3 shape, decoding the raw environment's observation
+  ``[x, one-hot(mode), k / horizon]`` and returning the input ``u`` in the raw environment's units.
+
+Thread safety: a controller may be shared by threads. Its calls hold a per-controller lock
+around the solver state (OSQP objects, warm starts, caches), so concurrent calls are serialized
+and each answer equals the one a single thread would get. A controller can be pickled or
+deep-copied at any time (the solver state is dropped and rebuilt on use), e.g. to send it to
+worker processes.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import numpy as np
+
+from sdjls_gym._validate import (
+    MAX_INDEX,
+    a_type,
+    check_array,
+    check_int,
+    check_optional_int,
+    describe,
+)
+from sdjls_gym.env import decode_observation
+from sdjls_gym.model import SDJLSModel
+
+__all__ = ["Controller", "MAX_STATE", "ENV_DEFAULT_HORIZON", "check_model", "check_gain"]
+
+#: Largest state magnitude a controller accepts. The costs it reports (``x'Q x`` and the like)
+#: overflow float64 from about 1e154; a state above this bound means the closed loop diverged
+#: long ago (the environments terminate at ``divergence_bound``, at most 1e30).
+MAX_STATE = 1e100
+_TOO_LARGE = (
+    f"has an entry of magnitude above {MAX_STATE:.0e}, the largest state a controller accepts "
+    "(its costs would overflow float64); a state this large means the closed loop has diverged"
+)
+
+#: The environments' default episode length (``SDJLSEnv(horizon=20)``, ``SDJLS-Macro-v0``): the
+#: horizon :meth:`Controller.predict` assumes when the controller was built without one.
+ENV_DEFAULT_HORIZON = 20
+
+#: How far ``k / horizon * horizon`` may be from an integer (float32 rounding of the observation).
+_TIME_TOL = 1e-3
+
+
+def check_model(model: Any) -> SDJLSModel:
+    """``model`` if it is an :class:`SDJLSModel`, else a TypeError naming it."""
+    if not isinstance(model, SDJLSModel):
+        raise TypeError(
+            f"model = {describe(model, 60)} is {a_type(model)}; expected an "
+            "sdjls_gym.SDJLSModel (build one with SDJLSModel(...) or a preset such as "
+            "sdjls_gym.systems.macro())"
+        )
+    return model
+
+
+def check_gain(model: SDJLSModel, K: Any, name: str = "K") -> np.ndarray:
+    """A finite ``(N, m, n)`` array of mode-dependent feedback gains (read-only copy)."""
+    K = check_array(
+        name,
+        K,
+        shape=(model.N, model.m, model.n),
+        what=f"one m x n gain per mode, N={model.N}, m={model.m}, n={model.n}",
+    )
+    K.setflags(write=False)
+    return K
+
+
+class Controller:
+    """Shared plumbing of the controllers: input checks, batches, ``predict``, threads.
+
+    Subclasses implement :meth:`act` (and may replace :meth:`act_batch` with a vectorized one).
+
+    Parameters
+    ----------
+    model : SDJLSModel
+    horizon : int, optional
+        Episode length of the environment, which scales time in the observation
+        (``k / horizon``). Only :meth:`predict` uses it, and only controllers whose decision
+        depends on ``k`` (the receding-horizon ones: the band ``H_k`` moves with ``k``). Without
+        it, :meth:`predict` assumes the environments' default, :data:`ENV_DEFAULT_HORIZON`, and
+        raises if an observation's time entry is not a multiple of ``1 / horizon``.
+
+    Notes
+    -----
+    Thread-safe: calls hold the controller's lock (see the module docstring).
+    """
+
+    #: Whether the decision depends on the time ``k`` (then ``predict`` decodes it).
+    _needs_time = True
+
+    def __init__(self, model: SDJLSModel, horizon: int | None = None) -> None:
+        self.model = check_model(model)
+        self.horizon = check_optional_int("horizon", horizon, low=1, what="episode length")
+        self._lock = threading.RLock()
+        self._x_shape = (self.model.n,)
+
+    # ------------------------------------------------------------------ pickling
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state.pop("_lock", None)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._lock = threading.RLock()
+
+    # ------------------------------------------------------------------ single decisions
+    def act(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, dict[str, Any]]:
+        """The input ``u_k`` for state ``x``, mode ``mode`` at time ``k``.
+
+        Parameters
+        ----------
+        x : (n,) array
+        mode : int in ``[0, N)``
+        k : int >= 0
+
+        Returns
+        -------
+        u : (m,) float64 array
+        info : dict
+            At least ``"nu"`` (m,), ``"rho"`` (float), ``"cost"`` (float), ``"status"`` (str).
+        """
+        raise NotImplementedError
+
+    def _check_inputs(self, x: Any, mode: Any, k: Any) -> tuple[np.ndarray, int, int]:
+        """``x`` a finite ``(n,)`` vector within :data:`MAX_STATE`, ``mode`` in ``[0, N)``,
+        ``k`` an int in ``[0, 2**53]``; the messages name the argument."""
+        x = check_array("x", x, shape=self._x_shape, what="one state vector")
+        if np.max(np.abs(x)) > MAX_STATE:
+            raise ValueError(f"x = {describe(x)} {_TOO_LARGE}")
+        mode = check_int("mode", mode, low=0, high=self.model.N - 1)
+        k = check_int("k", k, low=0, what="time index")
+        return x, mode, k
+
+    def _check_batch_inputs(
+        self, x: Any, mode: Any, k: Any
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``x`` (B, n) finite, ``mode`` (B,) ints in [0, N), ``k`` (B,) ints in [0, 2**53]
+        (or a scalar)."""
+        model = self.model
+        x = check_array("x", x, shape=(None, model.n), what="one state per row")
+        if x.size and np.max(np.abs(x)) > MAX_STATE:
+            row = int(np.argmax(np.max(np.abs(x), axis=1)))
+            raise ValueError(f"x[{row}] = {describe(x[row])} {_TOO_LARGE}")
+        B = x.shape[0]
+        out = []
+        for name, value, high in (("mode", mode, model.N - 1), ("k", k, MAX_INDEX)):
+            arr = np.asarray(value)
+            if arr.dtype == bool or not np.issubdtype(arr.dtype, np.integer):
+                raise TypeError(f"{name} has dtype {arr.dtype}; expected integers in [0, {high}]")
+            arr = np.broadcast_to(arr, (B,)) if arr.ndim == 0 else arr
+            if arr.shape != (B,):
+                raise ValueError(f"{name} has shape {arr.shape}; expected ({B},) to match x")
+            # range checked on the exact values, before any conversion that could wrap
+            bad = (arr < 0) | (arr > high)
+            if np.any(bad):
+                first = arr[bad][0]
+                raise ValueError(
+                    f"{name} = {describe(first)} is out of range; expected ints in [0, {high}]"
+                )
+            out.append(arr.astype(np.int64))
+        return x, out[0], out[1]
+
+    def act_batch(
+        self, x: np.ndarray, mode: np.ndarray, k: np.ndarray | int
+    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Decisions for a batch of states.
+
+        Parameters
+        ----------
+        x : (B, n) array
+        mode : (B,) int array
+        k : (B,) int array or int
+
+        Returns
+        -------
+        u : (B, m) float64 array
+        info : dict of arrays with a leading axis B: at least ``"nu"`` (B, m), ``"rho"``,
+            ``"cost"``, ``"status"`` (str objects) and ``"ok"`` (bool: the answer was verified
+            optimal, or is exact by construction). This generic version loops over
+            :meth:`act`; subclasses replace it with a vectorized one.
+        """
+        x, mode, k = self._check_batch_inputs(x, mode, k)
+        results = [self.act(xb, int(mb), int(kb)) for xb, mb, kb in zip(x, mode, k, strict=True)]
+        info = {
+            key: np.array([r[1][key] for r in results], dtype=object if key == "status" else None)
+            for key in ("nu", "rho", "cost", "status")
+        }
+        info["ok"] = np.array([r[1].get("ok", True) for r in results], dtype=bool)
+        u = np.array([r[0] for r in results], dtype=np.float64).reshape(len(results), -1)
+        return u, info
+
+    # ------------------------------------------------------------------ observations
+    def decode_observation(self, observation: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Split the environment's observations into states, modes and times.
+
+        Parameters
+        ----------
+        observation : (n + N + 1,) or (B, n + N + 1) array
+            ``[x, one-hot of the mode, k / horizon]``.
+
+        Returns
+        -------
+        x : (B, n) float64
+        mode : (B,) int64
+            Argmax of the one-hot part.
+        k : (B,) int64
+            ``round(observation[..., -1] * horizon)``; zeros for a controller whose decision
+            does not depend on ``k``.
+
+        Raises
+        ------
+        ValueError
+            If the observation has the wrong shape or non-finite entries, or (for controllers
+            that need ``k``) its time entry is negative, above 1, or not a multiple of
+            ``1 / horizon`` (the environment's horizon differs from the controller's).
+        """
+        model = self.model
+        size = model.n + model.N + 1
+        obs = check_array(
+            "observation",
+            observation,
+            what=f"[x ({model.n}), one-hot of the mode ({model.N}), k / horizon (1)]",
+        )
+        if obs.ndim not in (1, 2) or obs.shape[-1] != size:
+            raise ValueError(
+                f"observation has shape {obs.shape}; expected ({size},) or (batch, {size}): "
+                f"[x ({model.n}), one-hot of the mode ({model.N}), k / horizon (1)]"
+            )
+        obs = obs.reshape(-1, size)
+        if not self._needs_time:
+            x, mode, _ = decode_observation(model, obs, 1)
+            return x, mode, np.zeros(obs.shape[0], dtype=np.int64)
+        horizon = self.horizon if self.horizon is not None else ENV_DEFAULT_HORIZON
+        tau = obs[:, -1]
+        scaled = tau * horizon
+        bad = (tau < 0.0) | (tau > 1.0) | (np.abs(scaled - np.rint(scaled)) > _TIME_TOL)
+        if np.any(bad):
+            first = float(tau[bad][0])
+            source = (
+                f"horizon = {self.horizon}"
+                if self.horizon is not None
+                else f"the environments' default horizon {ENV_DEFAULT_HORIZON} (no horizon was "
+                "given)"
+            )
+            raise ValueError(
+                f"observation's time entry k / horizon = {first:.6g} does not decode to a time "
+                f"k in [0, horizon] with {source}: the environment's horizon differs from the "
+                f"controller's; pass horizon= (the environment's episode length, "
+                f"env.unwrapped.horizon) to {type(self).__name__}"
+            )
+        return decode_observation(model, obs, horizon)
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]:
+        """Actions for observations of the raw environment, in stable-baselines3's shape.
+
+        The actions are the inputs ``u`` in the raw environment's units (its action space).
+        On an environment whose actions are transformed by a wrapper (e.g.
+        ``gymnasium.wrappers.RescaleAction``) use :func:`controllers.policy_for` instead.
+
+        Parameters
+        ----------
+        observation : (n + N + 1,) or (B, n + N + 1) array
+            ``[x, one-hot of the mode, k / horizon]`` as produced by the environment.
+        state, episode_start, deterministic
+            Accepted for compatibility and ignored (the controllers are memoryless and
+            deterministic).
+
+        Returns
+        -------
+        actions : (m,) or (B, m) float32 array
+        state : the ``state`` argument, unchanged (None)
+        """
+        single = np.ndim(observation) == 1
+        xs, modes, ks = self.decode_observation(observation)
+        actions = self.act_batch(xs, modes, ks)[0].astype(np.float32)
+        return (actions[0] if single else actions), state

@@ -1,0 +1,168 @@
+"""A controller acting on a wrapped environment: :func:`policy_for`.
+
+The controllers' ``predict`` reads the raw environment's observation and returns the input ``u``
+in the raw environment's units (its action space). An environment wrapped for reinforcement
+learning, e.g. with ``gymnasium.wrappers.RescaleAction`` (actions in [-1, 1]), expects other
+actions: fed ``u`` directly, it multiplies them by the bound and the episode diverges, silently.
+:func:`policy_for` reads the wrappers of the environment, converts ``u`` into the outer action
+for the ones it can invert (``RescaleAction``, ``ClipAction``) and refuses the others by name.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.wrappers import ClipAction, RescaleAction
+
+from sdjls_gym._validate import a_type, check_array, describe
+from sdjls_gym.env import SDJLSEnv, decode_observation
+
+from .base import Controller
+
+__all__ = ["ControllerPolicy", "policy_for"]
+
+
+def _layers(env: gym.Env) -> list[gym.Env]:
+    """The wrappers of ``env`` from the outermost inwards, then the unwrapped env."""
+    out = [env]
+    while isinstance(out[-1], gym.Wrapper):
+        out.append(out[-1].env)
+    return out
+
+
+class ControllerPolicy:
+    """``predict`` of a controller for a wrapped SDJLS environment (see :func:`policy_for`).
+
+    Attributes
+    ----------
+    controller : Controller
+    horizon : int
+        The environment's episode length (it decodes ``k`` from the observation).
+    rescales : list of (low, high, min, max) arrays
+        The ``RescaleAction`` layers, outermost first.
+    """
+
+    def __init__(self, controller: Controller, horizon: int, rescales: list) -> None:
+        self.controller = controller
+        self.horizon = horizon
+        self.rescales = rescales
+
+    def action(self, u: np.ndarray) -> np.ndarray:
+        """The outer action that the wrappers turn into the input ``u`` (..., m)."""
+        a = np.asarray(u, dtype=np.float64)
+        for low, high, lo_a, hi_a in reversed(self.rescales):  # innermost first
+            a = lo_a + (a - low) * (hi_a - lo_a) / (high - low)
+        return a
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]:
+        """Actions for observations of the wrapped environment, in stable-baselines3's shape."""
+        ctrl = self.controller
+        model = ctrl.model
+        size = model.n + model.N + 1
+        single = np.ndim(observation) == 1
+        obs = check_array("observation", observation, what=f"({size},) or (batch, {size})")
+        if obs.ndim not in (1, 2) or obs.shape[-1] != size:
+            raise ValueError(
+                f"observation has shape {obs.shape}; expected ({size},) or (batch, {size})"
+            )
+        x, mode, k = decode_observation(model, obs.reshape(-1, size), self.horizon)
+        u = ctrl.act_batch(x, mode, k)[0]
+        actions = self.action(u).astype(np.float32)
+        return (actions[0] if single else actions), state
+
+
+def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
+    """An object with stable-baselines3's ``predict`` that drives ``env`` with ``controller``.
+
+    Parameters
+    ----------
+    controller : Controller
+        Any controller of this package (its ``model`` must be the environment's).
+    env : gymnasium.Env
+        An SDJLS environment, possibly wrapped. Action wrappers are undone where they can be:
+        ``RescaleAction`` (the input ``u`` is mapped to the outer action) and ``ClipAction`` (a
+        no-op on the bounded input). Wrappers that change the observation, or that change the
+        action in another way, are refused: the controller needs the raw state and the raw input.
+
+    Returns
+    -------
+    ControllerPolicy
+        Decodes time with the environment's own horizon.
+
+    Raises
+    ------
+    TypeError
+        ``controller`` is not a controller or ``env`` not a Gymnasium environment.
+    ValueError
+        ``env`` is not an SDJLS environment of the controller's model, or has a wrapper the
+        controller cannot act through (named in the message).
+
+    Examples
+    --------
+    >>> import gymnasium as gym
+    >>> from gymnasium.wrappers import RescaleAction
+    >>> from controllers import LinearFeedbackController, policy_for
+    >>> from sdjls_gym.systems.macro import PAPER_K
+    >>> env = RescaleAction(gym.make("SDJLS-Macro-v0"), -1.0, 1.0)
+    >>> policy = policy_for(LinearFeedbackController(env.unwrapped.model, PAPER_K), env)
+    >>> obs, info = env.reset(seed=0)
+    >>> action, _ = policy.predict(obs)  # u = K x = -1.4, as an action in [-1, 1]
+    >>> round(float(action[0]) * 200.0, 4)
+    -1.4
+    """
+    if not isinstance(controller, Controller):
+        raise TypeError(
+            f"controller = {describe(controller)} is {a_type(controller)}; expected a controller "
+            "of this package (RecedingHorizonController, LinearFeedbackController, ...)"
+        )
+    if not isinstance(env, gym.Env):
+        raise TypeError(f"env = {describe(env)} is {a_type(env)}; expected a gymnasium.Env")
+    layers = _layers(env)
+    base = layers[-1]
+    if not isinstance(base, SDJLSEnv):
+        raise ValueError(
+            f"env is a {type(base).__name__} underneath; expected an SDJLS environment "
+            '(gym.make("SDJLS-v0", ...) or "SDJLS-Macro-v0")'
+        )
+    if base.model != controller.model:
+        raise ValueError(
+            f"env's model {base.model!r} is not the controller's model {controller.model!r}"
+        )
+    rescales = []
+    for layer in layers[:-1]:
+        name = type(layer).__name__
+        if layer.observation_space != base.observation_space or isinstance(
+            layer, gym.ObservationWrapper
+        ):
+            raise ValueError(
+                f"env has a {name} that changes the observation; a controller needs the raw "
+                "observation [x, one-hot(mode), k / horizon]: wrap only the actions (or act on "
+                "env.unwrapped)"
+            )
+        if isinstance(layer, RescaleAction):
+            inner = layer.env.action_space
+            rescales.append(
+                (
+                    inner.low.astype(np.float64),
+                    inner.high.astype(np.float64),
+                    layer.action_space.low.astype(np.float64),
+                    layer.action_space.high.astype(np.float64),
+                )
+            )
+        elif isinstance(layer, ClipAction):
+            continue  # the controllers' inputs are clipped to the box by the env anyway
+        elif isinstance(layer, gym.ActionWrapper) or layer.action_space != layer.env.action_space:
+            raise ValueError(
+                f"env has a {name} that changes the action in a way policy_for cannot undo; a "
+                "controller's input u goes to the raw env (RescaleAction and ClipAction are "
+                "undone, nothing else is)"
+            )
+    return ControllerPolicy(controller, base.horizon, rescales)
