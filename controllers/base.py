@@ -34,7 +34,15 @@ from sdjls_gym._validate import (
 from sdjls_gym.env import decode_observation
 from sdjls_gym.model import SDJLSModel
 
-__all__ = ["Controller", "MAX_STATE", "ENV_DEFAULT_HORIZON", "check_model", "check_gain"]
+__all__ = [
+    "Controller",
+    "MAX_STATE",
+    "ENV_DEFAULT_HORIZON",
+    "check_model",
+    "check_gain",
+    "check_terminal_weights",
+    "frozen",
+]
 
 #: Largest state magnitude a controller accepts. The costs it reports (``x'Q x`` and the like)
 #: overflow float64 from about 1e154; a state above this bound means the closed loop diverged
@@ -51,6 +59,14 @@ ENV_DEFAULT_HORIZON = 20
 
 #: How far ``k / horizon * horizon`` may be from an integer (float32 rounding of the observation).
 _TIME_TOL = 1e-3
+
+
+def frozen(a: Any) -> np.ndarray:
+    """A read-only, contiguous float64 copy of ``a`` (results and data that callers must not
+    change in place)."""
+    out = np.array(a, dtype=np.float64, order="C")
+    out.setflags(write=False)
+    return out
 
 
 def check_model(model: Any) -> SDJLSModel:
@@ -74,6 +90,28 @@ def check_gain(model: SDJLSModel, K: Any, name: str = "K") -> np.ndarray:
     )
     K.setflags(write=False)
     return K
+
+
+def check_terminal_weights(model: SDJLSModel, Psi: Any) -> np.ndarray:
+    """A finite ``(N, n, n)`` array of symmetric positive definite terminal weights ``Psi``
+    (read-only); symmetry and definiteness are tested relative to each matrix's own scale."""
+    Psi = check_array(
+        "Psi", Psi, shape=(model.N, model.n, model.n), what="one n x n terminal weight per mode"
+    )
+    for i, M in enumerate(Psi):
+        scale = float(np.max(np.abs(M)))
+        if scale == 0.0 or float(np.max(np.abs(M - M.T))) > 1e-9 * scale:
+            raise ValueError(
+                f"Psi[{i}] = {describe(M)} is not symmetric positive definite; expected a "
+                "symmetric positive definite matrix per mode"
+            )
+        eig = np.linalg.eigvalsh(0.5 * (M + M.T))
+        if not eig[0] > 1e-12 * abs(eig[-1]):
+            raise ValueError(
+                f"Psi[{i}] is not positive definite (eigenvalues {eig[0]:.3g} .. {eig[-1]:.3g}); "
+                "expected a symmetric positive definite matrix per mode"
+            )
+    return frozen(0.5 * (Psi + Psi.transpose(0, 2, 1)))
 
 
 class Controller:

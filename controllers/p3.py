@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .base import frozen
 from .qp import EnumerationBudget, QPFamily
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -34,12 +35,6 @@ CLARABEL_SETTINGS: dict[str, Any] = {
     "tol_ktratio": 1e-9,
     "max_iter": 200,
 }
-
-
-def _frozen(a: np.ndarray) -> np.ndarray:
-    a = np.ascontiguousarray(a, dtype=np.float64)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,21 +118,21 @@ def build_family(
     fam = Family(
         mode=mode,
         inside=inside,
-        Pi=_frozen(Pi),
-        K=_frozen(K),
-        GA=_frozen(GA),
-        GB=_frozen(GB),
-        grad=_frozen(grad),
-        C=_frozen(C),
-        H_nu=_frozen(H_nu),
+        Pi=frozen(Pi),
+        K=frozen(K),
+        GA=frozen(GA),
+        GB=frozen(GB),
+        grad=frozen(grad),
+        C=frozen(C),
+        H_nu=frozen(H_nu),
         noise_term=noise_term,
         engine=engine,
-        Q=_frozen(model.Q[mode]),
-        R=_frozen(R),
-        A_tilde=_frozen(At),
-        B=_frozen(Bm),
-        lin=_frozen(np.vstack([K, W, C, At, model.Q[mode]])),
-        w0=_frozen(w0),
+        Q=frozen(model.Q[mode]),
+        R=frozen(R),
+        A_tilde=frozen(At),
+        B=frozen(Bm),
+        lin=frozen(np.vstack([K, W, C, At, model.Q[mode]])),
+        w0=frozen(w0),
         rho_row=engine.c - 1,  # the lower side of the rho row comes last
         H_list=H_nu.tolist(),
         GB_list=GB.tolist(),

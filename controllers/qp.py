@@ -63,13 +63,17 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
+from sdjls_gym._validate import check_mapping, describe
+
 __all__ = [
+    "DEFAULT_OSQP_SETTINGS",
     "KKT_TOL",
     "MAX_CANDIDATES",
     "ActiveSetMaps",
     "QPFamily",
     "Solution",
     "active_set_maps",
+    "check_osqp_settings",
     "candidate_count",
 ]
 
@@ -105,6 +109,38 @@ _PD_TOL = 1e-12
 
 #: OSQP's infinity: bounds beyond it are clipped by OSQP.
 OSQP_INFTY = float(osqp.constant("OSQP_INFTY"))
+
+
+#: Settings of the OSQP fast path; tight enough that OSQP identifies the active set.
+#: Override any of them with ``osqp_settings=`` of the controllers.
+DEFAULT_OSQP_SETTINGS: dict[str, Any] = {
+    "eps_abs": 1e-10,
+    "eps_rel": 1e-10,
+    "eps_prim_inf": 1e-12,
+    "eps_dual_inf": 1e-12,
+    "max_iter": 20000,
+    "polishing": True,
+    "polish_refine_iter": 10,
+    "warm_starting": True,
+    "verbose": False,
+}
+
+
+def check_osqp_settings(settings: Any) -> dict[str, Any]:
+    """The default settings updated by ``settings`` (a dict or None), probed on a one-variable
+    problem so that OSQP itself rejects unknown names or bad values, with a ValueError."""
+    merged = dict(DEFAULT_OSQP_SETTINGS)
+    merged.update(check_mapping("osqp_settings", settings))
+    try:  # let OSQP itself reject unknown names or bad values, on a one-variable problem
+        probe = osqp.OSQP()
+        one = sp.csc_matrix(np.ones((1, 1)))
+        probe.setup(one, np.zeros(1), one, -np.ones(1), np.ones(1), **merged)
+    except Exception as exc:  # OSQP raises ValueError/TypeError/OSQPException
+        raise ValueError(
+            f"osqp_settings = {describe(settings, 120)} were rejected by OSQP ({exc}); see "
+            "https://osqp.org/docs/interfaces/solver_settings.html for the valid names"
+        ) from None
+    return merged
 
 
 def candidate_count(rows: int, d: int) -> int:

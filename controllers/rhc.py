@@ -54,26 +54,25 @@ from operator import mul
 from typing import Any
 
 import numpy as np
-import osqp
-import scipy.sparse as sp
 
 from sdjls_gym._validate import (
     MAX_INDEX,
-    check_array,
     check_bool,
     check_choice,
-    check_mapping,
     check_number,
-    describe,
 )
 from sdjls_gym.model import SDJLSModel, max_last
 
-from .base import MAX_STATE, Controller, check_gain
+from .base import MAX_STATE, Controller, check_gain, check_terminal_weights
 from .chance import CONSTRAINT_KINDS, check_xi, tightening
 from .p3 import Family, build_family, check_magnitudes, solve_p3_cvxpy
-from .qp import KKT_TOL, EnumerationBudget, Solution
+from .qp import DEFAULT_OSQP_SETTINGS, KKT_TOL, EnumerationBudget, Solution, check_osqp_settings
 
-__all__ = ["RecedingHorizonController", "UnconstrainedRecedingHorizonController"]
+__all__ = [
+    "DEFAULT_OSQP_SETTINGS",
+    "RecedingHorizonController",
+    "UnconstrainedRecedingHorizonController",
+]
 
 SOLVERS = ("osqp", "cvxpy", "active_set")
 NU_SETS = ("box", "ball")
@@ -86,20 +85,6 @@ MAX_NU_BOUND = 1e12
 #: Largest entry of the QP's matrices (see :func:`controllers.p3.check_magnitudes`).
 MAX_QP_ENTRY = 1e100
 
-#: Settings of the OSQP fast path; tight enough that OSQP identifies the active set.
-#: Override any of them with ``osqp_settings=``.
-DEFAULT_OSQP_SETTINGS: dict[str, Any] = {
-    "eps_abs": 1e-10,
-    "eps_rel": 1e-10,
-    "eps_prim_inf": 1e-12,
-    "eps_dual_inf": 1e-12,
-    "max_iter": 20000,
-    "polishing": True,
-    "polish_refine_iter": 10,
-    "warm_starting": True,
-    "verbose": False,
-}
-
 #: Types accepted without conversion by the fast input check of ``act`` (bool is not among them).
 _INT_TYPES = frozenset([int] + [np.dtype(c).type for c in np.typecodes["AllInteger"]])
 _FLOAT64 = np.dtype(np.float64)
@@ -108,45 +93,6 @@ _FLOAT64 = np.dtype(np.float64)
 _MAX_OFFSETS = 4096
 
 _PATHS = {"warm": "active_set_warm", "osqp": "osqp", "osqp_retry": "osqp_retry"}
-
-
-def _check_Psi(model: SDJLSModel, Psi: Any) -> np.ndarray:
-    """A finite ``(N, n, n)`` array of symmetric positive definite terminal weights; the tests
-    of symmetry and definiteness are relative to each matrix's own scale."""
-    Psi = check_array(
-        "Psi", Psi, shape=(model.N, model.n, model.n), what="one n x n terminal weight per mode"
-    )
-    for i, M in enumerate(Psi):
-        scale = float(np.max(np.abs(M)))
-        if scale == 0.0 or float(np.max(np.abs(M - M.T))) > 1e-9 * scale:
-            raise ValueError(
-                f"Psi[{i}] = {describe(M)} is not symmetric positive definite; expected a "
-                "symmetric positive definite matrix per mode"
-            )
-        eig = np.linalg.eigvalsh(0.5 * (M + M.T))
-        if not eig[0] > 1e-12 * abs(eig[-1]):
-            raise ValueError(
-                f"Psi[{i}] is not positive definite (eigenvalues {eig[0]:.3g} .. {eig[-1]:.3g}); "
-                "expected a symmetric positive definite matrix per mode"
-            )
-    Psi = 0.5 * (Psi + Psi.transpose(0, 2, 1))
-    Psi.setflags(write=False)
-    return Psi
-
-
-def _check_osqp_settings(settings: Any) -> dict[str, Any]:
-    merged = dict(DEFAULT_OSQP_SETTINGS)
-    merged.update(check_mapping("osqp_settings", settings))
-    try:  # let OSQP itself reject unknown names or bad values, on a one-variable problem
-        probe = osqp.OSQP()
-        one = sp.csc_matrix(np.ones((1, 1)))
-        probe.setup(one, np.zeros(1), one, -np.ones(1), np.ones(1), **merged)
-    except Exception as exc:  # OSQP raises ValueError/TypeError/OSQPException
-        raise ValueError(
-            f"osqp_settings = {describe(settings, 120)} were rejected by OSQP ({exc}); see "
-            "https://osqp.org/docs/interfaces/solver_settings.html for the valid names"
-        ) from None
-    return merged
 
 
 class RecedingHorizonController(Controller):
@@ -249,7 +195,7 @@ class RecedingHorizonController(Controller):
     ) -> None:
         model = self.model
         self.K = check_gain(model, K)
-        self.Psi = _check_Psi(model, Psi)
+        self.Psi = check_terminal_weights(model, Psi)
         self.alpha = check_number(
             "alpha", alpha, low=0.0, low_open=True, high=MAX_ALPHA, what="penalty on the slack rho"
         )
@@ -263,7 +209,7 @@ class RecedingHorizonController(Controller):
         )
         self.solver = check_choice("solver", solver, SOLVERS)
         self.nu_set = check_choice("nu_set", nu_set, NU_SETS)
-        self.osqp_settings = _check_osqp_settings(osqp_settings)
+        self.osqp_settings = check_osqp_settings(osqp_settings)
         self.cvxpy_fallback = check_bool("cvxpy_fallback", cvxpy_fallback)
         self.A_tilde = model.A + model.B @ self.K  # eq. (sys:stabilized_input)
         self.A_tilde.setflags(write=False)
