@@ -29,20 +29,24 @@ active set, not of the path that found it.
 Exact solve of an active set
 ----------------------------
 For an active set ``S`` (rows of ``C``), the solution and the multipliers are linear maps of
-``w``, computed by the null-space method on row-normalized constraints: ``C_S' = Q R``,
-``z = Q1 R1^{-T} h_S + Q2 y`` with ``(Q2' P Q2) y = -Q2'(q + P z_p)``, and the multipliers from
-stationarity. Components that do not depend on a datum get exact zeros in its column (a vertex
-does not depend on ``q`` at all), so a huge slack penalty or a loose bound does not leak round-off
-into the answer. A set is a candidate only if its rows are linearly independent and the reduced
-Hessian is positive definite, both tested relative to their own scale.
+``w`` (:func:`active_set_maps`). The active rows and the variables are first equilibrated (Ruiz
+scaling of ``C_S``; a variable in no active row by its curvature), then the null-space method runs
+on the scaled, row-normalized rows: ``C_S' = Q R``, ``z = Q1 R1^{-T} h_S + Q2 y`` with
+``(Q2' P Q2) y = -Q2'(q + P z_p)``, and the multipliers from stationarity. Components that do not
+depend on a datum get exact zeros in its column (a vertex does not depend on ``q`` at all), so a
+huge slack penalty or a loose bound does not leak round-off into the answer. A set is a candidate
+only if its scaled rows are linearly independent and the reduced Hessian is positive definite,
+relative to its own scale.
 
 Tolerances relative to scale
 ----------------------------
-The KKT test accepts an active set when every primal residual ``C_i z - h_i`` and every negated
-multiplier is at most :data:`KKT_TOL` times the magnitude of the terms that were summed to compute
-it (``|C_i| |Z| |w| + |h_i|``, and likewise for the multipliers). The test is therefore invariant
-under a scaling of the rows, of the variables or of the objective, and one loose row (a bound of
-1e9) or a huge penalty (1e12) does not widen the tolerance of the others.
+The KKT test accepts an active set when every primal residual ``C_i z - h_i`` of an inactive row
+and every negated multiplier is at most :data:`KKT_TOL` times the magnitude of the terms summed
+to compute it. Those magnitudes are carried through every intermediate product with absolute
+values (so a cancellation, e.g. a particular solution and a correction of 2.27 each, is not
+mistaken for a small term), in the equilibrated variables. The test is therefore invariant under
+a scaling of the rows, of the variables or of the objective, and one loose row (a bound of 1e9)
+or a huge penalty (1e12) does not widen the tolerance of the others.
 
 Thread safety
 -------------
