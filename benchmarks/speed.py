@@ -13,9 +13,13 @@ warm-up and medians over repeats:
 3. the batched closed loop: ``SDJLSVectorEnv`` with 10,000 sub-environments driven by
    ``act_batch`` against a Python loop of one env + ``act``, and the largest difference between
    ``act_batch`` and ``act`` on the same states;
-4. scaling of ``synthesize_gains`` and ``act`` with the number of modes N and states n, and
+4. one decision of the multi-step ``ScenarioTreeController`` (``steps`` in 1, 2, 3, 5, and
+   ``steps=10, branching=2``) against its cvxpy reference (the same tree written plainly, solved
+   by Clarabel) and against one-step ``act()``, with the QP solves per decision and the largest
+   difference of the two answers;
+5. scaling of ``synthesize_gains`` and ``act`` with the number of modes N and states n, and
    of the batched Monte Carlo with the number of trajectories;
-5. the peak memory (RSS) of the largest Monte Carlo.
+6. the peak memory (RSS) of the largest Monte Carlo.
 
 It writes ``speed.json`` and ``SPEED.md`` to ``--out``. BLAS runs single-threaded (set in
 ``benchmarks/__init__.py``): the products here are small and thread start-up would dominate.
@@ -39,7 +43,8 @@ import numpy as np
 
 import sdjls_gym
 from benchmarks.versions import package_versions
-from controllers import RecedingHorizonController, synthesize_gains
+from controllers import RecedingHorizonController, ScenarioTreeController, synthesize_gains
+from controllers.scenario_tree import PROB_TOL
 from sdjls_gym import SDJLSModel, SDJLSVectorEnv
 from sdjls_gym.systems.macro import PAPER_K, PAPER_RHC
 
@@ -48,6 +53,7 @@ TARGETS = {
     "act_speedup_vs_cvxpy_rebuild_min": 200.0,
     "batched_steps_per_second_min": 1_000_000.0,
     "batched_speedup_vs_loop_min": 50.0,
+    "tree_steps3_speedup_vs_cvxpy_min": 50.0,
     "agreement_tol": 1e-6,
 }
 
@@ -248,6 +254,68 @@ def measure_batched(opts) -> dict[str, Any]:
     }
 
 
+#: The trees of the multi-step section: (steps, branching); None branches at every stage.
+TREES = ((1, None), (2, None), (3, None), (5, None), (10, 2))
+
+
+def measure_tree(opts, act_one_step_us: float) -> dict[str, Any]:
+    """One decision of ``ScenarioTreeController`` per tree of :data:`TREES` on closed-loop
+    states of the paper's controller, against its cvxpy reference and one-step ``act()``."""
+    model = sdjls_gym.macro()
+    p3 = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
+    x, mode, k = closed_loop_states(model, p3, 400, seed=6)
+    idx = np.arange(len(x))
+    rows = []
+    for steps, branching in TREES:
+        fast = ScenarioTreeController(model, PAPER_K, **PAPER_RHC, steps=steps, branching=branching)
+        ref = ScenarioTreeController(
+            model, PAPER_K, **PAPER_RHC, steps=steps, branching=branching, solver="cvxpy"
+        )
+        large = steps >= 5
+        it = iter(np.resize(idx, 10**7))
+        solves: list[int] = []
+        gaps: list[float] = []
+
+        def one(ctrl=fast, it=it, solves=solves, gaps=gaps) -> None:
+            i = next(it)
+            info = ctrl.act(x[i], int(mode[i]), int(k[i]))[1]
+            solves.append(info["iterations"])
+            gaps.append(info["fixed_point_gap"])
+
+        number = (10 if large else 40) if opts.quick else (60 if large else 200)
+        t_fast = median_time(one, opts.repeats, number, after_warmup=fast._path_counts.clear)
+        counts = dict(fast._path_counts)
+        n_cvx = (1 if large else 3) if opts.quick else (8 if large else 20)
+        t_ref, diff = [], 0.0
+        for i in range(n_cvx):
+            j = 20 * i + 7  # spread over the episodes' times
+            t0 = time.perf_counter()
+            u_ref = ref.act(x[j], int(mode[j]), int(k[j]))[0]
+            t_ref.append(time.perf_counter() - t0)
+            u_fast = fast.act(x[j], int(mode[j]), int(k[j]))[0]
+            diff = max(diff, float(np.max(np.abs(u_fast - u_ref))))
+        plan = fast.act(x[0], int(mode[0]), int(k[0]))[1]["plan"]
+        t_cvx = statistics.median(t_ref)
+        rows.append(
+            {
+                "steps": steps,
+                "branching": steps if branching is None else branching,
+                "nodes": int(plan.mode.size),
+                "variables": int(plan.mode.size * (model.m + 1)),
+                "act_us": 1e6 * t_fast,
+                "qp_solves_per_decision": float(np.mean(solves)),
+                "fixed_point_converged_share": float(np.mean(np.array(gaps) <= PROB_TOL)),
+                "warm_start_share": counts.get("active_set_warm", 0) / max(1, sum(counts.values())),
+                "cvxpy_us": 1e6 * t_cvx,
+                "speedup_vs_cvxpy": t_cvx / t_fast,
+                "vs_one_step_act": 1e6 * t_fast / act_one_step_us,
+                "max_abs_diff_u_vs_cvxpy": diff,
+                "cvxpy_states": n_cvx,
+            }
+        )
+    return {"rows": rows}
+
+
 def random_system(N: int, n: int, seed: int) -> SDJLSModel:
     """A random controllable system with a box region around the origin."""
     rng = np.random.default_rng(seed)
@@ -348,6 +416,39 @@ def write_markdown(res: dict[str, Any], cmd: str) -> str:
         f"{ok(b['speedup_vs_loop'] >= t['batched_speedup_vs_loop_min'] and b['batched_steps_per_second'] >= t['batched_steps_per_second_min'])} |",
         f"| act_batch vs act on the same states: max abs difference of u | {b['max_abs_diff_act_batch_vs_act']:.1e} | | | "
         f"<= {t['agreement_tol']:g} | {ok(b['max_abs_diff_act_batch_vs_act'] <= t['agreement_tol'])} |",
+    ]
+    tree = res["tree"]["rows"]
+    three = next(row for row in tree if row["steps"] == 3 and row["branching"] == 3)
+    lines += [
+        f"| act(), ScenarioTreeController steps=3 vs its cvxpy reference (same tree) | "
+        f"{three['act_us']:.0f} us | {three['cvxpy_us']:.0f} us | "
+        f"{three['speedup_vs_cvxpy']:.0f}x faster | >= {t['tree_steps3_speedup_vs_cvxpy_min']:.0f}x | "
+        f"{ok(three['speedup_vs_cvxpy'] >= t['tree_steps3_speedup_vs_cvxpy_min'])} |",
+        "",
+        "## Multi-step receding horizon (scenario tree)",
+        "",
+        "One decision of `ScenarioTreeController` on the macro example (closed-loop states of the "
+        "paper's controller), against the same tree written plainly in cvxpy (Clarabel) and "
+        "against one-step act() above. A decision solves the tree's QP once per fixed-point "
+        "iteration on the branch probabilities (at most 10, the default; 'converged': no region probability "
+        f"moved by more than {PROB_TOL:g} at the last one); the fast path re-solves the last "
+        "active set exactly first (warm start) and runs OSQP only when it does not verify.",
+        "",
+        "| steps | branching | nodes | QP variables | act() | QP solves per decision | "
+        "fixed point converged | solves by warm start | cvxpy reference | speedup | "
+        "vs one-step act() | max abs diff of u (states) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in tree:
+        lines.append(
+            f"| {row['steps']} | {row['branching']} | {row['nodes']} | {row['variables']} | "
+            f"{row['act_us']:,.0f} us | {row['qp_solves_per_decision']:.2f} | "
+            f"{100 * row['fixed_point_converged_share']:.0f}% | "
+            f"{100 * row['warm_start_share']:.0f}% | {row['cvxpy_us']:,.0f} us | "
+            f"{row['speedup_vs_cvxpy']:.0f}x | {row['vs_one_step_act']:.0f}x | "
+            f"{row['max_abs_diff_u_vs_cvxpy']:.1e} ({row['cvxpy_states']}) |"
+        )
+    lines += [
         "",
         "## Scaling",
         "",
@@ -405,6 +506,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     res["act"] = measure_act(opts)
     print("batched closed loop ...", flush=True)
     res["batched"] = measure_batched(opts)
+    print("multi-step (scenario tree) ...", flush=True)
+    res["tree"] = measure_tree(opts, res["act"]["act_osqp_us"])
     print("scaling ...", flush=True)
     res["scaling"] = measure_scaling(opts)
     (opts.out / "speed.json").write_text(json.dumps(res, indent=1) + "\n")

@@ -19,6 +19,7 @@ from controllers.lmi import (
     verify_mean_square_bound,
 )
 from controllers.rhc import RecedingHorizonController, UnconstrainedRecedingHorizonController
+from controllers.scenario_tree import ScenarioTreeController
 
 __all__: list[str] = []
 __all__ += [
@@ -38,6 +39,7 @@ __all__ += [
     "LinearFeedbackController",
     "MJLSLQRController",
     "RecedingHorizonController",
+    "ScenarioTreeController",
     "UnconstrainedRecedingHorizonController",
     "policy_for",
     "row_satisfaction_probability",

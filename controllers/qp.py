@@ -60,7 +60,8 @@ from __future__ import annotations
 import math
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from itertools import combinations
+from functools import lru_cache
+from itertools import chain, combinations
 from typing import Any
 
 import numpy as np
@@ -145,6 +146,15 @@ def check_osqp_settings(settings: Any) -> dict[str, Any]:
             "https://osqp.org/docs/interfaces/solver_settings.html for the valid names"
         ) from None
     return merged
+
+
+@lru_cache(maxsize=64)
+def _triu_csc(d: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices of the upper triangle of a (d, d) matrix in CSC order."""
+    cols, rows = np.tril_indices(d)  # (a, b), a >= b, by a then b: column a, row b
+    rows.setflags(write=False)
+    cols.setflags(write=False)
+    return rows, cols
 
 
 def candidate_count(rows: int, d: int) -> int:
@@ -411,6 +421,47 @@ class QPFamily:
         self.__dict__.update(state)
         self._reset_state()
 
+    def update_P(self, P: np.ndarray) -> None:
+        """Replace the Hessian by ``P`` (d, d), for a family whose Hessian changes between
+        instances while its sparsity does not (the scenario tree: path probabilities weight
+        the stage costs).
+
+        The OSQP object, when set up, is updated in place (``update(Px=...)``) if the upper
+        triangle of ``P`` has the nonzero pattern the object was set up with, and otherwise
+        dropped (set up again on next use). The cached active-set maps (functions of ``P``) are
+        cleared and the full enumeration is forbidden from now on (it is built for one ``P``).
+        The warm start (an active set) is kept: it is verified again with the new ``P``.
+
+        Raises
+        ------
+        ValueError
+            ``P`` is not a finite ``(d, d)`` array.
+        """
+        P = np.asarray(P, dtype=np.float64)
+        if P.shape != (self.d, self.d) or not np.all(np.isfinite(P)):
+            raise ValueError(
+                f"P has shape {P.shape}; expected a finite ({self.d}, {self.d}) array, the "
+                "Hessian of the family"
+            )
+        solver = self._osqp
+        if solver is not None:
+            # the upper triangle in CSC order (column by column, rows ascending); OSQP keeps the
+            # nonzero pattern of triu(self.P) it was set up with, and update_P keeps it unchanged
+            rows, cols = _triu_csc(self.d)
+            old, new = self.P[rows, cols], P[rows, cols]
+            nonzero = new != 0.0
+            if np.array_equal(old != 0.0, nonzero):
+                try:
+                    solver.update(Px=new[nonzero])
+                except Exception:  # noqa: BLE001 - set up again on next use instead
+                    self._osqp = None
+            else:
+                self._osqp = None
+        self.P = P
+        self._maps.clear()
+        self._enum = None
+        self.can_enumerate = False
+
     # ------------------------------------------------------------------ data
     def one_sided_bounds(self, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
         """``h`` of ``C z <= h`` for bounds ``l, u`` of shape ``(..., c)``."""
@@ -453,44 +504,48 @@ class QPFamily:
         self.budget.use(self, self.enumeration_floats)
         return self._enum
 
-    def _near_active(self, z: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """Rows of ``C`` that are nearly active at the approximate solution ``z``."""
+    def _near_active(self, z: np.ndarray, w: np.ndarray, loose: bool = False) -> np.ndarray:
+        """Rows of ``C`` that are nearly active at the approximate solution ``z``: the slack is
+        within :data:`NEAR_ACTIVE_TOL` of the row's own terms (with a floor from the largest
+        component: a slack of 1e-106 where the terms are 1e-106 is zero for OSQP), or, with
+        ``loose``, of the row's norm times the largest component (which also catches a row that
+        OSQP left loose within its tolerance, e.g. the slack of a node of tiny weight)."""
         h = w[self.d :]
         slack = h - self.C @ z
-        # each row's own terms, with a floor from the largest component (a slack of 1e-106
-        # where the row's terms are 1e-106 is zero for OSQP)
         zmax = float(np.max(np.abs(z), initial=0.0))
-        terms = self.absC @ np.abs(z) + np.abs(h) + 1e-6 * self.absC.sum(axis=1) * zmax
+        floor = self.absC.sum(axis=1) * zmax
+        terms = (floor if loose else self.absC @ np.abs(z) + 1e-6 * floor) + np.abs(h)
         return np.flatnonzero(slack <= NEAR_ACTIVE_TOL * terms)
 
     def local(self, z: np.ndarray, w: np.ndarray, y: np.ndarray | None = None) -> Solution | None:
         """Exact re-solve around an approximate solution: the active set of the multipliers,
-        the nearly active rows, then their subsets (largest first)."""
-        near = self._near_active(z, w)
+        the nearly active rows, then their subsets (largest first); the same again with the
+        looser test of nearly active rows. At most :data:`MAX_LOCAL_CANDIDATES` sets in all."""
         tried: set[tuple[int, ...]] = set()
+        nears = [self._near_active(z, w, loose) for loose in (False, True)]
         guesses: list[tuple[int, ...]] = []
-        if y is not None:
-            guesses.append(self._rows_from_duals(y, near))
-        if near.size <= self.d:
-            guesses.append(tuple(near.tolist()))
-        for rows in guesses:
+        for near in nears:  # the cheap guesses of both tests first
+            if y is not None:
+                guesses.append(self._rows_from_duals(y, near))
+            if near.size <= self.d:
+                guesses.append(tuple(near.tolist()))
+        subsets = (
+            rows
+            for near in nears
+            for size in range(min(near.size, self.d), -1, -1)
+            for rows in combinations(near.tolist(), size)
+        )
+        count = 0
+        for rows in chain(guesses, subsets):
             if rows in tried:
                 continue
             tried.add(rows)
+            count += 1
+            if count > MAX_LOCAL_CANDIDATES:
+                return None
             out = self.verify(rows, w)
             if out is not None:
                 return Solution(out, rows, "")
-        count = 0
-        for size in range(min(near.size, self.d), -1, -1):
-            for rows in combinations(near.tolist(), size):
-                if rows in tried:
-                    continue
-                count += 1
-                if count > MAX_LOCAL_CANDIDATES:
-                    return None
-                out = self.verify(rows, w)
-                if out is not None:
-                    return Solution(out, rows, "")
         return None
 
     def _rows_from_duals(self, y: np.ndarray, near: np.ndarray) -> tuple[int, ...]:

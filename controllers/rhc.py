@@ -82,6 +82,25 @@ NU_SETS = ("box", "ball")
 #: that float64 cannot resolve both in one objective.
 MAX_ALPHA = 1e12
 MAX_NU_BOUND = 1e12
+
+
+def check_slack_and_offsets(alpha: Any, nu_bound: Any) -> tuple[float, float]:
+    """``(alpha, nu_bound)``, each a number in ``(0, 1e12]`` (:data:`MAX_ALPHA`,
+    :data:`MAX_NU_BOUND`), for every receding-horizon controller."""
+    alpha = check_number(
+        "alpha", alpha, low=0.0, low_open=True, high=MAX_ALPHA, what="penalty on the slack rho"
+    )
+    nu_bound = check_number(
+        "nu_bound",
+        nu_bound,
+        low=0.0,
+        low_open=True,
+        high=MAX_NU_BOUND,
+        what="size of the set U of offsets nu",
+    )
+    return alpha, nu_bound
+
+
 #: Largest entry of the QP's matrices (see :func:`controllers.p3.check_magnitudes`).
 MAX_QP_ENTRY = 1e100
 
@@ -196,17 +215,7 @@ class RecedingHorizonController(Controller):
         model = self.model
         self.K = check_gain(model, K)
         self.Psi = check_terminal_weights(model, Psi)
-        self.alpha = check_number(
-            "alpha", alpha, low=0.0, low_open=True, high=MAX_ALPHA, what="penalty on the slack rho"
-        )
-        self.nu_bound = check_number(
-            "nu_bound",
-            nu_bound,
-            low=0.0,
-            low_open=True,
-            high=MAX_NU_BOUND,
-            what="size of the set U of offsets nu",
-        )
+        self.alpha, self.nu_bound = check_slack_and_offsets(alpha, nu_bound)
         self.solver = check_choice("solver", solver, SOLVERS)
         self.nu_set = check_choice("nu_set", nu_set, NU_SETS)
         self.osqp_settings = check_osqp_settings(osqp_settings)

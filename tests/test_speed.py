@@ -25,7 +25,16 @@ def test_quick_run_writes_json_and_markdown(quick):
     out, result = quick
     data = json.loads((out / "speed.json").read_text())
     assert data == json.loads(json.dumps(result))
-    assert {"command", "machine", "targets", "env_step", "act", "batched", "scaling"} <= set(data)
+    assert {
+        "command",
+        "machine",
+        "targets",
+        "env_step",
+        "act",
+        "batched",
+        "tree",
+        "scaling",
+    } <= set(data)
     text = (out / "SPEED.md").read_text()
     assert "python -m benchmarks.speed" in text
     assert text.count("\n|") >= 8  # the targets table and the scaling tables
@@ -39,12 +48,26 @@ def test_timed_decisions_agree_with_the_references(quick):
     assert set(diffs) >= {"rebuild", "parametric", "active_set"}
     assert max(diffs.values()) <= tol, diffs
     assert result["batched"]["max_abs_diff_act_batch_vs_act"] <= tol
+    # the multi-step controller's fast path against its cvxpy reference, every tree of the issue
+    rows = result["tree"]["rows"]
+    assert [(row["steps"], row["branching"]) for row in rows] == [
+        (1, 1),
+        (2, 2),
+        (3, 3),
+        (5, 5),
+        (10, 2),
+    ]
+    assert [row["nodes"] for row in rows] == [1, 4, 13, 121, 76]
+    for row in rows:
+        assert row["max_abs_diff_u_vs_cvxpy"] <= tol, row
+        assert row["cvxpy_states"] >= 1 and row["qp_solves_per_decision"] >= 1.0
 
 
 def test_every_measurement_is_a_positive_finite_number(quick):
     _, result = quick
-    for section in ("env_step", "act", "batched"):
-        for key, value in result[section].items():
+    sections = [result[name] for name in ("env_step", "act", "batched")] + result["tree"]["rows"]
+    for section in sections:
+        for key, value in section.items():
             if isinstance(value, float):
                 assert 0.0 < value < float("inf") or key.startswith("max_abs_diff"), (key, value)
     assert all(row["status"] == "ok" for row in result["scaling"]["synthesis_and_act"])

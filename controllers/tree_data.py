@@ -1,0 +1,513 @@
+"""The scenario tree of modes and its QP data, for :class:`controllers.ScenarioTreeController`.
+
+Tree
+----
+A node is a pair (state, mode) at a stage ``t`` of the horizon. The root is ``(x_k, theta_k)`` at
+stage 0. Nodes at stages ``0 .. steps-1`` carry a decision (an offset ``nu`` and a slack
+``rho``); the states at stage ``steps`` only carry the terminal cost. A node at a stage
+``t < branching`` has one child per mode ``j`` that can follow its mode (at the root: the modes
+of positive probability in its row of ``P_in`` or ``P_out``; later: in either row); a node at a
+later stage has one child, with its own mode (the "robust horizon" of multi-stage MPC). All
+children of a node share its next state: their mean is ``Atilde_theta mean + B_theta nu`` and
+their covariance ``Atilde_theta Sigma Atilde_theta' + E_theta W E_theta'`` (``Sigma = 0`` at the
+root), where ``theta`` is the parent's mode.
+
+The tree of a controller depends on the root's mode and on whether ``x_k`` is in C1 (which row
+of transition probabilities the root uses): one tree and one QP *family* per pair, as for P3.
+
+Condensed QP
+------------
+The decisions are ``z = [nu_0 .. nu_{M-1}, rho_0 .. rho_{M-1}]`` (``M`` decision nodes); every
+node's state mean is affine in ``(x_k, z)``: ``mean_i = Mx_i x_k + Mz_i z``. With ``w_i`` the
+node's path probability (floored at :data:`WEIGHT_FLOOR`) and ``b_i`` its branch probabilities,
+the objective is::
+
+    sum_i w_i ( E[x'Q x + u'R u] + alpha rho_i )                 x ~ N(mean_i, Sigma_i), u = K x + nu_i
+    + sum_{i at stage steps-1} w_i sum_j b_ij E[x'Psi_j x]       x ~ N(next mean_i, next Sigma_i)
+
+a sum of squares of the rows of ``Lx x + Lz z`` weighted per row, plus the trace terms (Lemma 1,
+eq. eq:lemm1). The constraints are the chance constraints on each node's next state (tightened
+with the node's next covariance), the box ``|nu| <= nu_bound`` and ``rho >= 0``; the constraint
+matrix depends only on the family, the weights (through the path probabilities) change the
+Hessian.
+
+Size limit
+----------
+A tree has at most :data:`MAX_TREE_VARIABLES` QP variables (``M (m + 1)``) and the dense
+matrices of one family hold at most :data:`MAX_FAMILY_FLOATS` floats; :func:`check_tree_size`
+raises a ValueError naming ``steps`` and ``branching`` before anything is built.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+from scipy import special, stats
+
+from .tree_qp import TreeQP
+
+__all__ = [
+    "MAX_FAMILY_FLOATS",
+    "MAX_TREE_VARIABLES",
+    "WEIGHT_FLOOR",
+    "RegionClasses",
+    "Tree",
+    "TreeFamily",
+    "build_tree_family",
+    "check_tree_size",
+    "tree_node_count",
+]
+
+#: Largest number of QP variables (``m + 1`` per decision node) of a tree.
+MAX_TREE_VARIABLES = 1000
+
+#: Largest number of floats in the dense matrices of one family (64 MB).
+MAX_FAMILY_FLOATS = 8_000_000
+
+#: Path probabilities below this weight a node's cost as if they were this small. It keeps the
+#: QP well conditioned: a branch of probability 0 (or 1e-11) makes a node's offset and slack
+#: nearly free, solvers leave them loose within their tolerances and its active set cannot be
+#: read off. It changes ``J*`` by at most this fraction of such a node's cost; the root and the
+#: one-step tree are never floored, nor is any node of the macro example up to ``steps=5`` (its
+#: transition probabilities are at least 0.1).
+WEIGHT_FLOOR = 1e-4
+
+#: Two rows of G are parallel when |cos| of their angle is within this of 1.
+_PARALLEL_TOL = 1e-12
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    a.setflags(write=False)
+    return a
+
+
+def _sqrt_psd(M: np.ndarray) -> np.ndarray:
+    """``F`` with ``F'F = M`` for a symmetric positive semidefinite ``M`` (n, n)."""
+    vals, vecs = np.linalg.eigh(0.5 * (M + M.T))
+    return (vecs * np.sqrt(np.clip(vals, 0.0, None))).T
+
+
+# ---------------------------------------------------------------------------------- topology
+def _stage_counts(
+    root_support: np.ndarray, support: np.ndarray, mode: int, steps: int, branching: int
+) -> list[np.ndarray]:
+    """Number of nodes per mode at each stage ``0 .. steps-1`` (Python ints, no overflow)."""
+    N = support.shape[0]
+    counts = [np.zeros(N, dtype=object)]
+    counts[0][mode] = 1
+    S = support.astype(object)
+    for t in range(steps - 1):
+        prev = counts[-1]
+        if t >= branching:
+            nxt = prev.copy()
+        elif t == 0:
+            nxt = np.where(root_support, 1, 0).astype(object)
+        else:
+            nxt = prev @ S
+        counts.append(nxt)
+    return counts
+
+
+def tree_node_count(
+    root_support: np.ndarray, support: np.ndarray, mode: int, steps: int, branching: int
+) -> tuple[int, int]:
+    """``(M, M_last)``: decision nodes of the tree and those at the last stage."""
+    counts = _stage_counts(root_support, support, mode, steps, branching)
+    return int(sum(int(c.sum()) for c in counts)), int(counts[-1].sum())
+
+
+def check_tree_size(model: Any, steps: int, branching: int) -> None:
+    """ValueError naming ``steps`` and ``branching`` when a family's tree is beyond
+    :data:`MAX_TREE_VARIABLES` variables or :data:`MAX_FAMILY_FLOATS` floats."""
+    N, n, m = model.N, model.n, model.m
+    hint = (
+        "lower steps, or branching (the stages from branching on do not branch: one child per node)"
+    )
+    if steps * (m + 1) > MAX_TREE_VARIABLES:
+        raise ValueError(
+            f"steps = {steps} needs at least {steps * (m + 1)} QP variables (m + 1 = {m + 1} "
+            f"per stage); a scenario tree has at most {MAX_TREE_VARIABLES} "
+            f"(controllers.tree_data.MAX_TREE_VARIABLES): {hint}"
+        )
+    support = (model.P_in + model.P_out) > 0.0
+    worst = (0, 0, 0, False)
+    for mode in range(N):
+        for inside in (True, False):
+            row = (model.P_in if inside else model.P_out)[mode] > 0.0
+            M, M_last = tree_node_count(row, support, mode, steps, branching)
+            worst = max(worst, (M, M_last, mode, inside))
+    M, M_last, mode, _ = worst
+    d = M * (m + 1)
+    if d > MAX_TREE_VARIABLES:
+        raise ValueError(
+            f"steps = {steps} and branching = {branching} make a scenario tree of {M} decision "
+            f"nodes for mode {mode}, a QP of {d} variables (m + 1 = {m + 1} per node); at most "
+            f"{MAX_TREE_VARIABLES} are supported (controllers.tree_data.MAX_TREE_VARIABLES): "
+            f"{hint}"
+        )
+    rows = M * (n + m) + M_last * N * n
+    c = M * (model.r + 2 * m + 1)
+    floats = rows * (n + d) + 2 * c * d + 2 * M * n * (n + d)
+    if floats > MAX_FAMILY_FLOATS:
+        raise ValueError(
+            f"steps = {steps} and branching = {branching} make a scenario tree of {M} decision "
+            f"nodes whose QP matrices hold {floats:,} floats per family; at most "
+            f"{MAX_FAMILY_FLOATS:,} are supported (controllers.tree_data.MAX_FAMILY_FLOATS): "
+            f"{hint}"
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class Tree:
+    """The topology of one family's tree; nodes in breadth-first order (the root is 0).
+
+    Attributes
+    ----------
+    mode, parent, stage : (M,) int arrays
+        The node's mode, its parent (-1 for the root) and its stage.
+    branched : (M,) bool
+        Whether the node branches (``stage < branching``; a last-stage node never has children).
+    children : (M, N) int array
+        ``children[i, j]``: the node that follows ``i`` when the next mode is ``j``; for a node
+        that does not branch, its single child whatever ``j``; -1 where there is none.
+    by_stage : tuple of (M_t,) int arrays
+        The nodes of each stage ``0 .. steps-1``.
+    last : (M_last,) int array
+        The nodes of the last stage (they carry the terminal cost).
+    sq : int array
+        The nodes whose branch probabilities depend on the state (stage >= 1 and branched or
+        last): their region probability ``q`` is computed at every decision.
+    """
+
+    mode: np.ndarray
+    parent: np.ndarray
+    stage: np.ndarray
+    branched: np.ndarray
+    children: np.ndarray
+    by_stage: tuple
+    last: np.ndarray
+    sq: np.ndarray
+
+    @property
+    def size(self) -> int:
+        return int(self.mode.shape[0])
+
+
+def build_tree(
+    root_support: np.ndarray, support: np.ndarray, root_mode: int, steps: int, branching: int
+) -> Tree:
+    """The tree of a family (see the module docstring); ``support[i, j]``: mode ``j`` can follow
+    mode ``i`` below the root, ``root_support[j]``: at the root."""
+    N = support.shape[0]
+    mode, parent, stage = [root_mode], [-1], [0]
+    children: list[list[int]] = [[-1] * N]
+    frontier = [0]
+    for t in range(steps - 1):
+        nxt = []
+        for i in frontier:
+            if t < branching:
+                follow = root_support if t == 0 else support[mode[i]]
+                modes = np.flatnonzero(follow).tolist()
+            else:
+                modes = [mode[i]]
+            for j in modes:
+                c = len(mode)
+                mode.append(j)
+                parent.append(i)
+                stage.append(t + 1)
+                children.append([-1] * N)
+                nxt.append(c)
+                if t < branching:
+                    children[i][j] = c
+                else:
+                    children[i] = [c] * N
+        frontier = nxt
+    mode_a = np.array(mode, dtype=np.int64)
+    stage_a = np.array(stage, dtype=np.int64)
+    branched = (stage_a < branching) & (stage_a < steps - 1)
+    last = np.flatnonzero(stage_a == steps - 1)
+    sq = np.flatnonzero((stage_a >= 1) & (branched | (stage_a == steps - 1)))
+    out = Tree(
+        mode=mode_a,
+        parent=np.array(parent, dtype=np.int64),
+        stage=stage_a,
+        branched=branched,
+        children=np.array(children, dtype=np.int64),
+        by_stage=tuple(np.flatnonzero(stage_a == t) for t in range(steps)),
+        last=last,
+        sq=sq,
+    )
+    for name in ("mode", "parent", "stage", "branched", "children", "last", "sq"):
+        getattr(out, name).setflags(write=False)
+    return out
+
+
+# ---------------------------------------------------------------------------------- region
+class RegionClasses:
+    """``Pr{G x <= H}`` for Gaussian ``x``, by classes of parallel rows of ``G``.
+
+    The rows of ``G`` are grouped into classes of parallel or antiparallel rows; within a class
+    the rows bound one projection ``g'x`` from above and below, an interval whose Gaussian
+    probability is exact. The probability of the region is the product over the classes: exact
+    for one class (e.g. a band, as in the macroeconomic example) and for classes whose
+    projections are uncorrelated; otherwise an approximation (deterministic). A row ``G_j = 0``
+    holds iff ``0 <= H_j``.
+
+    Parameters
+    ----------
+    G : (r, n)
+    """
+
+    def __init__(self, G: np.ndarray) -> None:
+        G = np.asarray(G, dtype=np.float64)
+        r = G.shape[0]
+        norms = np.linalg.norm(G, axis=1)
+        self.zero_rows = np.flatnonzero(norms == 0.0)
+        directions: list[np.ndarray] = []
+        members: list[list[int]] = []
+        scale = np.ones(r)  # G_j = scale_j g_c: g_c'x <= H_j / scale_j (>= when scale_j < 0)
+        for j in np.flatnonzero(norms > 0.0).tolist():
+            unit = G[j] / norms[j]
+            for c, g in enumerate(directions):
+                cos = float(g @ unit)
+                if abs(cos) >= 1.0 - _PARALLEL_TOL:
+                    members[c].append(j)
+                    scale[j] = math.copysign(norms[j], cos)
+                    break
+            else:
+                directions.append(unit)
+                members.append([j])
+                scale[j] = norms[j]
+        self.directions = _frozen(np.array(directions).reshape(len(directions), G.shape[1]))
+        self._inv_scale = _frozen(1.0 / scale)
+        # per class, the rows bounding g'x from above and from below, padded with the index r
+        # (upper: +inf) or r + 1 (lower: -inf) of the two columns appended to H / scale
+        width_u = max([sum(scale[j] > 0 for j in mem) for mem in members] + [1])
+        width_l = max([sum(scale[j] < 0 for j in mem) for mem in members] + [1])
+        up = np.full((len(members), width_u), r)
+        lo = np.full((len(members), width_l), r + 1)
+        for c, mem in enumerate(members):
+            rows_u = [j for j in mem if scale[j] > 0]
+            rows_l = [j for j in mem if scale[j] < 0]
+            up[c, : len(rows_u)] = rows_u
+            lo[c, : len(rows_l)] = rows_l
+        self._up, self._lo = up, lo
+
+    @property
+    def count(self) -> int:
+        """Number of classes."""
+        return int(self.directions.shape[0])
+
+    def probability(self, mu: np.ndarray, sd: np.ndarray, H: np.ndarray) -> np.ndarray:
+        """``Pr{G x <= H}`` (S,) for ``x ~ N(mean, Sigma)``, given the projections of the mean
+        ``mu = mean @ directions.T`` (S, classes), their standard deviations ``sd`` (S, classes)
+        and the bounds ``H`` (S, r)."""
+        S = H.shape[0]
+        ext = np.empty((S, H.shape[1] + 2))
+        np.multiply(H, self._inv_scale, out=ext[:, :-2])
+        ext[:, -2], ext[:, -1] = np.inf, -np.inf
+        hi = ext[:, self._up].min(axis=2)  # (S, classes)
+        lo = ext[:, self._lo].max(axis=2)
+        positive = sd > 0.0
+        safe = np.where(positive, sd, 1.0)
+        a, b = (lo - mu) / safe, (hi - mu) / safe
+        # Phi(b) - Phi(a) on the side where both tails are small (no cancellation)
+        flip = a > 0.0
+        p = special.ndtr(np.where(flip, -a, b)) - special.ndtr(np.where(flip, -b, a))
+        p = np.where(positive, p, (lo <= mu) & (mu <= hi))
+        p = np.where(lo <= hi, np.clip(p, 0.0, 1.0), 0.0)
+        q = p.prod(axis=1) if p.shape[1] != 1 else p[:, 0]
+        for j in self.zero_rows.tolist():
+            q = q * (H[:, j] >= 0.0)
+        return q
+
+
+# ---------------------------------------------------------------------------------- families
+def _hessian_stack(Lz: np.ndarray, source: np.ndarray, sources: int) -> sp.csr_matrix:
+    """``S`` (d * d, sources) with ``2 Lz' diag(v[source]) Lz = (S @ v).reshape(d, d)``: each
+    source's rows contribute ``2 L_s' L_s`` on the few columns they involve (exactly symmetric)."""
+    d = Lz.shape[1]
+    data, flat, col = [], [], []
+    start = 0
+    while start < source.size:
+        s = int(source[start])
+        stop = start
+        while stop < source.size and source[stop] == s:
+            stop += 1
+        block = Lz[start:stop]
+        cols = np.flatnonzero(np.any(block != 0.0, axis=0))
+        sub = 2.0 * (block[:, cols].T @ block[:, cols])
+        sub = 0.5 * (sub + sub.T)
+        data.append(sub.ravel())
+        flat.append((cols[:, None] * d + cols[None, :]).ravel())
+        col.append(np.full(cols.size * cols.size, s))
+        start = stop
+    return sp.csr_matrix(
+        (np.concatenate(data), (np.concatenate(flat), np.concatenate(col))), shape=(d * d, sources)
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class TreeFamily:
+    """The tree and every matrix of the condensed QP for one ``(mode, x_k in C1)`` pair.
+
+    Arrays are read-only. ``M`` decision nodes, ``d = M (m + 1)`` variables, ``R`` weighted
+    rows of the objective; see the module docstring for the QP.
+    """
+
+    mode: int
+    inside: bool
+    tree: Tree
+    P_row: np.ndarray  # (N,) the root's branch probabilities (exact)
+    Pin_q: np.ndarray  # (S, N) P_in rows of the nodes tree.sq
+    dP_q: np.ndarray  # (S, N) P_in - P_out rows of the nodes tree.sq
+    Pout_q: np.ndarray  # (S, N)
+    proj_x: np.ndarray  # (S * classes, n)  projections of the means of tree.sq on the classes
+    proj_z: np.ndarray  # (S * classes, d)
+    proj_sd: np.ndarray  # (S, classes) their standard deviations
+    q_time: np.ndarray  # (S,) stage of the nodes tree.sq (the band H_{k + stage})
+    mean_x: np.ndarray  # (M * n, n)  node means: mean = mean_x x + mean_z z
+    mean_z: np.ndarray  # (M * n, d)
+    cov: np.ndarray  # (M, n, n) covariance of each node's state
+    cov_next: np.ndarray  # (M, n, n) covariance of each node's next state
+    tightening: np.ndarray  # (M, r)
+    Lx: np.ndarray  # (R, n)
+    Lz: sp.csr_matrix  # (R, d) sparse: a node's rows involve the offsets of its ancestors only
+    LzT: sp.csr_matrix  # (d, R)
+    P_stack: sp.csr_matrix  # (d * d, sources): the Hessian is (P_stack @ v).reshape(d, d)
+    row_source: np.ndarray  # (R,) index of each row's weight in [w (M); w_last b_last (M_last N)]
+    stage_trace: np.ndarray  # (M,) tr((Q + K'RK) Sigma_i)
+    term_trace: np.ndarray  # (M_last, N) tr(Psi_j next Sigma_i)
+    chance_x: np.ndarray  # (M r, n)  chance rows' bounds: band - tightening + chance_x x
+    chance_time: np.ndarray  # (M,) stage + 1 of each node (the band H_{k + stage + 1})
+    h_fixed: np.ndarray  # (2 M m + M,) the bounds of the box and rho rows
+    GA: np.ndarray  # (M, r, n)  G Atilde of each node's mode (the plan's constraint rows)
+    GB: np.ndarray  # (M, r, m)
+    engine: TreeQP
+
+    @property
+    def size(self) -> int:
+        return self.tree.size
+
+
+def build_tree_family(ctrl: Any, mode: int, inside: bool, regions: RegionClasses) -> TreeFamily:
+    """The family ``(mode, inside)`` of a :class:`controllers.ScenarioTreeController`."""
+    model = ctrl.model
+    N, n, m, r, p = model.N, model.n, model.m, model.r, model.p
+    steps, branching = ctrl.steps, ctrl.branching
+    P_row = (model.P_in if inside else model.P_out)[mode]  # eq. (eq:p_tran)
+    support = (model.P_in + model.P_out) > 0.0
+    tree = build_tree(P_row > 0.0, support, mode, steps, branching)
+    M, modes, parent = tree.size, tree.mode, tree.parent
+    d = M * (m + 1)
+    At, B, K = ctrl.A_tilde, model.B, ctrl.K
+    noise = model.noise_cov
+    # node means (affine in x, z) and covariances, parents before children
+    Mx = np.zeros((M, n, n))
+    Mz = np.zeros((M, n, d))
+    cov = np.zeros((M, n, n))
+    Mx[0] = np.eye(n)
+    S = np.zeros((M, m, d))  # selects nu_i
+    for i in range(M):
+        S[i, :, i * m : (i + 1) * m] = np.eye(m)
+    with np.errstate(over="ignore", invalid="ignore"):  # magnitudes are checked afterwards
+        for i in range(1, M):
+            a, th = parent[i], modes[parent[i]]
+            Mx[i] = At[th] @ Mx[a]
+            Mz[i] = At[th] @ Mz[a] + B[th] @ S[a]
+            cov[i] = At[th] @ cov[a] @ At[th].T + noise[th]
+        At_n, B_n = At[modes], B[modes]
+        next_x = At_n @ Mx  # (M, n, n)
+        next_z = At_n @ Mz + B_n @ S  # (M, n, d)
+        cov_next = At_n @ cov @ At_n.transpose(0, 2, 1) + noise[modes]
+        cov_next = 0.5 * (cov_next + cov_next.transpose(0, 2, 1))
+        # tightening of each node's chance rows with its next covariance (section 4)
+        std = np.sqrt(np.clip(np.einsum("jn,inm,jm->ij", model.G, cov_next, model.G), 0.0, None))
+        if ctrl.constraint == "individual":
+            tight = special.ndtri(ctrl.xi) * std  # eq. (constraint:det_univariate)
+        elif ctrl.constraint == "bonferroni":
+            tight = special.ndtri(1.0 - (1.0 - ctrl.xi) / r) * std
+        else:  # eq. (constraint:chi_square): an ellipsoid of the noise driving the next state
+            dof = np.minimum(p * (tree.stage + 1), max(n, p))  # p at the root (section 4)
+            tight = np.sqrt(stats.chi2.ppf(ctrl.xi, df=dof))[:, None] * std
+        if ctrl.constraint == "joint":  # at the root exactly controllers.chance.tightening
+            root = np.einsum("jn,np,pq->jq", model.G, model.E[mode], model.W_sqrt)
+            tight[0] = math.sqrt(stats.chi2.ppf(ctrl.xi, df=p)) * np.linalg.norm(root, axis=-1)
+        # the weighted rows of the objective
+        FQ = np.array([_sqrt_psd(Qi) for Qi in model.Q])
+        FR = np.array([_sqrt_psd(Ri) for Ri in model.R])
+        FPsi = np.array([_sqrt_psd(Pi) for Pi in ctrl.Psi])
+        rows_x, rows_z, source = [], [], []
+        for i in range(M):
+            th = modes[i]
+            rows_x += [FQ[th] @ Mx[i], FR[th] @ K[th] @ Mx[i]]
+            rows_z += [FQ[th] @ Mz[i], FR[th] @ (K[th] @ Mz[i] + S[i])]
+            source += [i] * (n + m)
+        for a, i in enumerate(tree.last.tolist()):
+            for j in range(N):
+                rows_x.append(FPsi[j] @ next_x[i])
+                rows_z.append(FPsi[j] @ next_z[i])
+                source += [M + a * N + j] * n
+        Lx, Lz = np.vstack(rows_x), np.vstack(rows_z)
+        P_stack = _hessian_stack(Lz, np.array(source), M + tree.last.size * N)
+        QKRK = model.Q[modes] + K[modes].transpose(0, 2, 1) @ model.R[modes] @ K[modes]
+        stage_trace = np.einsum("iab,iba->i", QKRK, cov)
+        term_trace = np.einsum("jab,iba->ij", ctrl.Psi, cov_next[tree.last])
+        # constraints: [chance rows (M r); box (M m); rho (M)]
+        GA = model.G @ At_n  # (M, r, n)
+        GB = model.G @ B_n  # (M, r, m)
+        chance = np.einsum("jn,ind->ijd", model.G, next_z).reshape(M * r, d)
+        chance[np.arange(M * r), M * m + np.repeat(np.arange(M), r)] = -1.0  # - rho_i
+        chance_x = -np.einsum("jn,ink->ijk", model.G, next_x).reshape(M * r, n)
+    A = np.zeros((M * r + M * m + M, d))
+    A[: M * r] = chance
+    A[M * r + np.arange(M * m), np.arange(M * m)] = 1.0
+    A[M * r + M * m + np.arange(M), M * m + np.arange(M)] = 1.0
+    upper = np.concatenate([np.ones(M * r + M * m, bool), np.zeros(M, bool)])
+    lower = np.concatenate([np.zeros(M * r, bool), np.ones(M * m + M, bool)])
+    engine = TreeQP(np.eye(d), A, lower, upper, ctrl.osqp_settings, enumerate_all=False)
+    nb = ctrl.nu_bound
+    h_fixed = np.concatenate([np.full(2 * M * m, nb), np.zeros(M)])
+    # the region probabilities of the nodes tree.sq
+    sq = tree.sq
+    dirs = regions.directions  # (classes, n)
+    proj_x = np.einsum("cn,ink->ick", dirs, Mx[sq]).reshape(-1, n)
+    proj_z = np.einsum("cn,ind->icd", dirs, Mz[sq]).reshape(-1, d)
+    proj_sd = np.sqrt(np.clip(np.einsum("cn,inm,cm->ic", dirs, cov[sq], dirs), 0.0, None))
+    Pin, Pout = model.P_in[modes[sq]], model.P_out[modes[sq]]
+    return TreeFamily(
+        mode=mode,
+        inside=inside,
+        tree=tree,
+        P_row=_frozen(P_row),
+        Pin_q=_frozen(Pin),
+        dP_q=_frozen(Pin - Pout),
+        Pout_q=_frozen(Pout),
+        proj_x=_frozen(proj_x),
+        proj_z=_frozen(proj_z),
+        proj_sd=_frozen(proj_sd),
+        q_time=_frozen(tree.stage[sq].astype(np.float64)),
+        mean_x=_frozen(Mx.reshape(M * n, n)),
+        mean_z=_frozen(Mz.reshape(M * n, d)),
+        cov=_frozen(cov),
+        cov_next=_frozen(cov_next),
+        tightening=_frozen(tight),
+        Lx=_frozen(Lx),
+        Lz=sp.csr_matrix(Lz),
+        LzT=sp.csr_matrix(Lz.T),
+        P_stack=P_stack,
+        row_source=np.array(source, dtype=np.int64),
+        stage_trace=_frozen(stage_trace),
+        term_trace=_frozen(term_trace),
+        chance_x=_frozen(chance_x),
+        chance_time=_frozen(tree.stage.astype(np.float64) + 1.0),
+        h_fixed=_frozen(h_fixed),
+        GA=_frozen(GA),
+        GB=_frozen(GB),
+        engine=engine,
+    )

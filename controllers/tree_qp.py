@@ -1,0 +1,286 @@
+"""Solving the scenario tree's QP: the engine with per-instance exact solves, and cvxpy.
+
+:class:`TreeQP` is the :class:`controllers.qp.QPFamily` of a tree family (warm active set, OSQP,
+exact re-solve of the active set, verified by the KKT test). :func:`solve_tree_cvxpy` is the
+reference: the same tree written plainly in cvxpy, node by node from the model's matrices, and
+solved by Clarabel; :func:`solve_condensed_cvxpy` is the fallback of the fast path (its condensed
+QP in cvxpy).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections import OrderedDict
+from typing import Any
+
+import numpy as np
+
+from .p3 import CLARABEL_SETTINGS
+from .qp import KKT_TOL, QPFamily
+
+__all__ = [
+    "FACTOR_CACHE_FLOATS",
+    "TREE_CLARABEL_SETTINGS",
+    "TreeQP",
+    "solve_condensed_cvxpy",
+    "solve_tree_cvxpy",
+]
+
+#: Rank and definiteness thresholds of the exact solve (those of :mod:`controllers.qp`).
+_RANK_TOL = 1e-11
+_PD_TOL = 1e-12
+
+#: Floats of the active-set factors one family keeps (least recently used dropped first; 32 MB).
+FACTOR_CACHE_FLOATS = 4_000_000
+
+#: Clarabel settings of the cvxpy reference: tighter than P3's, since the offsets of nodes of
+#: small path probability weigh little in the objective and are determined only to about
+#: ``sqrt(tolerance / probability)``.
+TREE_CLARABEL_SETTINGS: dict[str, Any] = {
+    **CLARABEL_SETTINGS,
+    "tol_gap_abs": 1e-12,
+    "tol_gap_rel": 1e-12,
+    "tol_feas": 1e-12,
+    "max_iter": 500,
+}
+
+
+class TreeQP(QPFamily):
+    """A :class:`controllers.qp.QPFamily` whose exact active-set solves are per instance.
+
+    The engine's exact solve (:func:`controllers.qp.active_set_maps`) builds linear maps from
+    the instance to the solution, worth their cost when many instances share a Hessian. The
+    tree's Hessian changes at every solve (:meth:`QPFamily.update_P`), so :meth:`verify` solves
+    the KKT system of the active set for the one instance instead, by the same null-space method
+    (row-normalized constraints, scale-free rank and definiteness tests) and accepts it by the
+    same KKT test: each residual at most :data:`controllers.qp.KKT_TOL` times the magnitude of
+    the terms summed to compute it (a running bound of absolute values through the same
+    factors). The factors that depend only on the active set (the QR factors of its rows) are
+    cached, within :data:`FACTOR_CACHE_FLOATS` floats. Everything else (warm start, OSQP, local
+    search) is the engine's.
+    """
+
+    def _reset_state(self) -> None:
+        super()._reset_state()
+        self._factors: OrderedDict[tuple[int, ...], tuple | None] = OrderedDict()
+        self._factor_floats = 0
+        self._absP: np.ndarray | None = None
+        self._absC_sum = self.absC.sum(axis=1)
+        self._osqp_P: np.ndarray | None = None  # the Hessian the OSQP object holds (None: P)
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = super().__getstate__()
+        for key in ("_factors", "_factor_floats", "_absP", "_absC_sum", "_osqp_P"):
+            state.pop(key, None)
+        return state
+
+    def update_P(self, P: np.ndarray) -> None:
+        """:meth:`QPFamily.update_P`, with the OSQP object brought up to date only when OSQP
+        runs next (most solves are answered by the warm active set without OSQP)."""
+        if self._osqp is not None and self._osqp_P is None:
+            self._osqp_P = self.P
+        solver, self._osqp = self._osqp, None
+        try:
+            super().update_P(P)  # checks P, replaces it, clears the caches
+        finally:
+            self._osqp = solver
+        self._absP = None
+
+    def run_osqp(self, w: np.ndarray, retry: bool = False) -> tuple:
+        if self._osqp is not None and self._osqp_P is not None:
+            target, self.P = self.P, self._osqp_P
+            super().update_P(target)  # OSQP updated in place (same pattern) or dropped
+        self._osqp_P = None
+        return super().run_osqp(w, retry)
+
+    def _factor(self, rows: tuple[int, ...]) -> tuple | None:
+        """The active set's factors that do not depend on P (cached), or None when its rows are
+        linearly dependent."""
+        cache = self._factors
+        if rows in cache:
+            cache.move_to_end(rows)
+            return cache[rows]
+        d, s = self.d, len(rows)
+        out: tuple | None
+        if s:
+            idx = np.array(rows, dtype=np.int64)
+            CS = self.C[idx]
+            norms = np.sqrt(np.einsum("ij,ij->i", CS, CS))
+            out = None
+            if np.all(norms > 0.0):
+                Q, Rfull = np.linalg.qr((CS / norms[:, None]).T, mode="complete")
+                R1 = Rfull[:s, :s]
+                if np.all(np.abs(np.diag(R1)) > _RANK_TOL):  # rows normalized: scale-free
+                    Q1, Q2 = Q[:, :s], np.ascontiguousarray(Q[:, s:])
+                    R1T_inv = np.linalg.inv(R1.T)
+                    Zh = Q1 @ R1T_inv / norms  # z_p = Zh h_S
+                    Lmap = np.linalg.solve(R1, Q1.T)  # multipliers of the normalized rows
+                    out = (idx, Zh, np.abs(Zh), Q2, None, Lmap, np.abs(Lmap))
+        else:
+            out = (None, None, None, np.eye(d), None, None, None)
+        size = 0 if out is None else sum(a.size for a in out if a is not None)
+        cache[rows] = out
+        self._factor_floats += size
+        while self._factor_floats > FACTOR_CACHE_FLOATS and len(cache) > 1:
+            _, old = cache.popitem(last=False)
+            if old is not None:
+                self._factor_floats -= sum(a.size for a in old if a is not None)
+        return out
+
+    def verify(self, rows: tuple[int, ...], w: np.ndarray) -> list[float] | None:
+        """``z`` if the active set ``rows`` gives the optimum of instance ``w``, else None.
+
+        The same answer and the same test as :meth:`controllers.qp.ActiveSetMaps.check` of
+        :func:`controllers.qp.active_set_maps`, computed for the one instance: the solution's
+        linear map is formed only for the data this instance uses (``q`` and ``h_S``), which is
+        what the magnitudes of the terms need.
+        """
+        d = self.d
+        if len(rows) > d:
+            return None
+        f = self._factor(rows)
+        if f is None:
+            return None
+        idx, Zh, absZh, Q2, absQ2, Lmap, absLmap = f
+        P = self.P
+        absP = self._absP
+        if absP is None:
+            absP = self._absP = np.abs(P)
+        q, h = w[:d], w[d:]
+        hS = h[idx] if idx is not None else None
+        # z = -Gq q + Zs h_S with Gq = Q2 (Q2'P Q2)^{-1} Q2' and Zs = (I - Gq P) Zh
+        if Q2.shape[1]:
+            M = Q2.T @ P @ Q2
+            vals, vecs = np.linalg.eigh(0.5 * (M + M.T))
+            if not (vals[-1] > 0.0 and vals[0] > _PD_TOL * vals[-1]):
+                return None
+            V = Q2 @ vecs
+            Gq = (V / vals) @ V.T
+            absGq = np.abs(Gq)
+            z = -(Gq @ q)
+            z_max = absGq.max(axis=0) @ np.abs(q)  # the largest term of any component
+            z_terms = absGq @ np.abs(q)  # |Z| |w|, per component
+            if hS is not None:
+                Zs = Zh - Gq @ (P @ Zh)
+                absZs = np.abs(Zs)
+                z = z + Zs @ hS
+                z_max += absZs.max(axis=0) @ np.abs(hS)
+                z_terms = z_terms + absZs @ np.abs(hS)
+        else:  # a vertex: z does not depend on q
+            z = Zh @ hS
+            z_max = absZh.max(axis=0) @ np.abs(hS)
+            z_terms = absZh @ np.abs(hS)
+        if not np.all(np.isfinite(z)):
+            return None
+        # [C z - h; -lambda] and the magnitudes of their terms (see controllers.qp)
+        primal = self.C @ z - h
+        primal_t = self._absC_sum * float(z_max) + np.abs(h)
+        if idx is not None:
+            primal[idx] = 0.0  # the active rows hold with equality by construction
+            primal_t[idx] = 0.0
+            resid = np.concatenate([primal, Lmap @ (P @ z + q)])
+            terms = np.concatenate([primal_t, absLmap @ (absP @ z_terms + np.abs(q))])
+        else:
+            resid, terms = primal, primal_t
+        worst = float(resid.max(initial=-math.inf))
+        if not worst <= 0.0:
+            if not math.isfinite(worst) or not np.all(resid <= KKT_TOL * terms):
+                return None
+        return z.tolist()
+
+
+def solve_condensed_cvxpy(
+    P: np.ndarray, w: np.ndarray, engine: QPFamily
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The condensed QP ``min 1/2 z'Pz + q'z  s.t.  C z <= h`` with cvxpy + Clarabel (the
+    fallback of the fast path): ``(z, y)`` or None, with ``y`` the multipliers in OSQP's form
+    (one per row of ``A``: positive where its upper side is active, negative for the lower), a
+    hint for :meth:`controllers.qp.QPFamily.local`."""
+    import cvxpy as cp
+
+    d = engine.d
+    z = cp.Variable(d)
+    objective = 0.5 * cp.quad_form(z, cp.psd_wrap(P)) + w[:d] @ z
+    rows = engine.C @ z <= w[d:]
+    problem = cp.Problem(cp.Minimize(objective), [rows])
+    try:
+        problem.solve(solver=cp.CLARABEL, **CLARABEL_SETTINGS)
+    except Exception:  # noqa: BLE001 - an episode must not crash on a solver error
+        return None
+    # an inaccurate answer is still a useful hint: the caller verifies its active set exactly
+    if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or z.value is None:
+        return None
+    if not np.all(np.isfinite(z.value)) or rows.dual_value is None:
+        return None
+    lam = np.asarray(rows.dual_value, dtype=np.float64).reshape(-1)
+    y = np.zeros(engine.A.shape[0])
+    nu = engine.upper_idx.size
+    np.add.at(y, engine.upper_idx, lam[:nu])
+    np.subtract.at(y, engine.lower_idx, lam[nu:])
+    return np.asarray(z.value, dtype=np.float64), np.nan_to_num(y)
+
+
+def solve_tree_cvxpy(ctrl: Any, fam: Any, x: np.ndarray, k: int, pr: Any):
+    """The tree written plainly with cvxpy (node by node, from the model's matrices), solved
+    by Clarabel: ``(nu (M, m), rho (M,), value)`` or None."""
+    import cvxpy as cp
+
+    model, tree = ctrl.model, fam.tree
+    M, m, n = tree.size, model.m, model.n
+    nu = cp.Variable((M, m))
+    rho = cp.Variable(M, nonneg=True)
+    At, B, K = ctrl.A_tilde, model.B, ctrl.K
+    noise = model.noise_cov
+    means: list[Any] = [None] * M
+    covs = [np.zeros((n, n))] * M
+    objective = 0.0
+    constraints = [cp.abs(nu) <= ctrl.nu_bound]
+    for i in range(M):
+        th, a = int(tree.mode[i]), int(tree.parent[i])
+        if a < 0:
+            means[i] = x
+        else:
+            tp = int(tree.mode[a])
+            means[i] = At[tp] @ means[a] + B[tp] @ nu[a]  # eq. (sys:stabilized_input)
+            covs[i] = At[tp] @ covs[a] @ At[tp].T + noise[tp]
+        mean, cov = means[i], covs[i]
+        u = K[th] @ mean + nu[i]
+        stage = (
+            cp.quad_form(mean, model.Q[th])
+            + float(np.trace(model.Q[th] @ cov))
+            + cp.quad_form(u, model.R[th])
+            + float(np.trace(K[th].T @ model.R[th] @ K[th] @ cov))
+        )
+        weight = float(pr.weight[i])
+        objective = objective + weight * (stage + ctrl.alpha * rho[i])
+        mean_next = At[th] @ mean + B[th] @ nu[i]
+        cov_next = At[th] @ cov @ At[th].T + noise[th]
+        band = model.H0 + (k + tree.stage[i] + 1) * model.H_rate
+        constraints.append(model.G @ mean_next <= band - fam.tightening[i] + rho[i])
+        if tree.stage[i] == ctrl.steps - 1:
+            for j in range(model.N):
+                bj = float(pr.branch[i, j])
+                if bj > 0.0:
+                    term = cp.quad_form(mean_next, ctrl.Psi[j]) + float(
+                        np.trace(ctrl.Psi[j] @ cov_next)
+                    )
+                    objective = objective + weight * bj * term
+    with warnings.catch_warnings():  # node by node on purpose: the reference stays plain
+        warnings.filterwarnings("ignore", "Objective contains too many subexpressions")
+        problem = cp.Problem(cp.Minimize(objective), constraints)
+    for options in (TREE_CLARABEL_SETTINGS, CLARABEL_SETTINGS):  # tight, then P3's
+        try:
+            problem.solve(solver=cp.CLARABEL, **options)
+        except Exception:  # noqa: BLE001 - an episode must not crash on a solver error
+            continue
+        if problem.status == cp.OPTIMAL and nu.value is not None and rho.value is not None:
+            break
+    else:
+        return None
+    nu_v = np.asarray(nu.value, dtype=np.float64).reshape(M, m)
+    rho_v = np.asarray(rho.value, dtype=np.float64).reshape(M)
+    value = float(problem.value)
+    if not (np.all(np.isfinite(nu_v)) and np.all(np.isfinite(rho_v)) and math.isfinite(value)):
+        return None
+    return nu_v, rho_v, value
