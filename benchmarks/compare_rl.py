@@ -35,13 +35,14 @@ from tqdm import tqdm
 from benchmarks import rl_hyperparams as HP
 from benchmarks.backends import BACKENDS, train_all
 from benchmarks.evaluate import REFERENCE_XIS, evaluate
-from benchmarks.montecarlo import paper_rhc, rollout
+from benchmarks.montecarlo import multistep_rhc, paper_rhc, rollout
 from benchmarks.rl_figures import make_figures
 from benchmarks.rl_report import (
     ControllerResult,
     RunResult,
     Summary,
     against_best_agent,
+    against_curve,
     aggregate,
     best_agent,
     best_config,
@@ -79,6 +80,15 @@ class ModelBasedCurve:
     xis: tuple[float, ...] = XI_SWEEP
     constraint: str | None = None  # for the share of steps with an empty tightened band
     color: str = "k"
+    #: the levels scored with ``--quick`` (default: all of ``xis``), for a slow controller
+    quick_xis: tuple[float, ...] | None = None
+    #: whether every other controller's cost is also compared with this curve, paired over the
+    #: episodes at the controller's own violation frequency (:func:`benchmarks.rl_report.against_curve`)
+    compared_against: bool = False
+
+    def levels(self, quick: bool) -> tuple[float, ...]:
+        """The levels ``xi`` scored (:attr:`quick_xis` with ``--quick``)."""
+        return self.quick_xis if quick and self.quick_xis is not None else self.xis
 
 
 #: The model-based curves of the comparison; add a row to add a curve.
@@ -91,6 +101,16 @@ MODEL_BASED_CURVES: tuple[ModelBasedCurve, ...] = (
     ),  # fmt: skip
     ModelBasedCurve(
         "RHC joint", lambda m, xi: paper_rhc(m, xi, "joint"), constraint="joint", color="0.45"
+    ),  # fmt: skip
+    # the multi-step controller (issue 21): a fully branched scenario tree of 3 stages; the
+    # root's chance constraint is P3's, so the tightened band is the one-step curve's
+    ModelBasedCurve(
+        "RHC 3-step",
+        lambda m, xi: multistep_rhc(m, xi, 3, "individual"),
+        constraint="individual",
+        color="C4",
+        quick_xis=(0.5, 0.85, 0.95),
+        compared_against=True,
     ),  # fmt: skip
 )
 
@@ -229,7 +249,7 @@ def empty_band_share(model: Any, xi: float, constraint: str) -> float:
 def score_model_based(model: Any, opts: Options) -> list[ControllerResult]:
     out = []
     for curve in MODEL_BASED_CURVES:
-        for xi in curve.xis:
+        for xi in curve.levels(opts.quick):
             score = evaluate(curve.build(model, xi), episodes=opts.eval_episodes, seed=opts.seed)
             empty = (
                 None if curve.constraint is None else empty_band_share(model, xi, curve.constraint)
@@ -309,6 +329,14 @@ def main(argv: list[str] | None = None) -> Summary:
         best_config_comparable=bool(best_row is not None and comparable(best_row, 1 - XI)),
         best_agent=None if best is None else best.name,
         against_best_agent=against_best_agent(mb, best),
+        against_curves={
+            c.family: against_curve(
+                [r for r in mb if r.family == c.family],
+                [r for r in mb if r.family != c.family] + runs,
+            )
+            for c in MODEL_BASED_CURVES
+            if c.compared_against
+        },  # fmt: skip
         figures=figures,
     )
     (opts.out / "summary.json").write_text(json.dumps(summary.to_json(), indent=1) + "\n")

@@ -9,7 +9,7 @@ import numpy as np
 
 from sdjls_gym import SDJLSModel, SDJLSVectorEnv
 
-__all__ = ["Rollouts", "rollout", "decide_batch", "paper_rhc"]
+__all__ = ["Rollouts", "rollout", "decide_batch", "multistep_rhc", "paper_rhc"]
 
 
 def paper_rhc(
@@ -23,6 +23,25 @@ def paper_rhc(
     kw = {key: PAPER_RHC[key] for key in ("Psi", "alpha", "nu_bound")}
     return RecedingHorizonController(
         model, PAPER_K, xi=xi, constraint=constraint, horizon=horizon or HORIZON, **kw
+    )
+
+
+def multistep_rhc(
+    model: SDJLSModel,
+    xi: float,
+    steps: int = 3,
+    constraint: str = "individual",
+    horizon: int | None = None,
+):
+    """The multi-step receding-horizon controller on a fully branched scenario tree of
+    ``steps`` stages (:class:`controllers.ScenarioTreeController`) with the paper's gains,
+    ``Psi``, ``alpha`` and ``|nu| <= 100`` (section 6), for episodes of ``horizon`` steps."""
+    from controllers import ScenarioTreeController
+    from sdjls_gym.systems.macro import HORIZON, PAPER_K, PAPER_RHC
+
+    kw = {key: PAPER_RHC[key] for key in ("Psi", "alpha", "nu_bound")}
+    return ScenarioTreeController(
+        model, PAPER_K, xi=xi, steps=steps, constraint=constraint, horizon=horizon or HORIZON, **kw
     )
 
 

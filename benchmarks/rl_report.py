@@ -22,6 +22,7 @@ from benchmarks.stats import (
     CurveStatus,
     IntervalCheck,
     mean_ci,
+    paired_curve_gap,
     paired_difference,
     wilson,
 )
@@ -100,6 +101,7 @@ class Summary:
     best_config_comparable: bool
     best_agent: str | None
     against_best_agent: list[dict[str, Any]]
+    against_curves: dict[str, list[dict[str, Any]]]
     figures: list[str]
 
     def to_json(self) -> dict[str, Any]:
@@ -212,6 +214,36 @@ def against_best_agent(model_based: list[ControllerResult], best: RunResult | No
     return out
 
 
+def against_curve(
+    points: list[ControllerResult], others: list[ControllerResult | RunResult]
+) -> list[dict[str, Any]]:
+    """Each of ``others``' cost minus the curve through ``points`` (a model-based curve over
+    ``xi``, scored on the same episodes) at its own violation frequency, paired over the
+    episodes with a 95% bootstrap interval (:func:`benchmarks.stats.paired_curve_gap`).
+
+    Rows with a diverged episode, or whose frequency lies outside the curve's range, are left
+    out; so is everything when the curve has fewer than 2 points.
+    """
+    points = sorted(points, key=lambda r: r.xi)
+    if len(points) < 2:
+        return []
+    c_costs = np.stack([p.score.episode_costs for p in points])
+    c_viols = np.stack([p.score.episode_violations for p in points])
+    xis = [p.xi for p in points]
+    out = []
+    for r in others:
+        if r.score.diverged:
+            continue
+        g = paired_curve_gap(r.score.episode_costs, r.score.episode_violations, c_costs, c_viols,
+                             xis)  # fmt: skip
+        if g is None:
+            continue
+        out.append({"name": r.name, "curve": points[0].family, "violation": g.violation,
+                    "cost_mean": r.score.cost_mean, "curve_cost": g.curve_cost, "mean": g.mean,
+                    "ci95": list(g.ci95), "xi": g.xi})  # fmt: skip
+    return out
+
+
 # ----------------------------------------------------------------------------- formatting
 def fmt_steps(n: int) -> str:
     """Three significant digits: 2500608 -> '2.5M', 60006 -> '60k', 1056 -> '1.06k'."""
@@ -298,21 +330,56 @@ def _signed(x: float) -> str:
     return f"{x:+.0f}" if round(x) != 0 else "+0"
 
 
+CURVE_GAP_HEADER = [
+    "| controller | violation frequency | mean episode cost | curve's cost there | "
+    "cost minus curve (95% bootstrap) | xi of the curve there |",
+    "|---|---|---|---|---|---|",
+]
+
+
+def _gap_row(name: str, violation: float, cost: float, curve_cost: float, mean: float,
+             ci95: Any, xi: float | None) -> str:  # fmt: skip
+    return (
+        f"| {name} | {violation:.3f} | {cost:.4g} | {curve_cost:.4g} | {_signed(mean)} "
+        f"({_signed(ci95[0])} to {_signed(ci95[1])}) | {'-' if xi is None else f'{xi:.3f}'} |"
+    )
+
+
 def _curve_gap_table(rows: list[ControllerResult | RunResult]) -> list[str]:
-    lines = [
-        "| controller | violation frequency | mean episode cost | curve's cost there | "
-        "cost minus curve (95% bootstrap) | xi of the curve there |",
-        "|---|---|---|---|---|---|",
-    ]
+    lines = list(CURVE_GAP_HEADER)
     for r in rows:
         g = r.score.curve_gap
-        if g is None:
-            continue
-        xi = "-" if g.xi is None else f"{g.xi:.3f}"
-        lines.append(
-            f"| {r.name} | {g.violation:.3f} | {r.score.cost_mean:.4g} | {g.curve_cost:.4g} | "
-            f"{_signed(g.mean)} ({_signed(g.ci95[0])} to {_signed(g.ci95[1])}) | {xi} |"
-        )
+        if g is not None:
+            lines.append(_gap_row(r.name, g.violation, r.score.cost_mean, g.curve_cost, g.mean,
+                                  g.ci95, g.xi))  # fmt: skip
+    return lines
+
+
+def _against_curve_sections(against: dict[str, list[dict[str, Any]]]) -> list[str]:
+    lines = []
+    for family, rows in against.items():
+        lines += [
+            f"## Against the {family} curve",
+            "",
+            f"Cost minus the curve of the {family} controller over xi, interpolated at the "
+            "controller's own violation frequency, paired over the common episodes (rows without "
+            "a diverged episode, inside the curve's range).",
+            "",
+            *CURVE_GAP_HEADER,
+            *(
+                _gap_row(
+                    d["name"],
+                    d["violation"],
+                    d["cost_mean"],
+                    d["curve_cost"],
+                    d["mean"],
+                    d["ci95"],
+                    d["xi"],
+                )
+                for d in rows
+            ),  # fmt: skip
+            "",
+        ]
     return lines
 
 
@@ -391,6 +458,7 @@ def write_report(summary: Summary, xi: float, reference: str) -> str:
         "",
         *_curve_gap_table([r for r in mb if r.family != reference] + runs_by),
         "",
+        *_against_curve_sections(summary.against_curves),
         "## Best agent",
         "",
         f"Comparable: no diverged episode and violation frequency <= {target + COMPARABLE_MARGIN:.2f}. "

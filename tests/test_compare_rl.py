@@ -441,7 +441,8 @@ def test_quick_run_marks_the_rhc_points_whose_tightened_band_is_empty(quick_run)
 
     summary = quick_run[1]
     edge = {"individual": stats.norm.cdf(1.5), "joint": 1.0 - math.exp(-2.25 / 2.0)}
-    rows = [r for r in summary.model_based if r.constraint is not None]
+    one_step = {"RHC individual", "RHC joint"}
+    rows = [r for r in summary.model_based if r.family in one_step]
     assert len(rows) == 2 * len(compare_rl.XI_SWEEP)
     for r in rows:
         assert r.tightened_band_empty == float(r.xi > edge[r.constraint]), r.name
@@ -452,3 +453,54 @@ def test_quick_run_marks_the_rhc_points_whose_tightened_band_is_empty(quick_run)
     for r in empty:
         assert r.score.violation == ref.violation, r.name
         assert r.score.cost_mean == pytest.approx(ref.cost_mean, rel=1e-12), r.name
+
+
+# ------------------------------------------------------------------ the multi-step curve
+def test_quick_run_scores_the_multistep_curve_and_compares_with_it(quick_run):
+    """The 3-step RHC (issue 21) is a curve of the comparison: its quick levels are scored on
+    the same episodes, and every other controller is compared with it at its own violation
+    frequency."""
+    out, summary = quick_run
+    curve = next(c for c in compare_rl.MODEL_BASED_CURVES if c.family == "RHC 3-step")
+    points = [r for r in summary.model_based if r.family == "RHC 3-step"]
+    assert [r.xi for r in points] == list(curve.quick_xis)
+    assert all(r.score.episodes == 200 for r in points)
+    # its own points are 0 against themselves by construction: left out
+    rows = summary.against_curves["RHC 3-step"]
+    assert rows and not {d["name"] for d in rows} & {r.name for r in points}
+    for d in rows:
+        assert d["ci95"][0] <= d["mean"] <= d["ci95"][1], d["name"]
+        assert d["mean"] == pytest.approx(d["cost_mean"] - d["curve_cost"], rel=1e-9, abs=1e-9)
+        assert min(curve.quick_xis) - 1e-12 <= d["xi"] <= max(curve.quick_xis) + 1e-12
+    # the one-step point at xi = 0.85 lies inside the 3-step curve's range of frequencies
+    assert "RHC individual xi=0.85" in {d["name"] for d in rows}
+    saved = json.loads((out / "summary.json").read_text())["against_curves"]["RHC 3-step"]
+    assert [d["name"] for d in saved] == [d["name"] for d in rows]
+    assert "## Against the RHC 3-step curve" in (out / "REPORT.md").read_text()
+
+
+def test_against_curve_interpolates_at_the_controllers_own_frequency():
+    """A curve of two points (frequency 0.1 at cost 100, 0.3 at cost 50) on 50 episodes: a
+    controller at frequency 0.2 and cost 70 is 5 below the curve's 75 there, with xi halfway;
+    a diverged controller and one outside the curve's range are left out."""
+    from types import SimpleNamespace
+
+    from benchmarks.rl_report import against_curve
+
+    E = 50
+
+    def row(name, cost, viol, xi=None, diverged=0):
+        score = SimpleNamespace(episode_costs=np.full(E, float(cost)), cost_mean=float(cost),
+                                episode_violations=np.full(E, viol), diverged=diverged)  # fmt: skip
+        return SimpleNamespace(name=name, family="curve" if xi else "other", xi=xi, score=score)
+
+    points = [row("c 0.9", 50.0, 0.3, 0.9), row("c 0.7", 100.0, 0.1, 0.7)]
+    others = [row("inside", 70.0, 0.2), row("diverged", 70.0, 0.2, diverged=1),
+              row("outside", 10.0, 0.5)]  # fmt: skip
+    out = against_curve(points, others)
+    assert [d["name"] for d in out] == ["inside"]
+    (d,) = out
+    assert d["curve_cost"] == pytest.approx(75.0) and d["mean"] == pytest.approx(-5.0)
+    assert d["ci95"] == pytest.approx([-5.0, -5.0])  # no spread between the episodes
+    assert d["xi"] == pytest.approx(0.8) and d["curve"] == "curve"
+    assert against_curve(points[:1], others) == []
