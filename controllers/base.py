@@ -136,6 +136,8 @@ class Controller:
 
     #: Whether the decision depends on the time ``k`` (then ``predict`` decodes it).
     _needs_time = True
+    #: How many steps past ``k`` the controller reads the band ``H`` (see :attr:`max_k`).
+    _lookahead = 1
 
     def __init__(self, model: SDJLSModel, horizon: int | None = None) -> None:
         self.model = check_model(model)
@@ -171,21 +173,37 @@ class Controller:
         """
         raise NotImplementedError
 
+    @property
+    def max_k(self) -> int:
+        """The largest time index ``k`` accepted: ``2**53 - lookahead``, where ``lookahead`` is
+        how many steps past ``k`` the controller reads the band ``H`` (1; ``steps`` for the
+        scenario tree), so that every ``H_{k+t}`` it uses has an index float64 holds exactly."""
+        return MAX_INDEX - self._lookahead
+
+    def _check_k(self, k: Any) -> int:
+        """``k`` an int in ``[0, max_k]``; the message names ``k`` and the limit."""
+        if isinstance(k, (int, np.integer)) and not isinstance(k, bool) and k > self.max_k:
+            raise ValueError(
+                f"k = {describe(k)} is too large; expected an int in [0, 2**53 - "
+                f"{self._lookahead}] (time index: the controller reads the band H up to "
+                f"k + {self._lookahead}, and 2**53 is the largest index float64 holds exactly)"
+            )
+        return check_int("k", k, low=0, what="time index")
+
     def _check_inputs(self, x: Any, mode: Any, k: Any) -> tuple[np.ndarray, int, int]:
         """``x`` a finite ``(n,)`` vector within :data:`MAX_STATE`, ``mode`` in ``[0, N)``,
-        ``k`` an int in ``[0, 2**53]``; the messages name the argument."""
+        ``k`` an int in ``[0, max_k]``; the messages name the argument."""
         x = check_array("x", x, shape=self._x_shape, what="one state vector")
         if np.max(np.abs(x)) > MAX_STATE:
             raise ValueError(f"x = {describe(x)} {_TOO_LARGE}")
         mode = check_int("mode", mode, low=0, high=self.model.N - 1)
-        k = check_int("k", k, low=0, what="time index")
-        return x, mode, k
+        return x, mode, self._check_k(k)
 
     def _check_batch_inputs(
         self, x: Any, mode: Any, k: Any
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``x`` (B, n) finite, ``mode`` (B,) ints in [0, N), ``k`` (B,) ints in [0, 2**53]
-        (or a scalar)."""
+        """``x`` (B, n) finite, ``mode`` (B,) ints in [0, N), ``k`` (B,) ints in
+        ``[0, max_k]`` (or a scalar)."""
         model = self.model
         x = check_array("x", x, shape=(None, model.n), what="one state per row")
         if x.size and np.max(np.abs(x)) > MAX_STATE:
@@ -193,8 +211,12 @@ class Controller:
             raise ValueError(f"x[{row}] = {describe(x[row])} {_TOO_LARGE}")
         B = x.shape[0]
         out = []
-        for name, value, high in (("mode", mode, model.N - 1), ("k", k, MAX_INDEX)):
+        for name, value, high in (("mode", mode, model.N - 1), ("k", k, self.max_k)):
             arr = np.asarray(value)
+            if arr.dtype == object and arr.size:  # Python ints beyond int64, or mixed entries
+                for v in arr.ravel():
+                    check_int(name, v, low=0, high=high)  # TypeError or ValueError, by entry
+                arr = arr.astype(np.int64)
             if arr.dtype == bool or not np.issubdtype(arr.dtype, np.integer):
                 raise TypeError(f"{name} has dtype {arr.dtype}; expected integers in [0, {high}]")
             arr = np.broadcast_to(arr, (B,)) if arr.ndim == 0 else arr

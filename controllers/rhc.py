@@ -400,7 +400,7 @@ class RecedingHorizonController(Controller):
             and type(mode) in _INT_TYPES
             and type(k) in _INT_TYPES
             and 0 <= mode < self.model.N
-            and 0 <= k <= MAX_INDEX
+            and 0 <= k < MAX_INDEX  # max_k: P3 reads H_{k+1}
             and all(-MAX_STATE <= v <= MAX_STATE for v in x.tolist())  # False for NaN
         ):
             return x, int(mode), int(k)
@@ -485,7 +485,7 @@ class RecedingHorizonController(Controller):
         mode : int
             Current mode ``theta_k`` in ``[0, N)``.
         k : int
-            Current time ``k`` in ``[0, 2**53]`` (the constraint uses the band ``H_{k+1}``).
+            Current time ``k`` in ``[0, 2**53 - 1]`` (the constraint uses the band ``H_{k+1}``).
 
         Returns
         -------
@@ -506,7 +506,7 @@ class RecedingHorizonController(Controller):
             ``mode`` or ``k`` not an int, ``x`` not numbers.
         ValueError
             ``x`` not a finite ``(n,)`` vector within ``1e100``, ``mode`` out of range or ``k``
-            outside ``[0, 2**53]``.
+            outside ``[0, 2**53 - 1]``.
         """
         x, mode, k = self._check_inputs(x, mode, k)
         with self._lock:

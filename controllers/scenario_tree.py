@@ -79,7 +79,7 @@ from .tree_data import (
 )
 from .tree_qp import solve_condensed_cvxpy, solve_tree_cvxpy
 
-__all__ = ["ScenarioTreeController", "TreePlan", "PROB_TOL", "DAMPING"]
+__all__ = ["ScenarioTreeController", "TreePlan", "PROB_TOL", "DAMPING", "MAX_WEIGHT_RATIO"]
 
 SOLVERS = ("osqp", "cvxpy")
 
@@ -89,6 +89,12 @@ PROB_TOL = 1e-6
 #: The fixed-point update is ``q <- q + step (q(plan) - q)``; ``step`` starts at 1 and is multiplied
 #: by ``DAMPING`` whenever the change of ``q`` grows from one solve to the next (oscillation).
 DAMPING = 0.5
+
+#: Largest ratio of the weights' norms (``Q_i``, ``R_i``, ``Psi_i``) the tree accepts. The paper's
+#: example has 3; the tree's answers were verified up to ratios of 1e14 and start failing
+#: verification (reported, not silent) from about 1e16 at steps = 3. P3 accepts more (its cost
+#: condition, :data:`controllers.p3.MAX_COST_CONDITION`).
+MAX_WEIGHT_RATIO = 1e12
 
 _PATHS = {"warm": "active_set_warm", "osqp": "osqp", "osqp_retry": "osqp_retry"}
 
@@ -228,6 +234,7 @@ class ScenarioTreeController(Controller):
         super().__init__(model, horizon)
         self.xi = check_xi(xi)
         self.steps = check_int("steps", steps, low=1, what="stages of the tree")
+        self._lookahead = self.steps  # the chance constraints read H up to k + steps
         if branching is None:
             self.branching = self.steps
         else:
@@ -245,6 +252,7 @@ class ScenarioTreeController(Controller):
         self.osqp_settings = check_osqp_settings(osqp_settings)
         self.cvxpy_fallback = check_bool("cvxpy_fallback", cvxpy_fallback)
         check_tree_size(self.model, self.steps, self.branching)
+        self._check_weight_ratio()
         model = self.model
         self.A_tilde = model.A + model.B @ self.K  # eq. (sys:stabilized_input)
         self.A_tilde.setflags(write=False)
@@ -261,6 +269,25 @@ class ScenarioTreeController(Controller):
         self._path_counts: dict[str, int] = {}
 
     # ------------------------------------------------------------------ checks
+    def _check_weight_ratio(self) -> None:
+        """ValueError unless the weights ``Q_i``, ``R_i`` and ``Psi_i`` are within
+        :data:`MAX_WEIGHT_RATIO` of each other (spectral norms, zero matrices aside)."""
+        model = self.model
+        sizes = {
+            name: [float(np.linalg.norm(w, 2)) for w in mats]
+            for name, mats in (("model.Q", model.Q), ("model.R", model.R), ("Psi", self.Psi))
+        }
+        nonzero = [v for values in sizes.values() for v in values if v > 0.0]
+        ratio = max(nonzero) / min(nonzero)
+        if ratio > MAX_WEIGHT_RATIO:
+            text = ", ".join(f"{k} of norm {min(v):.3g} to {max(v):.3g}" for k, v in sizes.items())
+            raise ValueError(
+                f"the weights differ by a factor {ratio:.3g} ({text}); the scenario tree's QP "
+                f"accepts at most {MAX_WEIGHT_RATIO:.0e} (its one matrix holds every weight and "
+                "loses the small ones' digits beyond): bring Q, R and Psi closer, or use the "
+                "one-step RecedingHorizonController, which accepts more"
+            )
+
     def _check_magnitudes(self) -> None:
         """ValueError unless every matrix of every family is finite and at most
         :data:`controllers.rhc.MAX_QP_ENTRY` in magnitude (long horizons of unstable
@@ -428,7 +455,7 @@ class ScenarioTreeController(Controller):
         ----------
         x : (n,) array
         mode : int in ``[0, N)``
-        k : int in ``[0, 2**53]``
+        k : int in ``[0, 2**53 - steps]`` (the tree reads the band ``H`` up to ``k + steps``)
 
         Returns
         -------

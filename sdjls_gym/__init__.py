@@ -7,7 +7,9 @@ Importing the package registers two environment ids:
 
 Both have ``SDJLSVectorEnv`` as their ``vector_entry_point``. Neither registers a
 ``TimeLimit``: the environments truncate at their own ``horizon``, which ``env.spec`` reports as
-``max_episode_steps``. ``gym.make("sdjls_gym:SDJLS-Macro-v0")`` imports the package first.
+``max_episode_steps``. ``max_episode_steps=`` given to ``gym.make`` or ``gym.make_vec`` may only
+shorten episodes (a value above the horizon is a ``ValueError``).
+``gym.make("sdjls_gym:SDJLS-Macro-v0")`` imports the package first.
 """
 
 import gymnasium

@@ -5,9 +5,12 @@ One rule per kind of argument, so that the same mistake gets the same kind of er
 * a **number** is a real number: a Python ``int`` or ``float``, a numpy integer or floating
   scalar, or a 0-d real numpy array. ``bool`` (Python or numpy) is never a number, nor is a
   string (``"0.85"``), ``None`` or a complex number: those are :class:`TypeError`.
-* an **int** is a Python ``int`` or a numpy integer (never a ``bool``, never a float such as
-  ``2.0``: :class:`TypeError`). Its range is checked on the exact integer, before any conversion
-  to a fixed-width type, so ``2**70`` or ``np.uint64(2**64 - 1)`` are rejected, not wrapped.
+* an **int** is a Python ``int`` or a numpy integer (never a ``bool``: :class:`TypeError`).
+  A float where an int is expected (``steps = 2.0`` or ``2.5``) raises :class:`NotAnIntError`,
+  which is both a :class:`TypeError` (the rule above) and a :class:`ValueError` (a count that is
+  not a whole number is also a bad value), so either ``except`` catches it. Its range is checked
+  on the exact integer, before any conversion to a fixed-width type, so ``2**70`` or
+  ``np.uint64(2**64 - 1)`` are rejected, not wrapped.
 * a value of the right type outside its range (``xi = 1.5``, ``alpha = -1``, ``nan``) is a
   :class:`ValueError`.
 
@@ -31,6 +34,8 @@ import numpy as np
 
 __all__ = [
     "MAX_INDEX",
+    "NotANumberError",
+    "NotAnIntError",
     "a_type",
     "check_array",
     "check_bool",
@@ -54,6 +59,29 @@ MAX_INDEX = 2**53
 #: The range of positive float32 numbers that are normal (not subnormal, not zero, not inf).
 FLOAT32_TINY = float(np.finfo(np.float32).tiny)
 FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+class NotAnIntError(TypeError, ValueError):
+    """A float (or other real non-integer number) given where an int is expected.
+
+    Both a :class:`TypeError` (the project's rule: a float is not an int) and a
+    :class:`ValueError` (``steps = 2.5`` is also a bad value for a count).
+    """
+
+
+class NotANumberError(TypeError, ValueError):
+    """An entry that is not a real number (a string, a bool, None) where numbers are expected,
+    in a call that has always reported bad input as :class:`ValueError` (the environments'
+    ``step``): both a :class:`TypeError` (the project's rule) and a :class:`ValueError`."""
+
+
+def check_numbers(name: str, value: Any, what: str = "") -> np.ndarray:
+    """:func:`check_array` without the finiteness test, whose type errors are
+    :class:`NotANumberError` (an action ``["1"]`` or ``[True]`` is not silently 1.0)."""
+    try:
+        return check_array(name, value, finite=False, what=what)
+    except TypeError as exc:
+        raise NotANumberError(str(exc)) from None
 
 
 def type_name(value: Any) -> str:
@@ -183,8 +211,11 @@ def check_int(
 
     Raises
     ------
+    NotAnIntError
+        ``value`` is a float or another real number that is not an int (both a TypeError and a
+        ValueError).
     TypeError
-        ``value`` is not a Python or numpy integer (a bool, a float, a string, ...).
+        ``value`` is not a number (a bool, a string, None, ...).
     ValueError
         ``value`` is out of range.
 
@@ -195,7 +226,7 @@ def check_int(
     >>> check_int("horizon", 2.0, low=1)
     Traceback (most recent call last):
     ...
-    TypeError: horizon = 2.0 is a float; expected an int >= 1
+    sdjls_gym._validate.NotAnIntError: horizon = 2.0 is a float; expected an int >= 1
     """
     # the default upper bound is a technical limit, named only when it is exceeded
     shown_high = None if high == MAX_INDEX else high
@@ -213,7 +244,12 @@ def check_int(
         value = value[()]
     if _is_bool(value) or not isinstance(value, (numbers.Integral, np.integer)):
         kind = "a bool" if _is_bool(value) else a_type(value)
-        raise TypeError(f"{name} = {describe(value)} is {kind}; expected {expected}")
+        error = (
+            NotAnIntError
+            if not _is_bool(value) and isinstance(value, (numbers.Real, np.floating))
+            else TypeError
+        )
+        raise error(f"{name} = {describe(value)} is {kind}; expected {expected}")
     out = int(value)  # exact, for numpy's unsigned types too
     if low is not None and out < low:
         raise ValueError(f"{name} = {describe(value)} is out of range; expected {expected}")
@@ -340,6 +376,14 @@ def check_array(
         raw = np.asarray(value)
     except (TypeError, ValueError):
         raw = None  # ragged: reported below
+    if (
+        raw is not None
+        and raw.dtype.kind in "iuf"
+        and not isinstance(value, np.ndarray)
+        and raw.size
+        and any(_is_bool(v) for v in np.asarray(value, dtype=object).ravel())
+    ):
+        raw = np.asarray(value, dtype=object)  # a bool among numbers: reported below
     if raw is not None and (raw.dtype.kind in "bcSUO" or raw.dtype == np.bool_):
         if raw.dtype.kind == "O":
             bad = next(

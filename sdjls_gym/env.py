@@ -21,6 +21,8 @@ from sdjls_gym._validate import (
     check_int,
     check_mapping,
     check_number,
+    check_numbers,
+    check_optional_int,
     describe,
 )
 from sdjls_gym.model import SDJLSModel, max_last
@@ -153,6 +155,68 @@ def own_spec(spec: EnvSpec | None, max_episode_steps: int) -> EnvSpec | None:
     steps = spec.max_episode_steps if spec.max_episode_steps is not None else max_episode_steps
     kwargs = {key: _plain(value) for key, value in spec.kwargs.items()}
     return dataclasses.replace(spec, kwargs=kwargs, max_episode_steps=steps)
+
+
+def check_max_episode_steps(
+    max_episode_steps: Any, horizon: int, source: str = "", remedy: str = ""
+) -> int | None:
+    """``max_episode_steps`` as an int (or None), refused when it is larger than ``horizon``.
+
+    The environments end their episodes at their ``horizon``: a ``TimeLimit`` (or the vector
+    environment's ``max_episode_steps``) may only end them earlier. A larger value would make
+    ``spec.max_episode_steps`` report more steps than an episode has.
+
+    Parameters
+    ----------
+    max_episode_steps : int or None
+        The limit asked for; None for none.
+    horizon : int
+        The environment's horizon.
+    source : str, optional
+        Where the value comes from, shown after it in the message (e.g. ``" (of the EnvSpec
+        given to gym.make)"``).
+    remedy : str, optional
+        A further way out, appended to the advice.
+
+    Raises
+    ------
+    TypeError
+        ``max_episode_steps`` is not an int.
+    ValueError
+        ``max_episode_steps`` is below 1 or above ``horizon``.
+    """
+    steps = check_optional_int("max_episode_steps", max_episode_steps, low=1)
+    if steps is not None and steps > horizon:
+        raise ValueError(
+            f"max_episode_steps = {steps}{source} is larger than horizon = {horizon}: the "
+            f"environment ends its episodes at its horizon; pass horizon={steps} instead"
+            f"{remedy} (max_episode_steps may only shorten episodes)"
+        )
+    return steps
+
+
+def _check_time_limit_of_make(frame: Any, horizon: int) -> None:
+    """Refuse the ``TimeLimit`` that ``gymnasium.make`` is about to add if it exceeds ``horizon``.
+
+    ``gymnasium.make`` builds the environment, sets ``env.unwrapped.spec`` (with
+    ``max_episode_steps=None``) and only then wraps it in ``TimeLimit(max_episode_steps)``,
+    whose spec reports that value; nothing of the limit reaches the environment. The spec
+    setter is the last call into the environment before the wrapper is added, so it reads the
+    limit from the calling frame of ``gymnasium.make`` (its ``max_episode_steps`` argument, or
+    that of the ``EnvSpec`` it was given, as ``make`` does; ``-1`` is no limit). ``frame`` is
+    the caller of the setter; a call from anywhere else is not checked.
+    """
+    if frame is None or frame.f_code is not gym.envs.registration.make.__code__:
+        return
+    names = frame.f_locals
+    steps, source, remedy = names.get("max_episode_steps"), "", ""
+    if steps is None:  # make uses the limit of the spec it was given
+        steps = getattr(names.get("env_spec"), "max_episode_steps", None)
+        source = " (of the EnvSpec given to gym.make)"
+        remedy = ", or max_episode_steps=-1 for no TimeLimit"
+    if steps is None or (isinstance(steps, (int, np.integer)) and steps == -1):
+        return
+    check_max_episode_steps(steps, horizon, source, remedy)
 
 
 def may_overflow(
@@ -370,7 +434,9 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
     ## Episode End
 
     * Truncation: after `horizon` steps. The environment truncates by itself (the ids register
-      no `TimeLimit`), and `env.spec.max_episode_steps` reports the horizon.
+      no `TimeLimit`), and `env.spec.max_episode_steps` reports the horizon. `gym.make(...,
+      max_episode_steps=M)` may only shorten episodes: `M <= horizon` adds Gymnasium's
+      `TimeLimit`, a larger `M` is a `ValueError` (pass `horizon=M` instead).
     * Termination: only on divergence, when `max |x_{k+1}| > divergence_bound`, when `x_{k+1}`
       is not finite (NaN or inf), or when the stage cost overflows float64
       (`info["diverged"] = True`). Rewards and observations stay finite.
@@ -445,6 +511,9 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
 
     @spec.setter
     def spec(self, value: EnvSpec | None) -> None:
+        # gymnasium.make sets the spec just before it adds its TimeLimit: refuse one longer
+        # than the horizon here, at make time (see _check_time_limit_of_make)
+        _check_time_limit_of_make(sys._getframe(1), self.horizon)
         self._spec = own_spec(value, self.horizon)
 
     # ------------------------------------------------------------------ current state
@@ -528,14 +597,10 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
                 else "call reset() before step()"
             )
         m = self.model.m
-        if action is None or isinstance(action, (str, bytes)):
-            raise ValueError(
-                f"action = {action!r:.80}; expected the input u_k, {m} finite number(s)"
-            )
-        try:
-            u = np.array(action, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError(f"action = {action!r:.80}; expected {m} finite numbers") from None
+        if type(action) is np.ndarray and action.dtype.kind in "fiu":  # the common case
+            u = action.astype(np.float64)
+        else:  # strings, bools and None are not numbers (never read as 1.0)
+            u = check_numbers("action", action, what=f"the input u_k, {m} finite number(s)")
         if u.shape != (m,):
             if u.size != m or u.ndim > 1:
                 raise ValueError(f"action has shape {u.shape}; expected ({m},), the input u_k")

@@ -17,9 +17,9 @@ What the picture shows:
 * y-limits around the band (widened by a quarter of its width, and in steps of a quarter to show
   the data, but never more than two band widths beyond it; without a band, the data up to
   ``divergence_bound``):
-  points beyond are triangles at the edge, and the first step that leaves the plot, and the step
-  where the episode diverged (``max |x| > divergence_bound`` or a non-finite state), are marked
-  with a red line and a note;
+  points beyond are triangles at the edge; a red dashed line marks the first step that leaves
+  the plot (or, when none does, the step where the episode diverged), and a red note names that
+  step and the step of divergence (``max |x| > divergence_bound`` or a non-finite state);
 * the mode sequence with the mode names, and integer ticks on ``k``.
 """
 

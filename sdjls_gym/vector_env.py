@@ -9,11 +9,12 @@ from gymnasium.envs.registration import EnvSpec
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from sdjls_gym._validate import check_int, check_optional_int
+from sdjls_gym._validate import check_int, check_numbers
 from sdjls_gym.env import (
     MAX_STAGE_COST,
     action_space,
     check_divergence_bound,
+    check_max_episode_steps,
     check_model_x0,
     encode_observation,
     observation_space,
@@ -59,9 +60,11 @@ class SDJLSVectorEnv(VectorEnv):
     model, horizon, action_bound, divergence_bound
         As for :class:`~sdjls_gym.env.SDJLSEnv` (``model`` is required).
     max_episode_steps : int, optional
-        Episodes are truncated after ``min(horizon, max_episode_steps)`` steps, as a
-        ``TimeLimit`` would do (``gymnasium.make_vec`` passes it when given to it or when
-        an id registers one; the ids of this package do not).
+        Episodes are truncated after ``max_episode_steps`` steps, as a ``TimeLimit`` would do
+        (``gymnasium.make_vec`` passes it when given to it or when an id registers one; the ids
+        of this package do not). It may only shorten episodes: an int from 1 to ``horizon``
+        (a larger value is a ``ValueError``; pass ``horizon`` instead). ``spec.max_episode_steps``
+        reports it, or ``horizon`` when it is None.
     render_mode : None
         Rendering is not supported for the batch; render one ``SDJLSEnv`` instead.
 
@@ -95,8 +98,8 @@ class SDJLSVectorEnv(VectorEnv):
         self.model = resolve_model(model)
         self.num_envs = check_int("num_envs", num_envs, low=1)
         self.horizon = check_int("horizon", horizon, low=1)
-        steps = check_optional_int("max_episode_steps", max_episode_steps, low=1)
-        self.episode_steps = self.horizon if steps is None else min(self.horizon, steps)
+        steps = check_max_episode_steps(max_episode_steps, self.horizon)
+        self.episode_steps = self.horizon if steps is None else steps
         self.divergence_bound = check_divergence_bound(divergence_bound)
         check_model_x0(self.model, self.divergence_bound)
         self.render_mode = None
@@ -178,12 +181,12 @@ class SDJLSVectorEnv(VectorEnv):
         if not self._started:
             raise RuntimeError("call reset() before step()")
         B, model = self.num_envs, self.model
-        try:
-            u = np.asarray(actions, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"actions = {actions!r:.80}; expected a ({B}, {model.m}) array of finite numbers"
-            ) from None
+        if type(actions) is np.ndarray and actions.dtype.kind in "fiu":  # the common case
+            u = actions.astype(np.float64, copy=False)
+        else:  # strings, bools and None are not numbers (never read as 1.0)
+            u = check_numbers(
+                "actions", actions, what=f"a ({B}, {model.m}) array of finite numbers"
+            )
         if u.shape != (B, model.m):
             if u.size == B * model.m and model.m == 1 and u.shape == (B,):
                 u = u.reshape(B, 1)

@@ -678,6 +678,61 @@ def test_horizon_alone_sets_the_episode_length():
     assert envs.spec.max_episode_steps == 20
 
 
+def _too_long(steps, horizon):
+    return (
+        rf"^max_episode_steps = {steps}.* is larger than horizon = {horizon}: the environment "
+        rf"ends its episodes at its horizon; pass horizon={steps} instead"
+    )
+
+
+def test_max_episode_steps_above_the_horizon_is_refused():
+    """``max_episode_steps`` may only shorten episodes: a value above the horizon would make
+    ``env.spec.max_episode_steps`` say more steps than an episode has, so ``gym.make`` and
+    ``gym.make_vec`` (every vectorization mode) refuse it; up to the horizon it still works."""
+    with pytest.raises(ValueError, match=_too_long(40, 20)):
+        gym.make("SDJLS-Macro-v0", max_episode_steps=40)
+    with pytest.raises(ValueError, match=_too_long(11, 10)):
+        gym.make("SDJLS-Macro-v0", horizon=10, max_episode_steps=11)
+    for mode in ("vector_entry_point", "sync", "async"):
+        with pytest.raises(ValueError, match=_too_long(40, 20)):
+            gym.make_vec(
+                "SDJLS-Macro-v0", num_envs=2, vectorization_mode=mode, max_episode_steps=40
+            )
+    # a spec that carries a longer limit than the horizon given with it: the same rule
+    spec = gym.make("SDJLS-Macro-v0").spec
+    assert spec.max_episode_steps == 20
+    with pytest.raises(ValueError, match=r"^max_episode_steps = 20 \(of the EnvSpec given"):
+        gym.make(spec, horizon=10)
+    unlimited = gym.make(spec, horizon=10, max_episode_steps=-1)  # -1: no TimeLimit
+    assert _episode_length(unlimited)[0] == 10 and unlimited.spec.max_episode_steps == 10
+    # up to the horizon: Gymnasium's TimeLimit, and the spec says its value
+    for steps, horizon in ((20, 20), (7, 20), (21, 40)):
+        env = gym.make("SDJLS-Macro-v0", horizon=horizon, max_episode_steps=steps)
+        assert _episode_length(env)[0] == steps and env.spec.max_episode_steps == steps
+    # other bad values are refused as before (now with the project's message)
+    with pytest.raises(ValueError, match=r"^max_episode_steps = 0 is out of range"):
+        gym.make("SDJLS-Macro-v0", max_episode_steps=0)
+    # a spec set by hand (not by gymnasium.make) is not checked against a TimeLimit
+    env = SDJLSEnv(model="macro")
+    env.spec = spec
+    assert env.spec.max_episode_steps == 20
+
+
+def test_make_vec_spec_reports_the_horizon_in_vector_entry_point_mode():
+    """What the README says of ``envs.spec`` through ``gym.make_vec``: the native vector env
+    (the default ``vector_entry_point`` mode) reports the episode length; in ``"sync"`` and
+    ``"async"`` mode ``envs.spec`` is Gymnasium's, built from the registration (no
+    ``max_episode_steps``), and each sub-environment's spec reports the horizon."""
+    for kwargs, steps in (({}, 20), ({"horizon": 40}, 40), ({"max_episode_steps": 10}, 10)):
+        envs = gym.make_vec("SDJLS-Macro-v0", num_envs=2, **kwargs)
+        assert isinstance(envs, SDJLSVectorEnv) and envs.spec.max_episode_steps == steps
+    for mode in ("sync", "async"):
+        envs = gym.make_vec("SDJLS-Macro-v0", num_envs=2, vectorization_mode=mode, horizon=40)
+        assert envs.spec.max_episode_steps is None
+        assert [spec.max_episode_steps for spec in envs.get_attr("spec")] == [40, 40]
+        envs.close()
+
+
 def test_made_env_with_a_longer_horizon_pickles_and_passes_the_checkers():
     env = gym.make("SDJLS-Macro-v0", horizon=40)
     clone = pickle.loads(pickle.dumps(env))

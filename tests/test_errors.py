@@ -32,6 +32,7 @@ from controllers import (
     LinearFeedbackController,
     MJLSLQRController,
     RecedingHorizonController,
+    ScenarioTreeController,
     UnconstrainedRecedingHorizonController,
     check_proposition2,
     row_satisfaction_probability,
@@ -172,6 +173,12 @@ CASES = [
     case(lambda c: model(c, A=nested(5000)), M, r"^A = .* could not be read", "A-deep"),
     case(lambda c: model(c, A="abc"), T, r"^A = 'abc' is a str", "A-str"),
     case(lambda c: model(c, Q=np.eye(2, dtype=bool)), T, r"^Q = .* has bool entries", "Q-bool"),
+    case(
+        lambda c: model(c, H0=[True, 1.0]),
+        T,
+        r"^H0 has an entry True of type bool",
+        "H0-bool-among-numbers",
+    ),
     case(lambda c: model(c, B=np.ones((3, 1))), M, r"^B has shape \(3, 1\)", "B-rows-vs-n"),
     case(lambda c: model(c, B=np.ones((2, 2, 1))), M, r"^B has shape \(2, 2, 1\)", "B-modes-vs-N"),
     case(lambda c: model(c, E=np.eye(3)), M, r"^E has shape \(3, 3\)", "E-rows-vs-n"),
@@ -575,14 +582,14 @@ CASES = [
     ),
     case(
         lambda c: env_step("a"),
-        ValueError,
-        r"action = 'a'; expected the input u_k, 1 finite number\(s\)",
+        ValueError,  # NotANumberError: a ValueError and a TypeError
+        r"^action = 'a' is a str; expected an array of numbers \(the input u_k, 1 finite number",
         "step-string",
     ),
     case(
         lambda c: env_step(None),
-        ValueError,
-        r"action = None; expected the input u_k, 1 finite number\(s\)",
+        TypeError,  # NotANumberError: a ValueError and a TypeError
+        r"^action = None is a NoneType; expected an array of numbers \(the input u_k",
         "step-none",
     ),
     case(
@@ -727,6 +734,12 @@ CASES = [
     case(lambda c: rhc(xi=1.5), ValueError, r"xi = 1\.5 is out of range", "xi-above-1"),
     case(lambda c: rhc(xi=nan), ValueError, r"xi = nan is not finite", "xi-nan"),
     case(lambda c: rhc(xi=True), TypeError, r"xi = True is a bool", "xi-bool"),
+    case(
+        lambda c: rhc().act([True, 1.0], 0, 0),
+        TypeError,
+        r"^x has an entry True of type bool",
+        "act-x-bool-among-numbers",
+    ),
     case(lambda c: rhc(xi="0.85"), TypeError, r"xi = '0\.85' is a str", "xi-str"),
     case(lambda c: rhc(alpha="1000"), TypeError, r"alpha = '1000' is a str", "alpha-str"),
     case(lambda c: rhc(alpha=True), TypeError, r"alpha = True is a bool", "alpha-bool"),
@@ -877,7 +890,7 @@ CASES = [
     case(
         lambda c: rhc().act([1.0, 2.0], 0, 2**70),
         ValueError,
-        r"k = 1180591620717411303424 is too large; .*at most 2\*\*53",
+        r"k = 1180591620717411303424 is too large; expected an int in \[0, 2\*\*53 - 1\]",
         "act-k-huge",
     ),
     case(
@@ -893,6 +906,38 @@ CASES = [
         ValueError,
         r"k = np\.uint64\(18446744073709551615\) is out of range",
         "batch-k-uint64-max",
+    ),
+    case(
+        lambda c: rhc().act_batch(np.zeros((2, 2)), np.zeros(2, int), 10**30),
+        ValueError,
+        r"^k = 1000000000000000000000000000000 is out of range; expected an int in \[0, ",
+        "batch-k-python-huge",
+    ),
+    case(
+        lambda c: rhc().act_batch(np.zeros((2, 2)), np.zeros(2, int), [10**30, 1]),
+        ValueError,
+        r"^k = 1000000000000000000000000000000 is out of range",
+        "batch-k-python-huge-list",
+    ),
+    case(
+        lambda c: rhc().act([1.0, 2.0], 0, 2**53),
+        ValueError,
+        r"^k = 9007199254740992 is too large; expected an int in \[0, 2\*\*53 - 1\]",
+        "act-k-2-53-needs-k-plus-1",
+    ),
+    case(
+        lambda c: ScenarioTreeController(macro(), PAPER_K, **PAPER_RHC, steps=3).act(
+            [1.0, 2.0], 0, 2**53 - 2
+        ),
+        ValueError,
+        r"^k = 9007199254740990 is too large; expected an int in \[0, 2\*\*53 - 3\]",
+        "tree-k-beyond-2-53-minus-steps",
+    ),
+    case(
+        lambda c: ScenarioTreeController(macro(), PAPER_K, **PAPER_RHC, steps=2.5),
+        ValueError,  # NotAnIntError: a ValueError and a TypeError
+        r"^steps = 2\.5 is a float; expected an int >= 1",
+        "tree-steps-non-integer",
     ),
     case(
         lambda c: rhc().act(np.array([1e101, 0.0]), 0, 0),
@@ -1141,6 +1186,11 @@ BAD_ACTIONS = [
     pytest.param(np.array([inf]), id="inf"),
     pytest.param(np.zeros(2), id="shape"),
     pytest.param("a", id="string"),
+    # not numbers, never read as 1.0 (NotANumberError: both a ValueError and a TypeError)
+    pytest.param(["1"], id="numeric-string"),
+    pytest.param([True], id="bool-list"),
+    pytest.param(np.array([True]), id="bool-array"),
+    pytest.param(None, id="none"),
 ]
 
 
@@ -1167,8 +1217,15 @@ def test_rejected_action_leaves_the_env_untouched(action):
 
 @pytest.mark.parametrize(
     "actions",
-    [np.array([[0.0], [nan]]), np.array([[inf], [0.0]]), np.zeros((3, 1)), np.zeros((2, 2))],
-    ids=["nan", "inf", "batch-size", "m"],
+    [
+        np.array([[0.0], [nan]]),
+        np.array([[inf], [0.0]]),
+        np.zeros((3, 1)),
+        np.zeros((2, 2)),
+        [["1"], ["2"]],
+        np.array([[True], [False]]),
+    ],
+    ids=["nan", "inf", "batch-size", "m", "numeric-strings", "bools"],
 )
 def test_rejected_actions_leave_the_vector_env_untouched(actions):
     envs, ref = SDJLSVectorEnv(2, model="macro"), SDJLSVectorEnv(2, model="macro")

@@ -200,6 +200,24 @@ def test_vector_env_errors():
         envs.reset(options={"mode0": 5})
 
 
+def test_max_episode_steps_may_only_shorten_episodes(paper_policy):
+    """``max_episode_steps`` truncates earlier than the horizon, as a ``TimeLimit`` would; a
+    larger value is refused (the episodes would end at the horizon, not at it)."""
+    with pytest.raises(
+        ValueError,
+        match=r"^max_episode_steps = 21 is larger than horizon = 20: the environment ends its "
+        r"episodes at its horizon; pass horizon=21 instead \(max_episode_steps may only shorten",
+    ):
+        SDJLSVectorEnv(2, model="macro", max_episode_steps=21)
+    for steps, horizon in ((20, 20), (21, 40)):
+        envs = _make_vec(2, horizon=horizon, max_episode_steps=steps)
+        assert envs.spec.max_episode_steps == steps
+        _, infos = envs.reset(seed=0)
+        for k in range(1, steps + 1):
+            _, _, terminated, truncated, infos = envs.step(_act(paper_policy, infos))
+            assert truncated.all() == (k == steps) and not terminated.any(), k
+
+
 # --------------------------------------------------------------------------- distribution
 
 VECTOR_EPISODES = 4000
