@@ -83,6 +83,30 @@ class Aggregate:
     kind: str = "rl-aggregate"
 
 
+@dataclass(frozen=True)
+class AgainstAgent:
+    """A model-based controller's cost minus the best agent's, paired over the episodes."""
+
+    name: str
+    agent: str
+    mean: float
+    ci95: tuple[float, float]  # 95% bootstrap interval
+
+
+@dataclass(frozen=True)
+class AgainstCurve:
+    """A controller's cost minus a model-based curve at its own violation frequency."""
+
+    name: str
+    curve: str  # the curve's family
+    violation: float  # the controller's violation frequency
+    cost_mean: float
+    curve_cost: float  # the curve's cost at that frequency
+    mean: float  # cost_mean - curve_cost, paired over the episodes
+    ci95: tuple[float, float]  # 95% bootstrap interval
+    xi: float | None  # the curve's xi at that frequency
+
+
 @dataclass
 class Summary:
     """Everything the RL comparison computed (written as summary.json)."""
@@ -100,8 +124,8 @@ class Summary:
     best_config: str | None
     best_config_comparable: bool
     best_agent: str | None
-    against_best_agent: list[dict[str, Any]]
-    against_curves: dict[str, list[dict[str, Any]]]
+    against_best_agent: list[AgainstAgent]
+    against_curves: dict[str, list[AgainstCurve]]
     figures: list[str]
 
     def to_json(self) -> dict[str, Any]:
@@ -202,7 +226,9 @@ def best_agent(aggs: list[Aggregate], runs: list[RunResult], target: float) -> R
     return seeds[(len(seeds) - 1) // 2]
 
 
-def against_best_agent(model_based: list[ControllerResult], best: RunResult | None) -> list[dict]:
+def against_best_agent(
+    model_based: list[ControllerResult], best: RunResult | None
+) -> list[AgainstAgent]:
     """Each model-based controller's cost minus the best agent's, paired over the episodes,
     with its 95% bootstrap interval (:func:`benchmarks.stats.paired_difference`)."""
     if best is None:
@@ -210,13 +236,13 @@ def against_best_agent(model_based: list[ControllerResult], best: RunResult | No
     out = []
     for r in model_based:
         mean, ci = paired_difference(r.score.episode_costs, best.score.episode_costs)
-        out.append({"name": r.name, "agent": best.name, "mean": mean, "ci95": list(ci)})
+        out.append(AgainstAgent(r.name, best.name, mean, (float(ci[0]), float(ci[1]))))
     return out
 
 
 def against_curve(
     points: list[ControllerResult], others: list[ControllerResult | RunResult]
-) -> list[dict[str, Any]]:
+) -> list[AgainstCurve]:
     """Each of ``others``' cost minus the curve through ``points`` (a model-based curve over
     ``xi``, scored on the same episodes) at its own violation frequency, paired over the
     episodes with a 95% bootstrap interval (:func:`benchmarks.stats.paired_curve_gap`).
@@ -238,9 +264,8 @@ def against_curve(
                              xis)  # fmt: skip
         if g is None:
             continue
-        out.append({"name": r.name, "curve": points[0].family, "violation": g.violation,
-                    "cost_mean": r.score.cost_mean, "curve_cost": g.curve_cost, "mean": g.mean,
-                    "ci95": list(g.ci95), "xi": g.xi})  # fmt: skip
+        out.append(AgainstCurve(r.name, points[0].family, g.violation, r.score.cost_mean,
+                                g.curve_cost, g.mean, tuple(g.ci95), g.xi))  # fmt: skip
     return out
 
 
@@ -355,7 +380,7 @@ def _curve_gap_table(rows: list[ControllerResult | RunResult]) -> list[str]:
     return lines
 
 
-def _against_curve_sections(against: dict[str, list[dict[str, Any]]]) -> list[str]:
+def _against_curve_sections(against: dict[str, list[AgainstCurve]]) -> list[str]:
     lines = []
     for family, rows in against.items():
         lines += [
@@ -367,17 +392,9 @@ def _against_curve_sections(against: dict[str, list[dict[str, Any]]]) -> list[st
             "",
             *CURVE_GAP_HEADER,
             *(
-                _gap_row(
-                    d["name"],
-                    d["violation"],
-                    d["cost_mean"],
-                    d["curve_cost"],
-                    d["mean"],
-                    d["ci95"],
-                    d["xi"],
-                )
+                _gap_row(d.name, d.violation, d.cost_mean, d.curve_cost, d.mean, d.ci95, d.xi)
                 for d in rows
-            ),  # fmt: skip
+            ),
             "",
         ]
     return lines
@@ -469,8 +486,7 @@ def write_report(summary: Summary, xi: float, reference: str) -> str:
         "| controller | cost minus the best agent's (95% bootstrap) |",
         "|---|---|",
         *(
-            f"| {d['name']} | {_signed(d['mean'])} ({_signed(d['ci95'][0])} to "
-            f"{_signed(d['ci95'][1])}) |"
+            f"| {d.name} | {_signed(d.mean)} ({_signed(d.ci95[0])} to {_signed(d.ci95[1])}) |"
             for d in summary.against_best_agent
         ),
         "",

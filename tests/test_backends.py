@@ -52,10 +52,28 @@ def test_backends_and_worker_counts_give_the_same_runs(tmp_path):
             assert other["learning_curve"] == pytest.approx(a["learning_curve"], rel=1e-5)
             assert other["score"]["cost_mean"] == pytest.approx(a["score"]["cost_mean"], rel=1e-5)
             assert other["score"]["violation"] == pytest.approx(a["score"]["violation"], abs=1e-3)
-    # a run interrupted on one backend resumes on the other: nothing is trained again
-    stamps = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "ray" / "runs").iterdir()}
-    compare_rl.main([*ARGS, "--workers", "1", "--out", str(tmp_path / "ray")])
-    assert {p.name: p.stat().st_mtime_ns for p in (tmp_path / "ray" / "runs").iterdir()} == stamps
+    # the rest of the summaries (the model-based controllers, the best agent, the gaps) agree too
+    full = [json.loads((tmp_path / name / "summary.json").read_text()) for name in ("one", "ray")]
+    assert [full[1][key] for key in ("best_config", "best_agent")] == [
+        full[0][key] for key in ("best_config", "best_agent")
+    ]
+    gaps = [
+        [(d["name"], d["mean"]) for d in f["against_best_agent"]]
+        + [(d["name"], d["mean"]) for rows in f["against_curves"].values() for d in rows]
+        for f in full
+    ]
+    assert [name for name, _ in gaps[1]] == [name for name, _ in gaps[0]]
+    assert [m for _, m in gaps[1]] == pytest.approx([m for _, m in gaps[0]], rel=1e-5, abs=1e-6)
+    for a, c in zip(full[0]["model_based"], full[1]["model_based"], strict=True):
+        assert a["name"] == c["name"]
+        assert c["score"]["cost_mean"] == a["score"]["cost_mean"]  # no network: bit-identical
+        assert c["score"]["violation"] == a["score"]["violation"]
+    # a run interrupted on one backend resumes on the other, both ways: nothing is trained again
+    for out, backend in (("ray", ["--workers", "1"]), ("one", ["--backend", "ray"])):
+        stamps = {p.name: p.stat().st_mtime_ns for p in (tmp_path / out / "runs").iterdir()}
+        compare_rl.main([*ARGS, *backend, "--out", str(tmp_path / out)])
+        after = {p.name: p.stat().st_mtime_ns for p in (tmp_path / out / "runs").iterdir()}
+        assert after == stamps, backend
 
 
 def test_ray_missing_names_the_extra(monkeypatch, tmp_path):

@@ -193,6 +193,7 @@ def test_quick_run_csv_and_report(quick_run):
         assert f"]({fig})" in report
 
 
+@pytest.mark.slow  # reruns the --quick comparison (about 15 s)
 def test_rerun_reuses_finished_trainings(quick_run):
     out, first = quick_run
     stamps = {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*")}
@@ -240,6 +241,7 @@ def _copy(quick_run, tmp_path) -> Path:
     return out
 
 
+@pytest.mark.slow  # reruns the --quick comparison (about 15 s)
 def test_rescoring_needs_no_training(quick_run, tmp_path):
     """More evaluation episodes: the kept runs are rescored, not trained again."""
     out, first = _copy(quick_run, tmp_path), quick_run[1]
@@ -252,6 +254,7 @@ def test_rescoring_needs_no_training(quick_run, tmp_path):
         assert a.run.learning_curve == b.run.learning_curve
 
 
+@pytest.mark.slow  # reruns the --quick comparison (about 15 s)
 def test_a_run_without_its_policy_is_trained_again(quick_run, tmp_path):
     out = _copy(quick_run, tmp_path)
     victim = out / "runs" / "td3_reward_s0.pt"
@@ -291,6 +294,7 @@ def test_committed_runs_match_the_current_configuration():
     assert all(rl_train.load_run(root / "results/rl/runs", s) is not None for s in specs)
 
 
+@pytest.mark.slow  # reruns the --quick comparison (about 15 s)
 def test_cost_violation_figure_marks_agents_still_learning(quick_run, tmp_path, monkeypatch):
     """Agents whose curve is not flat get a hollow marker and a "(still learning)" label."""
     from matplotlib.axes import Axes
@@ -467,15 +471,15 @@ def test_quick_run_scores_the_multistep_curve_and_compares_with_it(quick_run):
     assert all(r.score.episodes == 200 for r in points)
     # its own points are 0 against themselves by construction: left out
     rows = summary.against_curves["RHC 3-step"]
-    assert rows and not {d["name"] for d in rows} & {r.name for r in points}
+    assert rows and not {d.name for d in rows} & {r.name for r in points}
     for d in rows:
-        assert d["ci95"][0] <= d["mean"] <= d["ci95"][1], d["name"]
-        assert d["mean"] == pytest.approx(d["cost_mean"] - d["curve_cost"], rel=1e-9, abs=1e-9)
-        assert min(curve.quick_xis) - 1e-12 <= d["xi"] <= max(curve.quick_xis) + 1e-12
+        assert d.ci95[0] <= d.mean <= d.ci95[1], d.name
+        assert d.mean == pytest.approx(d.cost_mean - d.curve_cost, rel=1e-9, abs=1e-9)
+        assert min(curve.quick_xis) - 1e-12 <= d.xi <= max(curve.quick_xis) + 1e-12
     # the one-step point at xi = 0.85 lies inside the 3-step curve's range of frequencies
-    assert "RHC individual xi=0.85" in {d["name"] for d in rows}
+    assert "RHC individual xi=0.85" in {d.name for d in rows}
     saved = json.loads((out / "summary.json").read_text())["against_curves"]["RHC 3-step"]
-    assert [d["name"] for d in saved] == [d["name"] for d in rows]
+    assert saved == [dataclasses.asdict(d) | {"ci95": list(d.ci95)} for d in rows]
     assert "## Against the RHC 3-step curve" in (out / "REPORT.md").read_text()
 
 
@@ -498,9 +502,9 @@ def test_against_curve_interpolates_at_the_controllers_own_frequency():
     others = [row("inside", 70.0, 0.2), row("diverged", 70.0, 0.2, diverged=1),
               row("outside", 10.0, 0.5)]  # fmt: skip
     out = against_curve(points, others)
-    assert [d["name"] for d in out] == ["inside"]
+    assert [d.name for d in out] == ["inside"]
     (d,) = out
-    assert d["curve_cost"] == pytest.approx(75.0) and d["mean"] == pytest.approx(-5.0)
-    assert d["ci95"] == pytest.approx([-5.0, -5.0])  # no spread between the episodes
-    assert d["xi"] == pytest.approx(0.8) and d["curve"] == "curve"
+    assert d.curve_cost == pytest.approx(75.0) and d.mean == pytest.approx(-5.0)
+    assert d.ci95 == pytest.approx((-5.0, -5.0))  # no spread between the episodes
+    assert d.xi == pytest.approx(0.8) and d.curve == "curve"
     assert against_curve(points[:1], others) == []
