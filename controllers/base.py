@@ -180,15 +180,10 @@ class Controller:
         scenario tree), so that every ``H_{k+t}`` it uses has an index float64 holds exactly."""
         return MAX_INDEX - self._lookahead
 
-    def _check_k(self, k: Any) -> int:
-        """``k`` an int in ``[0, max_k]``; the message names ``k`` and the limit."""
-        if isinstance(k, (int, np.integer)) and not isinstance(k, bool) and k > self.max_k:
-            raise ValueError(
-                f"k = {describe(k)} is too large; expected an int in [0, 2**53 - "
-                f"{self._lookahead}] (time index: the controller reads the band H up to "
-                f"k + {self._lookahead}, and 2**53 is the largest index float64 holds exactly)"
-            )
-        return check_int("k", k, low=0, what="time index")
+    @property
+    def _k_what(self) -> str:
+        L = self._lookahead
+        return f"time index, at most 2**53 - {L}: the controller reads the band H up to k + {L}"
 
     def _check_inputs(self, x: Any, mode: Any, k: Any) -> tuple[np.ndarray, int, int]:
         """``x`` a finite ``(n,)`` vector within :data:`MAX_STATE`, ``mode`` in ``[0, N)``,
@@ -197,7 +192,8 @@ class Controller:
         if np.max(np.abs(x)) > MAX_STATE:
             raise ValueError(f"x = {describe(x)} {_TOO_LARGE}")
         mode = check_int("mode", mode, low=0, high=self.model.N - 1)
-        return x, mode, self._check_k(k)
+        k = check_int("k", k, low=0, high=self.max_k, what=self._k_what)
+        return x, mode, k
 
     def _check_batch_inputs(
         self, x: Any, mode: Any, k: Any

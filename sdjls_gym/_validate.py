@@ -376,14 +376,10 @@ def check_array(
         raw = np.asarray(value)
     except (TypeError, ValueError):
         raw = None  # ragged: reported below
-    if (
-        raw is not None
-        and raw.dtype.kind in "iuf"
-        and not isinstance(value, np.ndarray)
-        and raw.size
-        and any(_is_bool(v) for v in np.asarray(value, dtype=object).ravel())
-    ):
-        raw = np.asarray(value, dtype=object)  # a bool among numbers: reported below
+    if raw is not None and raw.dtype.kind in "iuf" and raw.size and type(value) is not np.ndarray:
+        entries = np.asarray(value, dtype=object)  # numpy reads a bool among numbers as 1 or 0
+        if any(_is_bool(v) for v in entries.ravel()):
+            raw = entries  # reported below
     if raw is not None and (raw.dtype.kind in "bcSUO" or raw.dtype == np.bool_):
         if raw.dtype.kind == "O":
             bad = next(

@@ -890,13 +890,14 @@ CASES = [
     case(
         lambda c: rhc().act([1.0, 2.0], 0, 2**70),
         ValueError,
-        r"k = 1180591620717411303424 is too large; expected an int in \[0, 2\*\*53 - 1\]",
+        r"k = 1180591620717411303424 is out of range; expected an int in \[0, 9007199254740991\] "
+        r"\(time index, at most 2\*\*53 - 1: the controller reads the band H up to k \+ 1\)",
         "act-k-huge",
     ),
     case(
         lambda c: rhc().act([1.0, 2.0], 0, np.uint64(2**64 - 1)),
         ValueError,
-        r"k = np\.uint64\(18446744073709551615\) is too large",
+        r"k = np\.uint64\(18446744073709551615\) is out of range; .*at most 2\*\*53 - 1",
         "act-k-uint64-max",
     ),
     case(
@@ -922,7 +923,7 @@ CASES = [
     case(
         lambda c: rhc().act([1.0, 2.0], 0, 2**53),
         ValueError,
-        r"^k = 9007199254740992 is too large; expected an int in \[0, 2\*\*53 - 1\]",
+        r"^k = 9007199254740992 is out of range; expected an int in \[0, 9007199254740991\]",
         "act-k-2-53-needs-k-plus-1",
     ),
     case(
@@ -930,7 +931,8 @@ CASES = [
             [1.0, 2.0], 0, 2**53 - 2
         ),
         ValueError,
-        r"^k = 9007199254740990 is too large; expected an int in \[0, 2\*\*53 - 3\]",
+        r"^k = 9007199254740990 is out of range; expected an int in \[0, 9007199254740989\] "
+        r"\(time index, at most 2\*\*53 - 3: the controller reads the band H up to k \+ 3\)",
         "tree-k-beyond-2-53-minus-steps",
     ),
     case(
