@@ -77,7 +77,10 @@ class NotANumberError(TypeError, ValueError):
 
 def check_numbers(name: str, value: Any, what: str = "") -> np.ndarray:
     """:func:`check_array` without the finiteness test, whose type errors are
-    :class:`NotANumberError` (an action ``["1"]`` or ``[True]`` is not silently 1.0)."""
+    :class:`NotANumberError` (an action ``["1"]`` or ``[True]`` is not silently 1.0). A float or
+    integer ndarray, the environments' common case, is only copied to float64."""
+    if type(value) is np.ndarray and value.dtype.kind in "fiu":
+        return value.astype(np.float64)
     try:
         return check_array(name, value, finite=False, what=what)
     except TypeError as exc:

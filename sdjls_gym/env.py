@@ -489,6 +489,7 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         self.action_space = action_space(self.model, action_bound)
         self.observation_space = observation_space(self.model, self.divergence_bound)
         self._low = self.action_space.low.astype(np.float64)
+        self._action_what = f"the input u_k, {self.model.m} finite number(s)"  # for step's errors
         self._high = self.action_space.high.astype(np.float64)
         self._low_list, self._high_list = self._low.tolist(), self._high.tolist()
         self._may_overflow = may_overflow(
@@ -597,10 +598,7 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
                 else "call reset() before step()"
             )
         m = self.model.m
-        if type(action) is np.ndarray and action.dtype.kind in "fiu":  # the common case
-            u = action.astype(np.float64)
-        else:  # strings, bools and None are not numbers (never read as 1.0)
-            u = check_numbers("action", action, what=f"the input u_k, {m} finite number(s)")
+        u = check_numbers("action", action, what=self._action_what)
         if u.shape != (m,):
             if u.size != m or u.ndim > 1:
                 raise ValueError(f"action has shape {u.shape}; expected ({m},), the input u_k")

@@ -109,6 +109,7 @@ class SDJLSVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._low = self.single_action_space.low.astype(np.float64)
+        self._actions_what = f"a ({self.num_envs}, {self.model.m}) array of finite numbers"
         self._high = self.single_action_space.high.astype(np.float64)
 
         B, model = self.num_envs, self.model
@@ -181,12 +182,7 @@ class SDJLSVectorEnv(VectorEnv):
         if not self._started:
             raise RuntimeError("call reset() before step()")
         B, model = self.num_envs, self.model
-        if type(actions) is np.ndarray and actions.dtype.kind in "fiu":  # the common case
-            u = actions.astype(np.float64, copy=False)
-        else:  # strings, bools and None are not numbers (never read as 1.0)
-            u = check_numbers(
-                "actions", actions, what=f"a ({B}, {model.m}) array of finite numbers"
-            )
+        u = check_numbers("actions", actions, what=self._actions_what)
         if u.shape != (B, model.m):
             if u.size == B * model.m and model.m == 1 and u.shape == (B,):
                 u = u.reshape(B, 1)
