@@ -100,7 +100,7 @@ def degradation() -> SDJLSModel:
         R=[[1.0]],
         x0=[2.0, 0.0],
         E=np.eye(2),
-        W=0.01 * np.eye(2),
+        W=0.1**2 * np.eye(2),
         mode0=0,
         mode_names=("nominal", "degraded"),
         state_names=("position", "velocity"),
