@@ -21,7 +21,6 @@ import gymnasium
 from sdjls_gym.env import SDJLSEnv
 from sdjls_gym.model import InvalidModelError, InvalidModelTypeError, SDJLSModel
 from sdjls_gym.model_files import load_model, save_model
-from sdjls_gym.systems import PRESET_OF as _PRESET_OF
 from sdjls_gym.systems import TASKS, macro
 from sdjls_gym.systems.macro import ACTION_BOUND as _MACRO_ACTION_BOUND
 from sdjls_gym.systems.macro import HORIZON as _MACRO_HORIZON
@@ -61,19 +60,21 @@ if "SDJLS-Macro-v0" not in gymnasium.registry:
         kwargs={"model": "macro", "horizon": _MACRO_HORIZON, "action_bound": _MACRO_ACTION_BOUND},
     )
 
-# the suite's other tasks, registered as SDJLS-Macro-v0 is (no TimeLimit: see above)
-for _env_id, _preset in _PRESET_OF.items():
-    if _env_id != "SDJLS-Macro-v0" and _env_id not in gymnasium.registry:
-        gymnasium.register(
-            id=_env_id,
-            entry_point="sdjls_gym.env:make_env",
-            vector_entry_point="sdjls_gym.vector_env:SDJLSVectorEnv",
-            kwargs={
-                "model": _preset,
-                "horizon": TASKS[_env_id].horizon,
-                "action_bound": TASKS[_env_id].action_bound,
-            },
-        )
+# the suite's other tasks, registered as SDJLS-Macro-v0 is (no TimeLimit: see above); the model
+# goes in as its to_dict(), so that the registered spec is plain JSON
+for _env_id, _task in TASKS.items():
+    if _env_id in ("SDJLS-Macro-v0", "SDJLS-Random-v0") or _env_id in gymnasium.registry:
+        continue
+    gymnasium.register(
+        id=_env_id,
+        entry_point="sdjls_gym.env:make_env",
+        vector_entry_point="sdjls_gym.vector_env:SDJLSVectorEnv",
+        kwargs={
+            "model": _task.model.to_dict(),
+            "horizon": _task.horizon,
+            "action_bound": _task.action_bound,
+        },
+    )
 if "SDJLS-Random-v0" not in gymnasium.registry:
     gymnasium.register(
         id="SDJLS-Random-v0",

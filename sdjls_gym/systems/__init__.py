@@ -1,7 +1,7 @@
 """Preset systems and the suite's tasks.
 
-* Presets (``PRESETS``, usable as ``gym.make("SDJLS-v0", model=name)``): ``macro()`` is the
-  paper's example (section 6); ``solar()``, ``vtol()``, ``three_state()`` and
+* ``macro()`` is the paper's example (section 6), also the preset ``"macro"`` of ``PRESETS``
+  (``gym.make("SDJLS-v0", model="macro")``); ``solar()``, ``vtol()``, ``three_state()`` and
   ``degradation()`` are published Markov jump linear systems with a state-dependent part added
   by this project (each module's docstring says what comes from where).
 * ``TASKS``: env id -> :class:`Task` (the model, horizon, action bound, pre-stabilizing gains
@@ -22,23 +22,7 @@ from sdjls_gym.systems.task import Task
 from sdjls_gym.systems.three_state import three_state
 from sdjls_gym.systems.vtol import vtol
 
-PRESETS = {
-    "macro": macro,
-    "solar": solar,
-    "vtol": vtol,
-    "three_state": three_state,
-    "degradation": degradation,
-}
-
-#: Env id -> preset name, for the fixed tasks (registered with ``model=<preset name>``).
-PRESET_OF = {
-    "SDJLS-Macro-v0": "macro",
-    _solar.ENV_ID: "solar",
-    _vtol.ENV_ID: "vtol",
-    _three_state.ENV_ID: "three_state",
-    _degradation.ENV_ID: "degradation",
-}
-
+PRESETS = {"macro": macro}
 
 #: Source of the macro example.
 MACRO_SOURCE = (
@@ -85,7 +69,6 @@ TASKS: dict[str, Task] = _build_tasks()
 
 __all__ = [
     "PRESETS",
-    "PRESET_OF",
     "MACRO_SOURCE",
     "TASKS",
     "Task",

@@ -16,7 +16,8 @@ observed.
 ``Q = I``, ``R = 1``, ``x0 = [2, 0]``. **Verified** against ``simmain.m`` of the public
 repository ``Mxttak/MJLS`` (commit 6f5362a; M. Dolgov's reference implementation of that
 paper): every number agrees (the script also has a measurement equation, not used here, and
-draws ``x0`` around ``[2, 0]`` with covariance ``0.2^2 I``).
+draws ``x0`` around ``[2, 0]`` with covariance ``0.2^2 I`` and starts from the uniform mode
+distribution; here ``x0 = [2, 0]`` and ``mode0 = 0``).
 
 Added by this project: the region, ``P_out``, horizon, action bound and the controller's data.
 

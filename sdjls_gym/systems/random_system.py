@@ -54,7 +54,6 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy import special
 
 from sdjls_gym._validate import check_int, check_number
 from sdjls_gym.model import SDJLSModel
@@ -298,8 +297,3 @@ def make_random_vector_env(
     return SDJLSVectorEnv(
         num_envs=num_envs, model=task.model, horizon=horizon, action_bound=action_bound, **extra
     )
-
-
-def largest_xi_with_nonempty_set() -> float:
-    """``Phi(REGION_SIGMAS)``: below this ``xi`` the tightened set contains the origin."""
-    return float(special.ndtr(REGION_SIGMAS))
