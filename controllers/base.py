@@ -28,6 +28,7 @@ from sdjls_gym._validate import (
     a_type,
     check_array,
     check_int,
+    check_int_array,
     check_optional_int,
     describe,
 )
@@ -208,24 +209,11 @@ class Controller:
         B = x.shape[0]
         out = []
         for name, value, high in (("mode", mode, model.N - 1), ("k", k, self.max_k)):
-            arr = np.asarray(value)
-            if arr.dtype == object and arr.size:  # Python ints beyond int64, or mixed entries
-                for v in arr.ravel():
-                    check_int(name, v, low=0, high=high)  # TypeError or ValueError, by entry
-                arr = arr.astype(np.int64)
-            if arr.dtype == bool or not np.issubdtype(arr.dtype, np.integer):
-                raise TypeError(f"{name} has dtype {arr.dtype}; expected integers in [0, {high}]")
+            arr = check_int_array(name, value, low=0, high=high)  # bools refused, by entry
             arr = np.broadcast_to(arr, (B,)) if arr.ndim == 0 else arr
             if arr.shape != (B,):
                 raise ValueError(f"{name} has shape {arr.shape}; expected ({B},) to match x")
-            # range checked on the exact values, before any conversion that could wrap
-            bad = (arr < 0) | (arr > high)
-            if np.any(bad):
-                first = arr[bad][0]
-                raise ValueError(
-                    f"{name} = {describe(first)} is out of range; expected ints in [0, {high}]"
-                )
-            out.append(arr.astype(np.int64))
+            out.append(arr.astype(np.int64))  # a copy, as before: callers may keep it
         return x, out[0], out[1]
 
     def act_batch(

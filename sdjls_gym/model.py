@@ -31,7 +31,7 @@ from sdjls_gym._model_checks import (  # noqa: F401 - _fmt, _check_psd: used by 
     _fmt,
     validate_fields,
 )
-from sdjls_gym._validate import MAX_INDEX, check_int, describe
+from sdjls_gym._validate import MAX_INDEX, check_int, check_int_array, describe
 
 __all__ = [
     "SDJLSModel",
@@ -598,7 +598,7 @@ def _check_k(k: Any) -> Any:
     if type(k) is int and 0 <= k <= MAX_INDEX:  # the common case, first
         return k
     if isinstance(k, (list, tuple, range)):
-        k = np.asarray(k)
+        return check_int_array("k", k, low=0)  # a bool entry is refused, not read as 0 or 1
     if isinstance(k, np.ndarray) and k.ndim:
         if k.size and k.dtype.kind not in "iu":
             raise TypeError(
