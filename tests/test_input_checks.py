@@ -19,14 +19,19 @@ import pytest
 
 from controllers import (
     LinearFeedbackController,
+    LMIInfeasibleError,
     MJLSLQRController,
     RecedingHorizonController,
     ScenarioTreeController,
     UnconstrainedRecedingHorizonController,
+    check_proposition2,
+    second_moment_spectral_radius,
+    synthesize_gains,
+    verify_mean_square_bound,
 )
 from sdjls_gym import SDJLSModel, SDJLSVectorEnv, load_model
 from sdjls_gym.model_files import _to_toml
-from sdjls_gym.systems.macro import PAPER_K, PAPER_RHC, macro
+from sdjls_gym.systems.macro import PAPER_K, PAPER_RHC, PAPER_X, PAPER_Y, macro
 
 HUGE = 10**400  # a Python int beyond float64 (1.8e308)
 
@@ -168,3 +173,76 @@ def test_an_int_beyond_float64_is_a_value_error_naming_the_argument(case, tmp_pa
     call, match = HUGE_INTS[case]
     error = raises(ValueError, match, lambda: call(tmp_path))
     assert "beyond the range of float64" in str(error) and "about 10**400" in str(error)
+
+
+# ------------------------------------------------------------------------ c. LMI inputs
+def test_mean_square_bound_refuses_a_nu_bound_whose_square_overflows(no_solver):
+    model = macro()
+    raises(
+        ValueError,
+        r"^nu_bound = 1e\+200 is out of range; expected a finite number in \[0, 1\.34078e\+154\]",
+        lambda: verify_mean_square_bound(model, PAPER_K, nu_bound=1e200),
+    )
+    raises(ValueError, r"^nu_bound = 1000.* is not finite", lambda: verify_mean_square_bound(
+        model, PAPER_K, nu_bound=HUGE
+    ))  # fmt: skip
+
+
+@pytest.mark.parametrize("scale", [1e160, 1e200, 1e300])
+def test_gains_whose_products_overflow_are_named_before_any_solver(scale, no_solver):
+    """K of 1e200 gave cvxpy's "Problem data contains NaN or Inf" (and numpy's LinAlgError in
+    the spectral radius): now a ValueError naming K and its size, before any solver runs."""
+    model = macro()
+    K = np.full_like(PAPER_K, scale)
+    for call in (verify_mean_square_bound, second_moment_spectral_radius):
+        raises(
+            ValueError,
+            rf"^K has entries up to {scale:.0e}".replace("+", r"\+"),
+            lambda c=call: c(model, K),
+        )
+
+
+def test_gains_that_are_clearly_not_mean_square_stable_are_infeasible_without_a_solver(no_solver):
+    """K of 1e20 made Clarabel fail ("try another solver"); the second-moment operator of
+    P_in alone has radius 1e40 > 1, which settles the LMIs' infeasibility without a solver."""
+    error = raises(
+        LMIInfeasibleError,
+        r"could not be certified \(no solver run\).*model\.P_in.*radius 1e\+40",
+        lambda: verify_mean_square_bound(macro(), np.full_like(PAPER_K, 1e20)),
+    )
+    assert isinstance(error, ValueError)
+
+
+def test_a_certificate_whose_bound_overflows_names_the_argument():
+    """delta = 1e308 (or kappa = 1e-320) makes beta2 overflow: a ValueError naming them, not a
+    certificate with beta2 = inf."""
+    model = macro()
+    raises(ValueError, r"beta2 .* overflows float64 with delta = 1e\+308", lambda: (
+        verify_mean_square_bound(model, PAPER_K, delta=1e308)
+    ))  # fmt: skip
+    raises(ValueError, r"overflows float64 with delta = 1, kappa = 1e-320", lambda: (
+        verify_mean_square_bound(model, PAPER_K, delta=1, kappa=1e-320)
+    ))  # fmt: skip
+
+
+def test_proposition2_names_X_and_Y_when_their_products_overflow():
+    scale = 1e308 / np.max(np.abs(PAPER_X))
+    raises(ValueError, r"^X and Y are too large: A_0 X_0 \+ B_0 Y_0 overflows", lambda: (
+        check_proposition2(macro(), PAPER_X * scale, PAPER_Y)
+    ))  # fmt: skip
+
+
+def test_lmi_flags_and_the_bound_follow_the_argument_rules(no_solver):
+    model = macro()
+    raises(TypeError, r"^verbose = 'yes' is a str", lambda: synthesize_gains(model, verbose="yes"))
+    raises(TypeError, r"^objective = \['max_margin'\] is a list", lambda: synthesize_gains(
+        model, objective=["max_margin"]
+    ))  # fmt: skip
+
+
+def test_certificate_bound_checks_k_and_x0():
+    cert = verify_mean_square_bound(macro(), PAPER_K)
+    raises(TypeError, r"^k = True is a bool", lambda: cert.bound(True, [1.0, 1.0]))
+    raises(TypeError, r"^k\[1\] = True is a bool", lambda: cert.bound([0, True], [1.0, 1.0]))
+    raises(ValueError, r"^x0 has an entry 1000", lambda: cert.bound(1, [HUGE, 0]))
+    assert cert.bound(2, [1.0, 1.0]) == pytest.approx(cert.bound(np.array([2]), [1, 1])[0])
