@@ -258,7 +258,7 @@ class Controller:
         -------
         x : (B, n) float64
         mode : (B,) int64
-            Argmax of the one-hot part.
+            The position of the 1 in the one-hot part.
         k : (B,) int64
             ``round(observation[..., -1] * horizon)``; zeros for a controller whose decision
             does not depend on ``k``.
@@ -266,43 +266,60 @@ class Controller:
         Raises
         ------
         ValueError
-            If the observation has the wrong shape or non-finite entries, or (for controllers
-            that need ``k``) its time entry is negative, above 1, or not a multiple of
-            ``1 / horizon`` (the environment's horizon differs from the controller's).
+            If the observation has the wrong shape or non-finite entries, if its mode part is
+            not one-hot (one 1 and zeros), or (for controllers that need ``k``) if its time
+            entry is negative, above 1, or not a multiple of ``1 / horizon`` (the environment's
+            horizon differs from the controller's).
         """
+        if not self._needs_time:
+            return self._decode(observation, None)
+        source = (
+            f"horizon = {self.horizon}"
+            if self.horizon is not None
+            else f"the environments' default horizon {ENV_DEFAULT_HORIZON} (no horizon was given)"
+        )
+        hint = (
+            "the environment's horizon differs from the controller's; pass horizon= (the "
+            f"environment's episode length, env.unwrapped.horizon) to {type(self).__name__}"
+        )
+        horizon = self.horizon if self.horizon is not None else ENV_DEFAULT_HORIZON
+        return self._decode(observation, horizon, f"{source}: {hint}")
+
+    def _decode(
+        self, observation: Any, horizon: int | None, why: str = ""
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`decode_observation` with time decoded at ``horizon`` (``why`` ends the
+        message of a time that does not decode), or not at all (zeros) when it is None."""
         model = self.model
         size = model.n + model.N + 1
-        obs = check_array(
-            "observation",
-            observation,
-            what=f"[x ({model.n}), one-hot of the mode ({model.N}), k / horizon (1)]",
-        )
+        layout = f"[x ({model.n}), one-hot of the mode ({model.N}), k / horizon (1)]"
+        obs = check_array("observation", observation, what=layout)
         if obs.ndim not in (1, 2) or obs.shape[-1] != size:
             raise ValueError(
                 f"observation has shape {obs.shape}; expected ({size},) or (batch, {size}): "
-                f"[x ({model.n}), one-hot of the mode ({model.N}), k / horizon (1)]"
+                f"{layout}"
             )
         obs = obs.reshape(-1, size)
-        if not self._needs_time:
+        one_hot = obs[:, model.n : model.n + model.N]
+        bad = ~np.all((one_hot == 0.0) | (one_hot == 1.0), axis=1) | (one_hot.sum(axis=1) != 1.0)
+        if np.any(bad):
+            row = int(np.flatnonzero(bad)[0])
+            raise ValueError(
+                f"observation{f'[{row}]' if obs.shape[0] > 1 else ''}'s mode part "
+                f"{describe(one_hot[row])} is not one-hot; expected {model.N} entries, one 1.0 "
+                f"and the rest 0.0: {layout}"
+            )
+        if horizon is None:
             x, mode, _ = decode_observation(model, obs, 1)
             return x, mode, np.zeros(obs.shape[0], dtype=np.int64)
-        horizon = self.horizon if self.horizon is not None else ENV_DEFAULT_HORIZON
         tau = obs[:, -1]
         scaled = tau * horizon
         bad = (tau < 0.0) | (tau > 1.0) | (np.abs(scaled - np.rint(scaled)) > _TIME_TOL)
         if np.any(bad):
             first = float(tau[bad][0])
-            source = (
-                f"horizon = {self.horizon}"
-                if self.horizon is not None
-                else f"the environments' default horizon {ENV_DEFAULT_HORIZON} (no horizon was "
-                "given)"
-            )
             raise ValueError(
                 f"observation's time entry k / horizon = {first:.6g} does not decode to a time "
-                f"k in [0, horizon] with {source}: the environment's horizon differs from the "
-                f"controller's; pass horizon= (the environment's episode length, "
-                f"env.unwrapped.horizon) to {type(self).__name__}"
+                f"k in [0, horizon] with {why}"
             )
         return decode_observation(model, obs, horizon)
 

@@ -16,6 +16,12 @@ import gymnasium as gym
 import numpy as np
 import osqp
 import pytest
+from gymnasium.wrappers import (
+    MaxAndSkipObservation,
+    RecordEpisodeStatistics,
+    RescaleAction,
+    TimeLimit,
+)
 
 from controllers import (
     LinearFeedbackController,
@@ -25,6 +31,7 @@ from controllers import (
     ScenarioTreeController,
     UnconstrainedRecedingHorizonController,
     check_proposition2,
+    policy_for,
     second_moment_spectral_radius,
     synthesize_gains,
     verify_mean_square_bound,
@@ -32,6 +39,7 @@ from controllers import (
 from sdjls_gym import SDJLSModel, SDJLSVectorEnv, load_model
 from sdjls_gym.model_files import _to_toml
 from sdjls_gym.systems.macro import PAPER_K, PAPER_RHC, PAPER_X, PAPER_Y, macro
+from sdjls_gym.wrappers import ScaleObservationReward, ViolationPenalty
 
 HUGE = 10**400  # a Python int beyond float64 (1.8e308)
 
@@ -246,3 +254,88 @@ def test_certificate_bound_checks_k_and_x0():
     raises(TypeError, r"^k\[1\] = True is a bool", lambda: cert.bound([0, True], [1.0, 1.0]))
     raises(ValueError, r"^x0 has an entry 1000", lambda: cert.bound(1, [HUGE, 0]))
     assert cert.bound(2, [1.0, 1.0]) == pytest.approx(cert.bound(np.array([2]), [1, 1])[0])
+
+
+# ------------------------------------------------------------------------------ d. policy_for
+REFUSED_WRAPPERS = {
+    "MaxAndSkipObservation": lambda: MaxAndSkipObservation(gym.make("SDJLS-Macro-v0")),
+    # the clip 1e6 keeps the Box of the raw env, the state is doubled
+    "ScaleObservationReward": lambda: ScaleObservationReward(
+        gym.make("SDJLS-Macro-v0"), x_scale=0.5, obs_clip=1e6
+    ),
+    "MyTimeLimit": lambda: type("MyTimeLimit", (TimeLimit,), {})(
+        gym.make("SDJLS-Macro-v0").unwrapped, 20
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(REFUSED_WRAPPERS))
+def test_policy_for_refuses_a_wrapper_it_does_not_know_by_name(name):
+    """A wrapper that keeps the observation space may still change the observation
+    (``MaxAndSkipObservation``; a rescaling whose clip leaves the Box as it was): the controller
+    would act on a wrong state. Only a known list is acted through, matched by exact type."""
+    env = REFUSED_WRAPPERS[name]()
+    assert env.observation_space == env.unwrapped.observation_space
+    ctrl = RecedingHorizonController(macro(), PAPER_K, **PAPER_RHC)
+    raises(ValueError, rf"^env has a {name} ", lambda: policy_for(ctrl, env))
+
+
+def test_policy_for_acts_through_the_known_wrappers():
+    """Reward, statistics and time-limit wrappers around a rescaled env: the episode is the raw
+    env's (to the float32 resolution of an action in [-1, 1])."""
+    ctrl = RecedingHorizonController(macro(), PAPER_K, **PAPER_RHC)
+    raw = gym.make("SDJLS-Macro-v0")
+    obs, info = raw.reset(seed=3)
+    raw_us = []
+    for _ in range(20):
+        obs, *_, info = raw.step(ctrl.predict(obs)[0])
+        raw_us.append(info["u"])
+    env = ViolationPenalty(
+        RecordEpisodeStatistics(RescaleAction(gym.make("SDJLS-Macro-v0"), -1.0, 1.0)), 2.0
+    )
+    policy = policy_for(ctrl, env)
+    obs, info = env.reset(seed=3)
+    us = []
+    for _ in range(20):
+        obs, *_, info = env.step(policy.predict(obs)[0])
+        us.append(info["u"])
+    np.testing.assert_allclose(us, raw_us, rtol=0, atol=5e-4)
+
+
+def _obs(x=(1.0, 1.0), one_hot=(1.0, 0.0, 0.0), tau=0.0):
+    return np.array([*x, *one_hot, tau], dtype=np.float32)
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: LinearFeedbackController(macro(), PAPER_K),
+        lambda: RecedingHorizonController(macro(), PAPER_K, **PAPER_RHC),
+    ],
+    ids=["linear", "rhc"],
+)
+def test_policy_for_predict_checks_time_and_the_one_hot_mode(make):
+    """``policy_for(...).predict`` decoded k = round(7.3 * 20) = 146 (and any mode part by
+    argmax); now time must be a multiple of 1 / horizon in [0, 1], for every controller, and the
+    mode part one-hot."""
+    policy = policy_for(make(), gym.make("SDJLS-Macro-v0"))
+    raises(ValueError, r"time entry k / horizon = 7\.3 does not decode", lambda: (
+        policy.predict(_obs(tau=7.3))
+    ))  # fmt: skip
+    raises(ValueError, r"time entry k / horizon = 0\.33 ", lambda: policy.predict(_obs(tau=0.33)))
+    for bad in ((1.0, 1.0, 0.0), (0.0, 0.0, 0.0), (0.5, 0.5, 0.0), (2.0, -1.0, 0.0)):
+        shown = r"\[\s*" + r",\s*".join(rf"{v:g}\.?" for v in bad)
+        raises(ValueError, rf"^observation's mode part {shown}.*is not one-hot", lambda b=bad: (
+            policy.predict(_obs(one_hot=b))
+        ))  # fmt: skip
+    batch = np.stack([_obs(), _obs(one_hot=(0.0, 1.0, 1.0))])
+    raises(ValueError, r"^observation\[1\]'s mode part", lambda: policy.predict(batch))
+    action, _ = policy.predict(_obs(one_hot=(0.0, 1.0, 0.0), tau=0.05))
+    assert action.shape == (1,)
+
+
+def test_controller_predict_refuses_a_mode_part_that_is_not_one_hot():
+    ctrl = LinearFeedbackController(macro(), PAPER_K)
+    raises(ValueError, r"mode part \[0\.5, 0\.5, 0\. \] is not one-hot", lambda: (
+        ctrl.predict(_obs(one_hot=(0.5, 0.5, 0.0)))
+    ))  # fmt: skip
