@@ -36,7 +36,7 @@ from controllers import (
     synthesize_gains,
     verify_mean_square_bound,
 )
-from sdjls_gym import SDJLSModel, SDJLSVectorEnv, load_model
+from sdjls_gym import SDJLSEnv, SDJLSModel, SDJLSVectorEnv, load_model
 from sdjls_gym.model_files import _to_toml
 from sdjls_gym.systems.macro import PAPER_K, PAPER_RHC, PAPER_X, PAPER_Y, macro
 from sdjls_gym.wrappers import ScaleObservationReward, ViolationPenalty
@@ -339,3 +339,99 @@ def test_controller_predict_refuses_a_mode_part_that_is_not_one_hot():
     raises(ValueError, r"mode part \[0\.5, 0\.5, 0\. \] is not one-hot", lambda: (
         ctrl.predict(_obs(one_hot=(0.5, 0.5, 0.0)))
     ))  # fmt: skip
+
+
+# ------------------------------------------------------------------- e. an overflowing step
+def _overflow_model(A, B=((0.0,), (1.0,)), G=((0.0, 1.0),), x0=(1e10, 1e10)):
+    """One mode, n = 2, W = 0 (no noise): both envs step x_1 = A x_0 + B u_0 exactly alike."""
+    return SDJLSModel(
+        A=[A], B=[list(b) for b in B], P_in=[[1.0]], P_out=[[1.0]], G=[list(g) for g in G],
+        H0=[1.0] * len(G), Q=np.eye(2), R=[[1.0]], x0=list(x0), W=np.zeros((2, 2)),
+    )  # fmt: skip
+
+
+def _both_steps(model, action, divergence_bound=1e30):
+    env = SDJLSEnv(model, horizon=5, divergence_bound=divergence_bound, action_bound=3e38)
+    env.reset(seed=0)
+    single = env.step(np.array(action))
+    envs = SDJLSVectorEnv(3, model=model, horizon=5, divergence_bound=divergence_bound,
+                          action_bound=3e38)  # fmt: skip
+    envs.reset(seed=0)
+    vector = envs.step(np.tile(np.array(action, dtype=np.float64), (3, 1)))
+    return single, vector
+
+
+def _assert_same_answer(single, vector):
+    obs, reward, terminated, truncated, info = single
+    obs_v, reward_v, term_v, trunc_v, infos = vector
+    for b in range(3):
+        np.testing.assert_array_equal(infos["state"][b], info["state"])
+        np.testing.assert_array_equal(infos["constraint_values"][b], info["constraint_values"])
+        np.testing.assert_array_equal(obs_v[b], obs)
+        assert reward_v[b] == reward and term_v[b] == terminated and trunc_v[b] == truncated
+        assert infos["diverged"][b] == info["diverged"]
+        assert infos["in_region"][b] == info["in_region"]
+        assert infos["violations"][b].tolist() == info["violations"].tolist()
+
+
+@pytest.mark.parametrize(
+    ("A", "state"),
+    [
+        # 1e310 - 2e310: NaN in float64 (SDJLSEnv gave [0, nan]), exactly -1e310
+        ([[0.0, 0.0], [1e300, -2e300]], [0.0, -np.inf]),
+        # the same with the larger term second
+        ([[0.0, 0.0], [-2e300, 1e300]], [0.0, -np.inf]),
+        # 1e310 - 1e310: NaN in float64, exactly 0: the step does not diverge
+        ([[0.0, 0.0], [1e300, -1e300]], [0.0, 0.0]),
+        # 1e310 + 1e310: +inf in any order
+        ([[1.0, 0.0], [1e300, 1e300]], [1e10, np.inf]),
+    ],
+    ids=["nan-is-minus-inf", "nan-is-minus-inf-swapped", "nan-is-zero", "inf"],
+)
+def test_an_overflowing_step_gives_one_answer_in_both_envs(A, state):
+    """The same overflowing step gave state [0, nan] in SDJLSEnv and [0, -inf] in
+    SDJLSVectorEnv. Both now give the exact next state rounded to float64 (+-inf beyond its
+    range, never NaN), with its constraint values, diverged flag and observation."""
+    model = _overflow_model(A)
+    single, vector = _both_steps(model, [0.0])
+    info = single[4]
+    assert info["state"].tolist() == state
+    diverged = not np.all(np.isfinite(state))
+    assert info["diverged"] is diverged and single[2] is diverged
+    assert not np.isnan(info["constraint_values"]).any()
+    _assert_same_answer(single, vector)
+
+
+def test_an_overflowing_step_from_a_huge_action_gives_one_answer():
+    """A huge action on a huge input matrix: B u = 1e300 * 3e38 overflows with a sign set by u."""
+    model = _overflow_model([[0.5, 0.0], [0.0, 0.5]], B=((0.0,), (-1e300,)), x0=(1.0, 1.0))
+    single, vector = _both_steps(model, [3e38])
+    assert single[4]["state"].tolist() == [0.5, -np.inf] and single[4]["diverged"]
+    assert single[4]["constraint_values"].tolist() == [-np.inf]
+    _assert_same_answer(single, vector)
+
+
+def test_random_overflowing_steps_agree_between_the_envs():
+    """Seeded sweep: 300 models with entries in {0, +-0.5, +-1, 1e10, +-1e300, +-1e308} and
+    states and actions up to 1e30 (most steps overflow). The two envs agree on which entries
+    are infinite and their signs, on the diverged flag and on the reward, and never give NaN.
+    (Finite entries may differ by the round-off of a cancellation, as on any step.)"""
+    rng = np.random.default_rng(28)
+    values = [0.0, 0.5, -0.5, 1.0, -1.0, 1e10, 1e300, -1e300, 1e308, -1e308]
+    overflowed = 0
+    for _ in range(300):
+        A = rng.choice(values, size=(2, 2))
+        B = rng.choice(values, size=(2, 1))
+        G = rng.choice([1.0, -1.0, 0.5], size=(1, 2))
+        model = _overflow_model(A, B=B, G=G, x0=rng.choice([0.0, 1.0, -1e30, 1e30], size=2))
+        single, vector = _both_steps(model, rng.choice([0.0, 1e30, -1e30, 1.0], size=1))
+        info, infos = single[4], vector[4]
+        overflowed += not np.all(np.isfinite(info["state"]))
+        for a, b in ((info["state"], infos["state"][0]), (single[1], vector[1][0])):
+            a, b = np.asarray(a), np.asarray(b)
+            assert not np.isnan(a).any() and not np.isnan(b).any()
+            np.testing.assert_array_equal(np.isinf(a) * np.sign(a), np.isinf(b) * np.sign(b))
+        assert info["diverged"] == infos["diverged"][0] and single[2] == vector[2][0]
+        assert not np.isnan(info["constraint_values"]).any()
+        assert not np.isnan(infos["constraint_values"]).any()
+    assert overflowed > 100  # the sweep does exercise overflow
