@@ -271,8 +271,12 @@ class Controller:
             entry is negative, above 1, or not a multiple of ``1 / horizon`` (the environment's
             horizon differs from the controller's).
         """
+        return self._decode_own(self._observation(observation))
+
+    def _decode_own(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_decode` with the controller's own horizon (or none, when ``k`` is unused)."""
         if not self._needs_time:
-            return self._decode(observation, None)
+            return self._decode(obs, None)
         source = (
             f"horizon = {self.horizon}"
             if self.horizon is not None
@@ -283,13 +287,11 @@ class Controller:
             f"environment's episode length, env.unwrapped.horizon) to {type(self).__name__}"
         )
         horizon = self.horizon if self.horizon is not None else ENV_DEFAULT_HORIZON
-        return self._decode(observation, horizon, f"{source}: {hint}")
+        return self._decode(obs, horizon, f"{source}: {hint}")
 
-    def _decode(
-        self, observation: Any, horizon: int | None, why: str = ""
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`decode_observation` with time decoded at ``horizon`` (``why`` ends the
-        message of a time that does not decode), or not at all (zeros) when it is None."""
+    def _observation(self, observation: Any) -> np.ndarray:
+        """``observation`` checked: finite numbers, shape ``(n + N + 1,)`` or ``(B, n + N + 1)``
+        (float64 copy, its shape kept)."""
         model = self.model
         size = model.n + model.N + 1
         layout = f"[x ({model.n}), one-hot of the mode ({model.N}), k / horizon (1)]"
@@ -299,22 +301,38 @@ class Controller:
                 f"observation has shape {obs.shape}; expected ({size},) or (batch, {size}): "
                 f"{layout}"
             )
-        obs = obs.reshape(-1, size)
+        return obs
+
+    def _decode(
+        self, obs: np.ndarray, horizon: int | None, why: str = ""
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`decode_observation` of an observation checked by :meth:`_observation`, with
+        time decoded at ``horizon`` (``why`` ends the message of a time that does not decode),
+        or not at all (zeros) when it is None. The state part must be within
+        :data:`MAX_STATE` and the mode part one-hot."""
+        model = self.model
+        obs = obs.reshape(-1, model.n + model.N + 1)
+        which = "observation" if obs.shape[0] == 1 else "observation[{}]"
+        x = obs[:, : model.n]
+        if x.size and np.max(np.abs(x)) > MAX_STATE:
+            row = int(np.argmax(np.max(np.abs(x), axis=1)))
+            raise ValueError(f"{which.format(row)}'s state part {describe(x[row])} {_TOO_LARGE}")
         one_hot = obs[:, model.n : model.n + model.N]
         bad = ~np.all((one_hot == 0.0) | (one_hot == 1.0), axis=1) | (one_hot.sum(axis=1) != 1.0)
         if np.any(bad):
             row = int(np.flatnonzero(bad)[0])
             raise ValueError(
-                f"observation{f'[{row}]' if obs.shape[0] > 1 else ''}'s mode part "
-                f"{describe(one_hot[row])} is not one-hot; expected {model.N} entries, one 1.0 "
-                f"and the rest 0.0: {layout}"
+                f"{which.format(row)}'s mode part {describe(one_hot[row])} is not one-hot; "
+                f"expected {model.N} entries, one 1.0 and the rest 0.0: [x ({model.n}), one-hot "
+                f"of the mode ({model.N}), k / horizon (1)]"
             )
         if horizon is None:
             x, mode, _ = decode_observation(model, obs, 1)
             return x, mode, np.zeros(obs.shape[0], dtype=np.int64)
         tau = obs[:, -1]
-        scaled = tau * horizon
-        bad = (tau < 0.0) | (tau > 1.0) | (np.abs(scaled - np.rint(scaled)) > _TIME_TOL)
+        with np.errstate(over="ignore", invalid="ignore"):  # a huge tau is refused just below
+            scaled = tau * horizon
+            bad = ~((tau >= 0.0) & (tau <= 1.0) & (np.abs(scaled - np.rint(scaled)) <= _TIME_TOL))
         if np.any(bad):
             first = float(tau[bad][0])
             raise ValueError(
@@ -349,7 +367,7 @@ class Controller:
         actions : (m,) or (B, m) float32 array
         state : the ``state`` argument, unchanged (None)
         """
-        single = np.ndim(observation) == 1
-        xs, modes, ks = self.decode_observation(observation)
+        obs = self._observation(observation)  # checked before its ndim is read
+        xs, modes, ks = self._decode_own(obs)
         actions = self.act_batch(xs, modes, ks)[0].astype(np.float32)
-        return (actions[0] if single else actions), state
+        return (actions[0] if obs.ndim == 1 else actions), state

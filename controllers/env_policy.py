@@ -93,9 +93,10 @@ class ControllerPolicy:
         one-hot), with time at the environment's own horizon: a time entry that is not a
         multiple of ``1 / horizon`` in [0, 1] is refused, whatever the controller.
         """
-        single = np.ndim(observation) == 1
+        obs = self.controller._observation(observation)
+        single = obs.ndim == 1
         x, mode, k = self.controller._decode(
-            observation,
+            obs,
             self.horizon,
             f"the environment's horizon {self.horizon}: the observation is not one of this "
             "environment's",

@@ -63,6 +63,11 @@ FLOAT32_TINY = float(np.finfo(np.float32).tiny)
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
+#: dtype codes of the ints and floats that float64 holds without overflow (not longdouble 'g'):
+#: the fast path of :func:`check_numbers`.
+_EXACT_IN_FLOAT64 = frozenset("efdbhilqpnBHILQPN")
+
+
 class NotAnIntError(TypeError, ValueError):
     """A float (or other real non-integer number) given where an int is expected.
 
@@ -81,7 +86,7 @@ def check_numbers(name: str, value: Any, what: str = "") -> np.ndarray:
     """:func:`check_array` without the finiteness test, whose type errors are
     :class:`NotANumberError` (an action ``["1"]`` or ``[True]`` is not silently 1.0). A float or
     integer ndarray, the environments' common case, is only copied to float64."""
-    if type(value) is np.ndarray and value.dtype.kind in "fiu":
+    if type(value) is np.ndarray and value.dtype.char in _EXACT_IN_FLOAT64:
         return value.astype(np.float64)
     try:
         return check_array(name, value, finite=False, what=what)
@@ -385,6 +390,18 @@ def check_array(
         entries = np.asarray(value, dtype=object)  # numpy reads a bool among numbers as 1 or 0
         if any(_is_bool(v) for v in entries.ravel()):
             raw = entries  # reported below
+    if raw is not None and raw.dtype.kind in "mMV":  # not numbers, though numpy casts them
+        kind = {"m": "timedelta64", "M": "datetime64"}.get(raw.dtype.kind, "structured")
+        raise TypeError(
+            f"{name} = {describe(value)} has {kind} entries; expected an array of real "
+            f"numbers{suffix}"
+        )
+    if isinstance(value, np.ma.MaskedArray) and np.ma.is_masked(value):  # missing entries
+        bad = tuple(int(i) for i in np.argwhere(np.ma.getmaskarray(value))[0])
+        raise ValueError(
+            f"{name} has a masked (missing) entry at index {bad}; every entry must be a "
+            f"number{suffix}"
+        )
     if raw is not None and (raw.dtype.kind in "bcSUO" or raw.dtype == np.bool_):
         if raw.dtype.kind == "O":
             bad = next(
@@ -409,7 +426,8 @@ def check_array(
                 f"numbers{suffix}"
             )
     try:
-        arr = np.array(value, dtype=np.float64)
+        with np.errstate(over="ignore"):  # a longdouble beyond float64: inf, reported below
+            arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise ValueError(
             f"{name} = {describe(value)} could not be read as an array of numbers ({exc}){suffix}"

@@ -583,6 +583,8 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
+        if seed is not None:  # Gymnasium takes a bool as a seed and refuses a numpy int
+            seed = check_int("seed", seed, low=0, high=None)
         super().reset(seed=seed)
         x0, mode0 = parse_reset_options(self.model, options, self.divergence_bound)
         self._x = self.model.x0.copy() if x0 is None else x0

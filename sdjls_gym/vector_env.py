@@ -181,6 +181,8 @@ class SDJLSVectorEnv(VectorEnv):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
+        if seed is not None:  # Gymnasium takes a bool as a seed and refuses a numpy int
+            seed = check_int("seed", seed, low=0, high=None)
         super().reset(seed=seed)
         x0, mode0 = parse_reset_options(self.model, options, self.divergence_bound)
         B = self.num_envs

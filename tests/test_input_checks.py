@@ -435,3 +435,85 @@ def test_random_overflowing_steps_agree_between_the_envs():
         assert not np.isnan(info["constraint_values"]).any()
         assert not np.isnan(infos["constraint_values"]).any()
     assert overflowed > 100  # the sweep does exercise overflow
+
+
+# ------------------------------------------------------------- found by the hostile round
+ODD_ACTIONS = {
+    # numpy casts dates to numbers of days: not a number
+    "datetime64": (np.array(["2020-01-01"], dtype="datetime64[D]"), TypeError, r"datetime64"),
+    "timedelta64": (np.array([3], dtype="timedelta64[s]"), TypeError, r"timedelta64"),
+    # the data under a mask is not the user's value
+    "masked": (np.ma.masked_array([0.5], mask=[True]), ValueError, r"masked \(missing\) entry"),
+    # a longdouble beyond float64: numpy's cast warned "overflow" before the error
+    "longdouble-1e400": (np.array([np.longdouble("1e400")]), ValueError, r"inf"),
+}
+
+
+@pytest.mark.parametrize("case", list(ODD_ACTIONS))
+def test_odd_arrays_are_refused_by_name_without_a_warning(case):
+    value, error, match = ODD_ACTIONS[case]
+    raises(error, rf"^action.*{match}", lambda: _stepped_env().step(value))
+    raises(error, rf"^actions.*{match}", lambda: _stepped_vector_env().step(
+        value.reshape(1, 1).repeat(2, axis=0) if case != "masked" else
+        np.ma.masked_array([[0.5], [0.5]], mask=[[False], [True]])
+    ))  # fmt: skip
+    raises(error, rf"^x.*{match}", lambda: LinearFeedbackController(macro(), PAPER_K).act(
+        np.concatenate([value, value]) if case != "masked" else
+        np.ma.masked_array([0.5, 0.5], mask=[False, True]), 0, 0
+    ))  # fmt: skip
+    if case != "masked":
+        raises(error, rf"^x0.*{match}", lambda: SDJLSModel(
+            **{**macro().to_dict(), "x0": np.concatenate([value, value])}
+        ))  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: LinearFeedbackController(macro(), PAPER_K),
+        lambda: policy_for(LinearFeedbackController(macro(), PAPER_K), gym.make("SDJLS-Macro-v0")),
+    ],
+    ids=["controller", "policy_for"],
+)
+def test_predict_checks_the_observation_before_reading_its_shape(make):
+    """A ragged observation reached numpy's np.ndim first (its ValueError, not naming the
+    observation); a state part above MAX_STATE was named 'x[0]'; a time entry of 1e308 made
+    numpy warn of an overflow before the error."""
+    policy = make()
+    raises(ValueError, r"^observation = .* could not be read", lambda: policy.predict(
+        [0.5, [0.5], 1, 0, 0, 0]
+    ))  # fmt: skip
+    raises(ValueError, r"^observation's state part \[5\.e-0+1, 1\.e\+200\] has an entry of "
+           r"magnitude above 1e\+100", lambda: policy.predict([0.5, 1e200, 1, 0, 0, 0]))  # fmt: skip
+    if isinstance(policy, LinearFeedbackController):
+        return  # its decision does not read k
+    raises(ValueError, r"time entry k / horizon = 1e\+308", lambda: policy.predict(
+        [0.5, 0.5, 1, 0, 0, 1e308]
+    ))  # fmt: skip
+
+
+@pytest.mark.parametrize("vector", [False, True], ids=["env", "vector-env"])
+def test_reset_seed_follows_the_int_rule(vector):
+    """Gymnasium took seed=True as the seed 1 and refused np.int8(3) with its own Error."""
+    make = (lambda: SDJLSVectorEnv(2, model=macro())) if vector else (
+        lambda: gym.make("SDJLS-Macro-v0")
+    )  # fmt: skip
+    raises(TypeError, r"^seed = True is a bool", lambda: make().reset(seed=True))
+    raises(TypeError, r"^seed = 1\.0 is a float", lambda: make().reset(seed=1.0))
+    raises(ValueError, r"^seed = -1 is out of range", lambda: make().reset(seed=-1))
+    a, b = make(), make()
+    a.reset(seed=np.int8(3))
+    b.reset(seed=3)
+    np.testing.assert_array_equal(a.step(a.action_space.sample() * 0)[0], b.step(
+        b.action_space.sample() * 0
+    )[0])  # fmt: skip
+
+
+def test_a_json_model_file_with_a_key_twice_is_refused(tmp_path):
+    """JSON parsers keep the last of two equal keys silently (TOML refuses them)."""
+    text = json.dumps(macro().to_dict())[:-1] + ', "x0": [1.0, 1.0]}'
+    path = tmp_path / "twice.json"
+    path.write_text(text, encoding="utf-8")
+    raises(ValueError, r"^model file .*twice\.json' has the key 'x0' twice", lambda: load_model(
+        path
+    ))  # fmt: skip
