@@ -186,9 +186,9 @@ def second_moment_spectral_radius(model: SDJLSModel, K: np.ndarray) -> float:
     return _radius(At, np.maximum(model.P_in, model.P_out))
 
 
-def _radius(At: np.ndarray, Pi: np.ndarray) -> float:
-    """The spectral radius of ``T(Z)_j = sum_i Pi[i, j] At_i Z_i At_i'``, as a matrix of
-    Kronecker blocks ``Pi[i, j] kron(At_i, At_i)``."""
+def _operator(At: np.ndarray, Pi: np.ndarray) -> np.ndarray:
+    """``T(Z)_j = sum_i Pi[i, j] At_i Z_i At_i'`` as a matrix of Kronecker blocks
+    ``Pi[i, j] kron(At_i, At_i)``."""
     N, n = At.shape[0], At.shape[1]
     d = n * n
     T = np.zeros((N * d, N * d))
@@ -196,13 +196,19 @@ def _radius(At: np.ndarray, Pi: np.ndarray) -> float:
         kron = np.kron(At[i], At[i])  # vec(A Z A') = kron(A, A) vec(Z)
         for j in range(N):
             T[j * d : (j + 1) * d, i * d : (i + 1) * d] = Pi[i, j] * kron
-    return float(np.max(np.abs(np.linalg.eigvals(T))))
+    return T
+
+
+def _radius(At: np.ndarray, Pi: np.ndarray) -> float:
+    """The spectral radius of :func:`_operator`."""
+    return float(np.max(np.abs(np.linalg.eigvals(_operator(At, Pi)))))
 
 
 #: Largest size N n^2 of the operator whose spectral radius is checked before the LMIs are
 #: solved (an eigenvalue problem of that size, cheap next to the LMIs).
 _PRECHECK_SIZE = 1024
-#: Relative margin above 1 of that spectral radius that proves the LMIs infeasible.
+#: Margin above 1 of that spectral radius, relative to the operator's norm (a bound far above
+#: the error of a computed eigenvalue, even a defective one), that proves the LMIs infeasible.
 _PRECHECK_MARGIN = 1e-6
 
 
@@ -218,8 +224,9 @@ def _refuse_unstable(model: SDJLSModel, At: np.ndarray) -> None:
     if model.N * model.n**2 > _PRECHECK_SIZE:
         return
     for name, Pi, lmi in (("P_in", model.P_in, "LMI1"), ("P_out", model.P_out, "LMI2")):
-        radius = _radius(At, Pi)
-        if radius > 1.0 + _PRECHECK_MARGIN:
+        T = _operator(At, Pi)
+        radius = float(np.max(np.abs(np.linalg.eigvals(T))))
+        if radius > 1.0 + _PRECHECK_MARGIN * max(1.0, float(np.linalg.norm(T, 1))):
             raise LMIInfeasibleError(
                 "Proposition 1 certificate (eqs. LMI1, LMI2): the gains K could not be "
                 f"certified (no solver run): with the transition matrix model.{name}, "
