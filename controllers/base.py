@@ -28,6 +28,7 @@ from sdjls_gym._validate import (
     a_type,
     check_array,
     check_int,
+    check_int_array,
     check_optional_int,
     describe,
 )
@@ -208,24 +209,11 @@ class Controller:
         B = x.shape[0]
         out = []
         for name, value, high in (("mode", mode, model.N - 1), ("k", k, self.max_k)):
-            arr = np.asarray(value)
-            if arr.dtype == object and arr.size:  # Python ints beyond int64, or mixed entries
-                for v in arr.ravel():
-                    check_int(name, v, low=0, high=high)  # TypeError or ValueError, by entry
-                arr = arr.astype(np.int64)
-            if arr.dtype == bool or not np.issubdtype(arr.dtype, np.integer):
-                raise TypeError(f"{name} has dtype {arr.dtype}; expected integers in [0, {high}]")
+            arr = check_int_array(name, value, low=0, high=high)  # bools refused, by entry
             arr = np.broadcast_to(arr, (B,)) if arr.ndim == 0 else arr
             if arr.shape != (B,):
                 raise ValueError(f"{name} has shape {arr.shape}; expected ({B},) to match x")
-            # range checked on the exact values, before any conversion that could wrap
-            bad = (arr < 0) | (arr > high)
-            if np.any(bad):
-                first = arr[bad][0]
-                raise ValueError(
-                    f"{name} = {describe(first)} is out of range; expected ints in [0, {high}]"
-                )
-            out.append(arr.astype(np.int64))
+            out.append(arr.astype(np.int64))  # a copy, as before: callers may keep it
         return x, out[0], out[1]
 
     def act_batch(
@@ -270,7 +258,7 @@ class Controller:
         -------
         x : (B, n) float64
         mode : (B,) int64
-            Argmax of the one-hot part.
+            The position of the 1 in the one-hot part.
         k : (B,) int64
             ``round(observation[..., -1] * horizon)``; zeros for a controller whose decision
             does not depend on ``k``.
@@ -278,43 +266,78 @@ class Controller:
         Raises
         ------
         ValueError
-            If the observation has the wrong shape or non-finite entries, or (for controllers
-            that need ``k``) its time entry is negative, above 1, or not a multiple of
-            ``1 / horizon`` (the environment's horizon differs from the controller's).
+            If the observation has the wrong shape or non-finite entries, if its mode part is
+            not one-hot (one 1 and zeros), or (for controllers that need ``k``) if its time
+            entry is negative, above 1, or not a multiple of ``1 / horizon`` (the environment's
+            horizon differs from the controller's).
         """
+        return self._decode_own(self._observation(observation))
+
+    def _decode_own(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_decode` with the controller's own horizon (or none, when ``k`` is unused)."""
+        if not self._needs_time:
+            return self._decode(obs, None)
+        source = (
+            f"horizon = {self.horizon}"
+            if self.horizon is not None
+            else f"the environments' default horizon {ENV_DEFAULT_HORIZON} (no horizon was given)"
+        )
+        hint = (
+            "the environment's horizon differs from the controller's; pass horizon= (the "
+            f"environment's episode length, env.unwrapped.horizon) to {type(self).__name__}"
+        )
+        horizon = self.horizon if self.horizon is not None else ENV_DEFAULT_HORIZON
+        return self._decode(obs, horizon, f"{source}: {hint}")
+
+    def _observation(self, observation: Any) -> np.ndarray:
+        """``observation`` checked: finite numbers, shape ``(n + N + 1,)`` or ``(B, n + N + 1)``
+        (float64 copy, its shape kept)."""
         model = self.model
         size = model.n + model.N + 1
-        obs = check_array(
-            "observation",
-            observation,
-            what=f"[x ({model.n}), one-hot of the mode ({model.N}), k / horizon (1)]",
-        )
+        layout = f"[x ({model.n}), one-hot of the mode ({model.N}), k / horizon (1)]"
+        obs = check_array("observation", observation, what=layout)
         if obs.ndim not in (1, 2) or obs.shape[-1] != size:
             raise ValueError(
                 f"observation has shape {obs.shape}; expected ({size},) or (batch, {size}): "
-                f"[x ({model.n}), one-hot of the mode ({model.N}), k / horizon (1)]"
+                f"{layout}"
             )
-        obs = obs.reshape(-1, size)
-        if not self._needs_time:
+        return obs
+
+    def _decode(
+        self, obs: np.ndarray, horizon: int | None, why: str = ""
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`decode_observation` of an observation checked by :meth:`_observation`, with
+        time decoded at ``horizon`` (``why`` ends the message of a time that does not decode),
+        or not at all (zeros) when it is None. The state part must be within
+        :data:`MAX_STATE` and the mode part one-hot."""
+        model = self.model
+        obs = obs.reshape(-1, model.n + model.N + 1)
+        which = "observation" if obs.shape[0] == 1 else "observation[{}]"
+        x = obs[:, : model.n]
+        if x.size and np.max(np.abs(x)) > MAX_STATE:
+            row = int(np.argmax(np.max(np.abs(x), axis=1)))
+            raise ValueError(f"{which.format(row)}'s state part {describe(x[row])} {_TOO_LARGE}")
+        one_hot = obs[:, model.n : model.n + model.N]
+        bad = ~np.all((one_hot == 0.0) | (one_hot == 1.0), axis=1) | (one_hot.sum(axis=1) != 1.0)
+        if np.any(bad):
+            row = int(np.flatnonzero(bad)[0])
+            raise ValueError(
+                f"{which.format(row)}'s mode part {describe(one_hot[row])} is not one-hot; "
+                f"expected {model.N} entries, one 1.0 and the rest 0.0: [x ({model.n}), one-hot "
+                f"of the mode ({model.N}), k / horizon (1)]"
+            )
+        if horizon is None:
             x, mode, _ = decode_observation(model, obs, 1)
             return x, mode, np.zeros(obs.shape[0], dtype=np.int64)
-        horizon = self.horizon if self.horizon is not None else ENV_DEFAULT_HORIZON
         tau = obs[:, -1]
-        scaled = tau * horizon
-        bad = (tau < 0.0) | (tau > 1.0) | (np.abs(scaled - np.rint(scaled)) > _TIME_TOL)
+        with np.errstate(over="ignore", invalid="ignore"):  # a huge tau is refused just below
+            scaled = tau * horizon
+            bad = ~((tau >= 0.0) & (tau <= 1.0) & (np.abs(scaled - np.rint(scaled)) <= _TIME_TOL))
         if np.any(bad):
             first = float(tau[bad][0])
-            source = (
-                f"horizon = {self.horizon}"
-                if self.horizon is not None
-                else f"the environments' default horizon {ENV_DEFAULT_HORIZON} (no horizon was "
-                "given)"
-            )
             raise ValueError(
                 f"observation's time entry k / horizon = {first:.6g} does not decode to a time "
-                f"k in [0, horizon] with {source}: the environment's horizon differs from the "
-                f"controller's; pass horizon= (the environment's episode length, "
-                f"env.unwrapped.horizon) to {type(self).__name__}"
+                f"k in [0, horizon] with {why}"
             )
         return decode_observation(model, obs, horizon)
 
@@ -344,7 +367,7 @@ class Controller:
         actions : (m,) or (B, m) float32 array
         state : the ``state`` argument, unchanged (None)
         """
-        single = np.ndim(observation) == 1
-        xs, modes, ks = self.decode_observation(observation)
+        obs = self._observation(observation)  # checked before its ndim is read
+        xs, modes, ks = self._decode_own(obs)
         actions = self.act_batch(xs, modes, ks)[0].astype(np.float32)
-        return (actions[0] if single else actions), state
+        return (actions[0] if obs.ndim == 1 else actions), state

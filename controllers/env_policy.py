@@ -5,7 +5,8 @@ in the raw environment's units (its action space). An environment wrapped for re
 learning, e.g. with ``gymnasium.wrappers.RescaleAction`` (actions in [-1, 1]), expects other
 actions: fed ``u`` directly, it multiplies them by the bound and the episode diverges, silently.
 :func:`policy_for` reads the wrappers of the environment, converts ``u`` into the outer action
-for the ones it can invert (``RescaleAction``, ``ClipAction``) and refuses the others by name.
+for the ones it can invert (``RescaleAction``, ``ClipAction``), acts through a known list of
+wrappers that leave the observation and the action alone, and refuses every other one by name.
 """
 
 from __future__ import annotations
@@ -14,14 +15,37 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.wrappers import ClipAction, RescaleAction
+from gymnasium import wrappers as gw
 
-from sdjls_gym._validate import a_type, check_array, describe
-from sdjls_gym.env import SDJLSEnv, decode_observation
+from sdjls_gym import wrappers as sw
+from sdjls_gym._validate import a_type, describe
+from sdjls_gym.env import SDJLSEnv
 
 from .base import Controller
 
-__all__ = ["ControllerPolicy", "policy_for"]
+__all__ = ["ControllerPolicy", "PASS_THROUGH_WRAPPERS", "policy_for"]
+
+#: Wrappers that leave the observation and the action alone (they change the reward, the
+#: episode's end, records or rendering): a controller acts through them unchanged. Matched by
+#: exact type: a subclass may change what its parent leaves alone.
+PASS_THROUGH_WRAPPERS: tuple[type, ...] = (
+    gw.TimeLimit,
+    gw.OrderEnforcing,
+    gw.PassiveEnvChecker,
+    gw.Autoreset,
+    gw.RecordEpisodeStatistics,
+    gw.RecordVideo,
+    gw.RenderCollection,
+    gw.HumanRendering,
+    gw.TransformReward,
+    gw.ClipReward,
+    gw.NormalizeReward,
+    sw.ViolationPenalty,
+    sw.TerminateOutside,
+    sw.FiniteHorizon,
+)
+#: The same, named by module and class for libraries that need not be installed.
+_PASS_THROUGH_NAMES = ("stable_baselines3.common.monitor.Monitor",)
 
 
 def _layers(env: gym.Env) -> list[gym.Env]:
@@ -63,18 +87,21 @@ class ControllerPolicy:
         episode_start: Any = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]:
-        """Actions for observations of the wrapped environment, in stable-baselines3's shape."""
-        ctrl = self.controller
-        model = ctrl.model
-        size = model.n + model.N + 1
-        single = np.ndim(observation) == 1
-        obs = check_array("observation", observation, what=f"({size},) or (batch, {size})")
-        if obs.ndim not in (1, 2) or obs.shape[-1] != size:
-            raise ValueError(
-                f"observation has shape {obs.shape}; expected ({size},) or (batch, {size})"
-            )
-        x, mode, k = decode_observation(model, obs.reshape(-1, size), self.horizon)
-        u = ctrl.act_batch(x, mode, k)[0]
+        """Actions for observations of the wrapped environment, in stable-baselines3's shape.
+
+        The observation is decoded as :meth:`Controller.predict` does (its mode part must be
+        one-hot), with time at the environment's own horizon: a time entry that is not a
+        multiple of ``1 / horizon`` in [0, 1] is refused, whatever the controller.
+        """
+        obs = self.controller._observation(observation)
+        single = obs.ndim == 1
+        x, mode, k = self.controller._decode(
+            obs,
+            self.horizon,
+            f"the environment's horizon {self.horizon}: the observation is not one of this "
+            "environment's",
+        )
+        u = self.controller.act_batch(x, mode, k)[0]
         actions = self.action(u).astype(np.float32)
         return (actions[0] if single else actions), state
 
@@ -87,10 +114,13 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
     controller : Controller
         Any controller of this package (its ``model`` must be the environment's).
     env : gymnasium.Env
-        An SDJLS environment, possibly wrapped. Action wrappers are undone where they can be:
-        ``RescaleAction`` (the input ``u`` is mapped to the outer action) and ``ClipAction`` (a
-        no-op on the bounded input). Wrappers that change the observation, or that change the
-        action in another way, are refused: the controller needs the raw state and the raw input.
+        An SDJLS environment, possibly wrapped. The wrappers of :data:`PASS_THROUGH_WRAPPERS`
+        (and stable-baselines3's ``Monitor``), which leave the observation and the action alone,
+        are acted through; ``RescaleAction`` (the input ``u`` is mapped to the outer action) and
+        ``ClipAction`` (a no-op on the bounded input) are undone. Every other wrapper is refused
+        by name, even one that keeps the observation space (``MaxAndSkipObservation``, a
+        rescaling whose clip leaves the Box as it was): the controller needs the raw state and
+        the raw input.
 
     Returns
     -------
@@ -138,16 +168,13 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
         )
     rescales = []
     for layer in layers[:-1]:
-        name = type(layer).__name__
-        if layer.observation_space != base.observation_space or isinstance(
-            layer, gym.ObservationWrapper
+        kind = type(layer)
+        name = kind.__name__
+        if kind in PASS_THROUGH_WRAPPERS or f"{kind.__module__}.{kind.__qualname__}" in (
+            _PASS_THROUGH_NAMES
         ):
-            raise ValueError(
-                f"env has a {name} that changes the observation; a controller needs the raw "
-                "observation [x, one-hot(mode), k / horizon]: wrap only the actions (or act on "
-                "env.unwrapped)"
-            )
-        if isinstance(layer, RescaleAction):
+            continue
+        if kind is gw.RescaleAction:
             inner = layer.env.action_space
             rescales.append(
                 (
@@ -157,12 +184,24 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
                     layer.action_space.high.astype(np.float64),
                 )
             )
-        elif isinstance(layer, ClipAction):
+        elif kind is gw.ClipAction:
             continue  # the controllers' inputs are clipped to the box by the env anyway
-        elif isinstance(layer, gym.ActionWrapper) or layer.action_space != layer.env.action_space:
+        else:
+            if layer.observation_space != base.observation_space or isinstance(
+                layer, gym.ObservationWrapper
+            ):
+                what = "that changes the observation"
+            elif isinstance(layer, gym.ActionWrapper) or layer.action_space != (
+                layer.env.action_space
+            ):
+                what = "that changes the action in a way policy_for cannot undo"
+            else:
+                what = "that policy_for does not know (it may change the observation or the action)"
+            known = ", ".join(k.__name__ for k in PASS_THROUGH_WRAPPERS)
             raise ValueError(
-                f"env has a {name} that changes the action in a way policy_for cannot undo; a "
-                "controller's input u goes to the raw env (RescaleAction and ClipAction are "
-                "undone, nothing else is)"
+                f"env has a {name} {what}; a controller needs the raw observation [x, "
+                "one-hot(mode), k / horizon] and its input u must reach the raw env. policy_for "
+                f"acts through {known} and Monitor, undoes RescaleAction and ClipAction, and "
+                "refuses every other wrapper (act on env.unwrapped instead)"
             )
     return ControllerPolicy(controller, base.horizon, rescales)

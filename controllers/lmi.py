@@ -22,6 +22,8 @@ Appendix A (here :attr:`MeanSquareCertificate.mu`).
 
 from __future__ import annotations
 
+import math
+import sys
 from dataclasses import dataclass
 from typing import Literal
 
@@ -29,7 +31,7 @@ import cvxpy as cp
 import numpy as np
 
 from sdjls_gym import SDJLSModel
-from sdjls_gym._validate import check_array, check_number, describe
+from sdjls_gym._validate import a_type, check_array, check_bool, check_number, describe
 
 from .base import check_model, frozen
 
@@ -137,6 +139,24 @@ def closed_loop(model: SDJLSModel, K: np.ndarray) -> np.ndarray:
     return model.A + model.B @ K
 
 
+def checked_closed_loop(model: SDJLSModel, K: np.ndarray) -> np.ndarray:
+    """:func:`closed_loop` of finite gains ``K``, refused (a ValueError naming ``K``) when its
+    products ``Atilde_i' P Atilde_i`` (eqs. LMI1, LMI2) or ``kron(Atilde_i, Atilde_i)`` would
+    overflow float64: the solver would see infinite data, numpy's eigenvalues would fail."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        At = closed_loop(model, K)
+        products = np.abs(At).transpose(0, 2, 1) @ np.abs(At)  # bounds every sum of products
+    if not np.all(np.isfinite(products)):
+        limit = math.sqrt(sys.float_info.max / model.n)
+        raise ValueError(
+            f"K has entries up to {float(np.max(np.abs(K))):.3g}: the closed loop "
+            f"A_i + B_i K_i has entries up to {float(np.max(np.abs(At))):.3g}, whose products "
+            f"(Atilde_i' P Atilde_i in eqs. LMI1, LMI2) overflow float64; expected gains whose "
+            f"closed loop has entries below about {limit:.3g}"
+        )
+    return At
+
+
 def weighted_sums(Pi: np.ndarray, P: np.ndarray) -> np.ndarray:
     """``sum_j Pi[i, j] P_j`` for every ``i``: ``L_i`` (Pi = lambda) or ``M_i`` (Pi = mu)."""
     return np.einsum("ij,jab->iab", Pi, P)
@@ -226,7 +246,8 @@ def check_proposition2(model: SDJLSModel, X: np.ndarray, Y: np.ndarray) -> float
     TypeError
         If ``model`` is not an :class:`SDJLSModel`.
     ValueError
-        If ``X`` or ``Y`` has the wrong shape, a non-finite entry, or ``X`` is not symmetric.
+        If ``X`` or ``Y`` has the wrong shape, a non-finite entry, or ``X`` is not symmetric, or
+        if ``A_i X_i + B_i Y_i`` overflows float64.
 
     Examples
     --------
@@ -245,7 +266,17 @@ def check_proposition2(model: SDJLSModel, X: np.ndarray, Y: np.ndarray) -> float
         raise ValueError(
             f"X[{i}] is not symmetric (max |X - X'| = {asym[i]:.3g}); X_i must be symmetric"
         )
-    blocks = _prop2_blocks(model, list(X), list(Y))
+    with np.errstate(over="ignore", invalid="ignore"):
+        blocks = _prop2_blocks(model, list(X), list(Y))
+    bad = next((i for i, M in enumerate(blocks) if not np.all(np.isfinite(M))), None)
+    if bad is not None:
+        i = bad // 2
+        raise ValueError(
+            f"X and Y are too large: A_{i} X_{i} + B_{i} Y_{i} overflows float64 (X has entries "
+            f"up to {float(np.max(np.abs(X))):.3g}, Y up to {float(np.max(np.abs(Y))):.3g}); "
+            "expected matrices whose products stay finite (the conditions are homogeneous: "
+            "scaling X and Y down changes no verdict)"
+        )
     eigs = [np.linalg.eigvalsh(M)[-1] for M in blocks]
     eigs += [np.linalg.eigvalsh(-X[i])[-1] for i in range(N)]
     return float(max(eigs))
@@ -295,7 +326,8 @@ def synthesize_gains(
     Raises
     ------
     TypeError
-        If ``model`` is not an :class:`SDJLSModel`.
+        If ``model`` is not an :class:`SDJLSModel`, ``objective`` or ``solver`` not a string,
+        ``eps`` not a number or ``verbose`` not a bool.
     ValueError
         If ``eps``, ``objective`` or ``solver`` is invalid.
     LMIInfeasibleError
@@ -312,8 +344,14 @@ def synthesize_gains(
     """
     model = check_model(model)
     eps = check_eps(eps)
+    if not isinstance(objective, str):
+        raise TypeError(
+            f"objective = {describe(objective)} is {a_type(objective)}; expected one of "
+            f"{_OBJECTIVES}"
+        )
     if objective not in _OBJECTIVES:
         raise ValueError(f"objective = {objective!r}; expected one of {_OBJECTIVES}")
+    verbose = check_bool("verbose", verbose)
     solver = pick_solver(solver)
     N, n, m = model.N, model.n, model.m
 

@@ -11,12 +11,15 @@ Modes are numbered ``0 .. N-1``. The paper uses ``mu`` both for the transition m
 
 from __future__ import annotations
 
+import math
+import sys
 from dataclasses import dataclass
 
 import cvxpy as cp
 import numpy as np
 
 from sdjls_gym import SDJLSModel
+from sdjls_gym._validate import check_array, check_int_array, check_number
 
 from .base import check_model, frozen
 from .lmi import (
@@ -25,7 +28,7 @@ from .lmi import (
     as_array,
     check_eps,
     check_scalar,
-    closed_loop,
+    checked_closed_loop,
     pick_solver,
     prop1_matrices,
     roundoff,
@@ -118,17 +121,17 @@ class MeanSquareCertificate:
 
         Raises
         ------
+        TypeError
+            If ``k`` is not an int or an int array (a float, a bool), or ``x0`` has entries that
+            are not numbers.
         ValueError
-            If ``k`` is negative or not an integer, or ``x0`` has the wrong shape.
+            If ``k`` is negative, or ``x0`` has the wrong shape or a non-finite entry.
         """
         n = self.P.shape[1]
-        x0 = np.asarray(x0, dtype=np.float64)
-        if x0.shape != (n,):
-            raise ValueError(f"x0 has shape {x0.shape}; expected ({n},)")
-        k_arr = np.asarray(k)
-        if not np.issubdtype(k_arr.dtype, np.integer) or np.any(k_arr < 0):
-            raise ValueError(f"k = {k!r}; expected a non-negative integer or integer array")
-        out = self.beta1 * float(x0 @ x0) * self.q ** k_arr.astype(np.float64) + self.beta2
+        x0 = check_array("x0", x0, shape=(n,), what="the initial state")
+        k_arr = check_int_array("k", k, low=0)
+        with np.errstate(over="ignore"):  # ||x0||^2 beyond float64 is an infinite bound
+            out = self.beta1 * float(x0 @ x0) * self.q ** k_arr.astype(np.float64) + self.beta2
         return float(out) if k_arr.ndim == 0 else out
 
 
@@ -173,20 +176,63 @@ def second_moment_spectral_radius(model: SDJLSModel, K: np.ndarray) -> float:
     TypeError
         If ``model`` is not an :class:`SDJLSModel`.
     ValueError
-        If ``K`` has the wrong shape or a non-finite entry.
+        If ``K`` has the wrong shape or a non-finite entry, or the products of the closed loop
+        ``A_i + B_i K_i`` overflow float64.
     """
     model = check_model(model)
     N, n, m = model.N, model.n, model.m
     K = as_array("K", K, (N, m, n), "one m x n gain K_i per mode")
-    At = closed_loop(model, K)
-    Pmax = np.maximum(model.P_in, model.P_out)
+    At = checked_closed_loop(model, K)
+    return _radius(At, np.maximum(model.P_in, model.P_out))
+
+
+def _operator(At: np.ndarray, Pi: np.ndarray) -> np.ndarray:
+    """``T(Z)_j = sum_i Pi[i, j] At_i Z_i At_i'`` as a matrix of Kronecker blocks
+    ``Pi[i, j] kron(At_i, At_i)``."""
+    N, n = At.shape[0], At.shape[1]
     d = n * n
     T = np.zeros((N * d, N * d))
     for i in range(N):
         kron = np.kron(At[i], At[i])  # vec(A Z A') = kron(A, A) vec(Z)
         for j in range(N):
-            T[j * d : (j + 1) * d, i * d : (i + 1) * d] = Pmax[i, j] * kron
-    return float(np.max(np.abs(np.linalg.eigvals(T))))
+            T[j * d : (j + 1) * d, i * d : (i + 1) * d] = Pi[i, j] * kron
+    return T
+
+
+def _radius(At: np.ndarray, Pi: np.ndarray) -> float:
+    """The spectral radius of :func:`_operator`."""
+    return float(np.max(np.abs(np.linalg.eigvals(_operator(At, Pi)))))
+
+
+#: Largest size N n^2 of the operator whose spectral radius is checked before the LMIs are
+#: solved (an eigenvalue problem of that size, cheap next to the LMIs).
+_PRECHECK_SIZE = 1024
+#: Margin above 1 of that spectral radius, relative to the operator's norm (a bound far above
+#: the error of a computed eigenvalue, even a defective one), that proves the LMIs infeasible.
+_PRECHECK_MARGIN = 1e-6
+
+
+def _refuse_unstable(model: SDJLSModel, At: np.ndarray) -> None:
+    """Raise :class:`LMIInfeasibleError` when (LMI1) or (LMI2) alone is clearly infeasible.
+
+    For one transition matrix ``Pi``, ``P_i > 0`` with ``At_i' (sum_j Pi_ij P_j) At_i < P_i``
+    exists if and only if the spectral radius of ``T(Z)_j = sum_i Pi_ij At_i Z_i At_i'`` is
+    below 1 (mean-square stability of the Markov jump linear system; Costa, Fragoso and
+    Marques 2005, Theorem 3.9). A radius clearly above 1 for ``P_in`` or ``P_out`` settles it
+    without a solver (whose answer on such data is often a failure, not "infeasible").
+    """
+    if model.N * model.n**2 > _PRECHECK_SIZE:
+        return
+    for name, Pi, lmi in (("P_in", model.P_in, "LMI1"), ("P_out", model.P_out, "LMI2")):
+        T = _operator(At, Pi)
+        radius = float(np.max(np.abs(np.linalg.eigvals(T))))
+        if radius > 1.0 + _PRECHECK_MARGIN * max(1.0, float(np.linalg.norm(T, 1))):
+            raise LMIInfeasibleError(
+                "Proposition 1 certificate (eqs. LMI1, LMI2): the gains K could not be "
+                f"certified (no solver run): with the transition matrix model.{name}, "
+                f"the closed loop A_i + B_i K_i has second-moment spectral radius {radius:.6g} "
+                f">= 1 (not mean-square stable), so no P_i > 0 satisfies ({lmi})"
+            )
 
 
 def verify_mean_square_bound(
@@ -253,10 +299,15 @@ def verify_mean_square_bound(
     TypeError
         If ``model`` is not an :class:`SDJLSModel`.
     ValueError
-        If ``K`` has the wrong shape or a non-finite entry, or ``nu_bound``, ``delta``,
-        ``kappa``, ``eps`` or ``solver`` is invalid.
+        If ``K`` has the wrong shape or a non-finite entry, or the products of the closed loop
+        ``A_i + B_i K_i`` overflow float64; if ``nu_bound``, ``delta``, ``kappa``, ``eps`` or
+        ``solver`` is invalid (``nu_bound`` at most ``sqrt(1.8e308 / m)``, so that ``delta``
+        is finite); or if ``beta2`` overflows float64 (``delta`` too large or ``kappa`` too
+        small).
     LMIInfeasibleError
-        If no ``P`` satisfies (LMI1) and (LMI2) for these gains: they cannot be certified.
+        If no ``P`` satisfies (LMI1) and (LMI2) for these gains: they cannot be certified. Gains
+        whose closed loop is clearly not mean-square stable under ``P_in`` or ``P_out`` alone
+        are refused before the solver runs.
     LMISolverError
         On any other non-optimal status, or if the ``P`` found fails the float64 check.
 
@@ -292,7 +343,10 @@ def verify_mean_square_bound(
             "(delta = m * nu_bound**2 is derived from nu_bound)"
         )
     if nu_bound is not None:
-        nu_v = check_scalar("nu_bound", nu_bound, positive=False, what="a finite number >= 0")
+        limit = math.sqrt(sys.float_info.max / m)  # delta = m * nu_bound**2 finite
+        nu_v = check_number(
+            "nu_bound", nu_bound, low=0.0, high=limit, what="delta = m * nu_bound**2 is a float64"
+        )
         delta_v = m * nu_v**2
     elif delta is not None:
         delta_v = check_scalar(
@@ -304,7 +358,8 @@ def verify_mean_square_bound(
         kappa_v = check_scalar("kappa", kappa, positive=True, what="a finite number in (0, mu)")
     solver = pick_solver(solver)
 
-    At = closed_loop(model, K)
+    At = checked_closed_loop(model, K)
+    _refuse_unstable(model, At)
     I_n = np.eye(n)
     P = [cp.Variable((n, n), symmetric=True, name=f"P_{i}") for i in range(N)]
     t = cp.Variable(name="t")
@@ -331,7 +386,13 @@ def verify_mean_square_bound(
     eigP = np.linalg.eigvalsh(Pv)
     c1 = float(np.min(eigP[:, 0]))
     c2 = float(np.max(eigP[:, -1]))
-    E = prop1_matrices(model, K, Pv)  # E_i^1, E_i^2, eqs. (LMI1), (LMI2)
+    with np.errstate(over="ignore", invalid="ignore"):
+        E = prop1_matrices(model, K, Pv)  # E_i^1, E_i^2, eqs. (LMI1), (LMI2)
+    if not np.all(np.isfinite(E)):
+        raise LMISolverError(
+            f"{what}: solver {solver} returned status {status!r} but E_i^j (eqs. LMI1, LMI2) "
+            f"overflows float64 with the P found (entries up to {float(np.max(np.abs(Pv))):.3g})"
+        )
     eigE = np.linalg.eigvalsh(E)  # (N, 2, n)
     margins = eigE[..., -1]
     mu = float(np.min(-eigE[..., -1]))  # min_{i,j} lambda_min(-E_i^j)
@@ -365,7 +426,22 @@ def verify_mean_square_bound(
     # <= alpha2 * max_i trace(E_i W E_i'); the paper's n * alpha2 is the case E_i = I, W = I.
     noise_term = alpha2 * float(np.max(np.trace(model.noise_cov, axis1=1, axis2=2)))
     beta1 = c2 / c1
-    beta2 = (noise_term + delta_v * (alpha1 + beta**2 / kappa_v)) / (c1 * (1.0 - q))
+    # beta * beta, not beta**2 (a float's ** raises OverflowError); never 0 * inf
+    offsets = delta_v * (alpha1 + beta * beta / kappa_v) if delta_v else 0.0
+    # q rounds to 1 when mu - kappa is below c2's last digit: an infinite bound, named below
+    beta2 = (noise_term + offsets) / (c1 * (1.0 - q)) if q < 1.0 else math.inf
+    if not math.isfinite(beta2):
+        given = [
+            f"{name} = {value!r}"
+            for name, value in (("nu_bound", nu_bound), ("delta", delta), ("kappa", kappa))
+            if value is not None
+        ]
+        raise ValueError(
+            f"the bound beta2 = (noise_term + delta (alpha1 + beta^2 / kappa)) / (c1 (1 - q)) "
+            f"overflows float64 with {', '.join(given) or 'the defaults'} (alpha1 = "
+            f"{alpha1:.3g}, beta = {beta:.3g}, kappa = {kappa_v:.3g}); expected a smaller "
+            "bound on nu (nu_bound, delta) or a larger kappa"
+        )
     return MeanSquareCertificate(
         K=frozen(K),
         P=frozen(Pv),

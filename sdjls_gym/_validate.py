@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import sys
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -42,6 +43,7 @@ __all__ = [
     "check_choice",
     "check_float32_bound",
     "check_int",
+    "check_int_array",
     "check_mapping",
     "check_number",
     "check_optional_int",
@@ -59,6 +61,11 @@ MAX_INDEX = 2**53
 #: The range of positive float32 numbers that are normal (not subnormal, not zero, not inf).
 FLOAT32_TINY = float(np.finfo(np.float32).tiny)
 FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+#: dtype codes of the ints and floats that float64 holds without overflow (not longdouble 'g'):
+#: the fast path of :func:`check_numbers`.
+_EXACT_IN_FLOAT64 = frozenset("efdbhilqpnBHILQPN")
 
 
 class NotAnIntError(TypeError, ValueError):
@@ -79,7 +86,7 @@ def check_numbers(name: str, value: Any, what: str = "") -> np.ndarray:
     """:func:`check_array` without the finiteness test, whose type errors are
     :class:`NotANumberError` (an action ``["1"]`` or ``[True]`` is not silently 1.0). A float or
     integer ndarray, the environments' common case, is only copied to float64."""
-    if type(value) is np.ndarray and value.dtype.kind in "fiu":
+    if type(value) is np.ndarray and value.dtype.char in _EXACT_IN_FLOAT64:
         return value.astype(np.float64)
     try:
         return check_array(name, value, finite=False, what=what)
@@ -383,6 +390,18 @@ def check_array(
         entries = np.asarray(value, dtype=object)  # numpy reads a bool among numbers as 1 or 0
         if any(_is_bool(v) for v in entries.ravel()):
             raw = entries  # reported below
+    if raw is not None and raw.dtype.kind in "mMV":  # not numbers, though numpy casts them
+        kind = {"m": "timedelta64", "M": "datetime64"}.get(raw.dtype.kind, "structured")
+        raise TypeError(
+            f"{name} = {describe(value)} has {kind} entries; expected an array of real "
+            f"numbers{suffix}"
+        )
+    if isinstance(value, np.ma.MaskedArray) and np.ma.is_masked(value):  # missing entries
+        bad = tuple(int(i) for i in np.argwhere(np.ma.getmaskarray(value))[0])
+        raise ValueError(
+            f"{name} has a masked (missing) entry at index {bad}; every entry must be a "
+            f"number{suffix}"
+        )
     if raw is not None and (raw.dtype.kind in "bcSUO" or raw.dtype == np.bool_):
         if raw.dtype.kind == "O":
             bad = next(
@@ -394,7 +413,7 @@ def check_array(
                 None,
             )
             if bad is None and raw.size:
-                raw = raw.astype(np.float64)
+                value = raw = _objects_as_float(name, raw, suffix)
             else:
                 raise TypeError(
                     f"{name} has an entry {describe(bad)} of type {type_name(bad)}; expected an "
@@ -407,7 +426,8 @@ def check_array(
                 f"numbers{suffix}"
             )
     try:
-        arr = np.array(value, dtype=np.float64)
+        with np.errstate(over="ignore"):  # a longdouble beyond float64: inf, reported below
+            arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise ValueError(
             f"{name} = {describe(value)} could not be read as an array of numbers ({exc}){suffix}"
@@ -436,6 +456,84 @@ def check_array(
             f"{max_abs:g} in magnitude{suffix}"
         )
     return arr
+
+
+def _objects_as_float(name: str, raw: np.ndarray, suffix: str) -> np.ndarray:
+    """The float64 values of an object array of real numbers; a Python int beyond float64
+    (``10**400``) is a ValueError naming the entry, as ``1e400`` is, not numpy's OverflowError."""
+    try:
+        return raw.astype(np.float64)
+    except OverflowError:
+        for index, v in np.ndenumerate(raw):
+            try:
+                float(v)
+            except OverflowError:
+                size = (
+                    f" (about 10**{int(abs(v).bit_length() * 0.30103)})" if type(v) is int else ""
+                )
+                raise ValueError(
+                    f"{name} has an entry {describe(v, 40)}{size} at index {index} beyond the "
+                    f"range of float64 (magnitude above {sys.float_info.max:.4g}); every entry "
+                    f"must be a finite number{suffix}"
+                ) from None
+        raise
+
+
+def check_int_array(
+    name: str, value: Any, *, low: int | None = None, high: int = MAX_INDEX
+) -> np.ndarray:
+    """An int64 array of integers in ``[low, high]`` (an int gives a 0-d array).
+
+    The rule of :func:`check_int` for every entry: a bool is never an int, not even one entry of
+    a list (numpy would read ``[0, True]`` as ``[0, 1]``), nor is a float or a string. The range
+    is checked on the exact values, before the conversion to int64, so ``2**70`` is refused, not
+    wrapped. An int64 array, the common case, is returned as is.
+
+    Raises
+    ------
+    TypeError
+        A bool, float, string or other non-int entry, or an array of another dtype.
+    ValueError
+        Ragged input, or an entry out of range.
+    """
+    if not isinstance(value, (np.ndarray, list, tuple, range)):  # one int: check_int's rule
+        return np.array(check_int(name, value, low=low, high=high), dtype=np.int64)
+    expected = f"ints in [{low}, {high}]" if low is not None else f"ints <= {high}"
+    if isinstance(value, np.ndarray) and value.dtype.kind != "O":
+        if value.dtype.kind not in "iu":
+            raise TypeError(
+                f"{name} has dtype {value.dtype}; expected {expected.replace('ints', 'integers')}"
+            )
+        arr = value
+    else:
+        try:
+            arr = np.asarray(value)
+            entries = arr if arr.dtype.kind == "O" else np.asarray(value, dtype=object)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(
+                f"{name} = {describe(value)} could not be read as an array of ints ({exc})"
+            ) from None
+        for index, v in np.ndenumerate(entries):  # numpy reads a bool among ints as 1 or 0
+            if _is_bool(v) or not isinstance(v, (numbers.Integral, np.integer)):
+                label = f"{name}[{', '.join(map(str, index))}]" if entries.ndim else name
+                kind = "a bool" if _is_bool(v) else a_type(v)
+                raise TypeError(f"{label} = {describe(v)} is {kind}; expected {expected}")
+        if arr.dtype.kind not in "iu":  # Python ints beyond int64 (or an empty list)
+            arr = entries if entries.size else np.zeros(entries.shape, dtype=np.int64)
+    if arr.size:
+        for bad in (arr.min(), arr.max()):  # exact, before any conversion that could wrap
+            if (low is not None and bad < low) or bad > high:
+                limit = (
+                    ", at most 2**53, the largest index that float64 holds exactly"
+                    if high == MAX_INDEX and bad > high
+                    else ""
+                )
+                if not isinstance(value, np.ndarray):
+                    bad = int(bad)  # shown as the user wrote it: 3, not np.int64(3)
+                raise ValueError(
+                    f"{name} = {describe(bad)} is out of range; expected {expected}{limit}"
+                )
+    return arr if arr.dtype == np.int64 else arr.astype(np.int64)
 
 
 def check_float32_bound(

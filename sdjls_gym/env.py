@@ -310,12 +310,16 @@ def decode_observation(
     return x, mode, k
 
 
-def step_info(model: SDJLSModel, x: np.ndarray, mode: Any, k: Any) -> dict[str, Any]:
+def step_info(
+    model: SDJLSModel, x: np.ndarray, mode: Any, k: Any, values: np.ndarray | None = None
+) -> dict[str, Any]:
     """The info entries that describe a state ``(x, mode, k)``; batched over a leading axis.
 
-    A row whose value is NaN (a diverged, non-finite state) counts as violated.
+    ``values``, the constraint values ``G x - H_k``, are computed unless given. A row whose
+    value is NaN (a diverged, non-finite state) counts as violated.
     """
-    values = model.constraint_values(x, k)
+    if values is None:
+        values = model.constraint_values(x, k)
     inside = max_last(values) <= 0.0  # False when a value is NaN: max propagates it
     return {
         "state": np.array(x, dtype=np.float64),
@@ -400,8 +404,7 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
     | n+N | k / horizon (the band moves with k) | 0 | 1 |
 
     The exact float64 state is `info["state"]`. A diverged state shows at the bound (an
-    infinite entry at ±divergence_bound, a NaN entry at +divergence_bound), so observations
-    stay inside the space.
+    infinite entry at ±divergence_bound), so observations stay inside the space.
 
     ## Rewards
 
@@ -438,8 +441,10 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
       max_episode_steps=M)` may only shorten episodes: `M <= horizon` adds Gymnasium's
       `TimeLimit`, a larger `M` is a `ValueError` (pass `horizon=M` instead).
     * Termination: only on divergence, when `max |x_{k+1}| > divergence_bound`, when `x_{k+1}`
-      is not finite (NaN or inf), or when the stage cost overflows float64
-      (`info["diverged"] = True`). Rewards and observations stay finite.
+      is not finite, or when the stage cost overflows float64 (`info["diverged"] = True`).
+      Rewards and observations stay finite. A step that overflows float64 reports the exact
+      `x_{k+1}`, stage cost and constraint values rounded to float64 (±inf beyond its range,
+      never NaN: `SDJLSModel.exact_step_one`), the same as the vector environment.
     * After the end, `step()` raises `ResetNeededError` (a `gymnasium.error.ResetNeeded` and a
       `RuntimeError`): call `reset()`. The vector environment resets by itself instead.
 
@@ -578,6 +583,8 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
+        if seed is not None:  # Gymnasium takes a bool as a seed and refuses a numpy int
+            seed = check_int("seed", seed, low=0, high=None)
         super().reset(seed=seed)
         x0, mode0 = parse_reset_options(self.model, options, self.divergence_bound)
         self._x = self.model.x0.copy() if x0 is None else x0
@@ -615,10 +622,14 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         model, rng = self.model, self.np_random
         w = model.sample_noise_one(rng)
         if self._may_overflow:  # overflow is detected below; numpy's warnings are not needed
+            x, mode, k = self._x, self._mode, self._k
             with np.errstate(over="ignore", invalid="ignore"):
                 self._x, self._mode, stage_cost, values = model.step_one(
-                    self._x, self._mode, u, self._k, w, rng.random(), self._inside
+                    x, mode, u, k, w, rng.random(), self._inside
                 )
+            if not math.isfinite(stage_cost + sum(self._x.tolist()) + sum(values.tolist())):
+                # overflowed: the exact values rounded, as the vector env gives (never NaN)
+                self._x, stage_cost, values = model.exact_step_one(x, mode, u, k, w)
         else:
             self._x, self._mode, stage_cost, values = model.step_one(
                 self._x, self._mode, u, self._k, w, rng.random(), self._inside

@@ -18,7 +18,9 @@ and the controllers all call these methods; nothing else re-implements the dynam
 from __future__ import annotations
 
 import bisect
+import math
 from dataclasses import MISSING, dataclass, field, fields
+from fractions import Fraction
 from functools import cached_property
 from typing import Any
 
@@ -31,7 +33,7 @@ from sdjls_gym._model_checks import (  # noqa: F401 - _fmt, _check_psd: used by 
     _fmt,
     validate_fields,
 )
-from sdjls_gym._validate import MAX_INDEX, check_int, describe
+from sdjls_gym._validate import MAX_INDEX, check_int, check_int_array, describe
 
 __all__ = [
     "SDJLSModel",
@@ -511,6 +513,34 @@ class SDJLSModel:
         mode_next = bisect.bisect_right(one["cdf"][inside][mode], uniform)
         return y[:n], mode_next, stage_cost, y[n:] - self._H_one(k + 1)
 
+    def exact_step_one(
+        self, x: np.ndarray, mode: int, u: np.ndarray, k: int, w: np.ndarray
+    ) -> tuple[np.ndarray, float, np.ndarray]:
+        """:meth:`step_one`'s next state, stage cost and ``G x_next - H_{k+1}``, each the exact
+        value of its formula rounded once to float64 (beyond float64's range: +-inf, never NaN).
+
+        The answer of a step that overflows float64 from a finite ``x``, ``u``, ``w``: in
+        floating point such a step gives ``inf - inf = NaN``, or an infinity whose sign depends
+        on the order of the sums, which differs between :meth:`step_one` and the batched
+        :meth:`step`. Both environments call this on such a step (rational arithmetic: slow,
+        and only then). The next mode is not computed: it does not overflow.
+        """
+        z = [Fraction(v) for v in np.concatenate((x, u, w)).tolist()]
+        x_next = [sum(map(_times, row, z)) for row in self._tables["ABE"][mode].tolist()]
+        zxu = z[: self.n + self.m]
+        qr = self._tables["QR"][mode].tolist()
+        cost = sum(a * sum(map(_times, row, zxu)) for a, row in zip(zxu, qr, strict=True))
+        H = self._H_one(k + 1).tolist()
+        values = [
+            sum(map(_times, row, x_next)) - Fraction(h)
+            for row, h in zip(self.G.tolist(), H, strict=True)
+        ]
+        return (
+            np.array(list(map(_rounded, x_next))),
+            _rounded(cost),
+            np.array(list(map(_rounded, values))),
+        )
+
     def _H_one(self, k: int) -> np.ndarray:
         if type(k) is not int:  # a float 2.0 would hit the cache entry of 2
             k = check_int("k", k, low=0)
@@ -593,12 +623,25 @@ class SDJLSModel:
         )
 
 
+def _times(a: float, b: Fraction) -> Fraction:
+    return Fraction(a) * b
+
+
+def _rounded(q: Fraction) -> float:
+    """``q`` rounded to the nearest float64 (Python's int division is correctly rounded), or
+    +-inf beyond float64's range."""
+    try:
+        return float(q)
+    except OverflowError:
+        return math.inf if q > 0 else -math.inf
+
+
 def _check_k(k: Any) -> Any:
     """``k`` as given when it is an int or an integer array in ``[0, 2**53]``; else an error."""
     if type(k) is int and 0 <= k <= MAX_INDEX:  # the common case, first
         return k
     if isinstance(k, (list, tuple, range)):
-        k = np.asarray(k)
+        return check_int_array("k", k, low=0)  # a bool entry is refused, not read as 0 or 1
     if isinstance(k, np.ndarray) and k.ndim:
         if k.size and k.dtype.kind not in "iu":
             raise TypeError(

@@ -32,8 +32,8 @@ def load_model(path: str | os.PathLike) -> SDJLSModel:
     Raises
     ------
     InvalidModelError
-        If the file cannot be parsed (the message names the file) or a field is missing or
-        malformed (the message names the file and the field).
+        If the file cannot be parsed (the message names the file), has a key twice, or a field
+        is missing or malformed (the message names the file and the field).
     FileNotFoundError
         If there is no such file.
     """
@@ -51,7 +51,9 @@ def load_model(path: str | os.PathLike) -> SDJLSModel:
                 import tomli as tomllib  # type: ignore[no-redef]
             data = tomllib.loads(text)
         else:
-            data = json.loads(text)
+            data = json.loads(text, object_pairs_hook=_unique_keys)
+    except _DuplicateKeyError as exc:
+        raise InvalidModelError(f"model file {str(path)!r} {exc}") from None
     except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError, TOMLDecodeError
         raise InvalidModelError(
             f"model file {str(path)!r} is not valid UTF-8 {suffix[1:].upper()}: {exc}"
@@ -73,6 +75,21 @@ def load_model(path: str | os.PathLike) -> SDJLSModel:
     except InvalidModelError as exc:
         # the same class (InvalidModelTypeError stays one), the file named first
         raise type(exc)(f"model file {str(path)!r}: {exc}") from None
+
+
+class _DuplicateKeyError(Exception):
+    """A JSON object with a key twice (JSON parsers keep the last silently; TOML refuses it)."""
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise _DuplicateKeyError(
+                f"has the key {key!r} twice in one object; each field must appear once"
+            )
+        out[key] = value
+    return out
 
 
 def save_model(model: SDJLSModel, path: str | os.PathLike) -> None:

@@ -17,6 +17,7 @@ from sdjls_gym.env import (
     check_max_episode_steps,
     check_model_x0,
     encode_observation,
+    may_overflow,
     observation_space,
     own_spec,
     parse_reset_options,
@@ -111,6 +112,9 @@ class SDJLSVectorEnv(VectorEnv):
         self._low = self.single_action_space.low.astype(np.float64)
         self._actions_what = f"a ({self.num_envs}, {self.model.m}) array of finite numbers"
         self._high = self.single_action_space.high.astype(np.float64)
+        self._may_overflow = may_overflow(
+            self.model, self._high, self.divergence_bound, self.horizon
+        )
 
         B, model = self.num_envs, self.model
         self._x = np.zeros((B, model.n))
@@ -131,8 +135,35 @@ class SDJLSVectorEnv(VectorEnv):
         self._spec = own_spec(value, self.episode_steps)
 
     # ------------------------------------------------------------------ helpers
-    def _infos(self, stage_cost: np.ndarray, overflow: np.ndarray | None = None) -> dict[str, Any]:
-        raw = step_info(self.model, self._x, self._mode.copy(), self._k.copy())
+    def _exact_where_overflowed(
+        self,
+        x_new: np.ndarray,
+        stage_cost: np.ndarray,
+        k_new: np.ndarray,
+        u: np.ndarray,
+        w: np.ndarray,
+        reset: np.ndarray,
+    ) -> np.ndarray:
+        """The constraint values of the new states; the rows whose step overflowed float64
+        (not the ones reset) get :meth:`SDJLSModel.exact_step_one`'s answer instead, in place,
+        the one :class:`~sdjls_gym.env.SDJLSEnv` gives."""
+        model = self.model
+        with np.errstate(over="ignore", invalid="ignore"):
+            values = model.constraint_values(x_new, k_new)
+            ok = np.isfinite(stage_cost + x_new.sum(axis=1) + values.sum(axis=1))
+        for b in np.flatnonzero(~ok & ~reset).tolist():
+            x_new[b], stage_cost[b], values[b] = model.exact_step_one(
+                self._x[b], int(self._mode[b]), u[b], int(self._k[b]), w[b]
+            )
+        return values
+
+    def _infos(
+        self,
+        stage_cost: np.ndarray,
+        overflow: np.ndarray | None = None,
+        values: np.ndarray | None = None,
+    ) -> dict[str, Any]:
+        raw = step_info(self.model, self._x, self._mode.copy(), self._k.copy(), values)
         self._inside = raw["in_region"]  # region test of the current states, reused by step()
         raw["stage_cost"] = stage_cost
         # NaN-safe: max propagates a NaN, which fails the comparison
@@ -150,6 +181,8 @@ class SDJLSVectorEnv(VectorEnv):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
+        if seed is not None:  # Gymnasium takes a bool as a seed and refuses a numpy int
+            seed = check_int("seed", seed, low=0, high=None)
         super().reset(seed=seed)
         x0, mode0 = parse_reset_options(self.model, options, self.divergence_bound)
         B = self.num_envs
@@ -202,10 +235,6 @@ class SDJLSVectorEnv(VectorEnv):
             x_new, mode_new = model.step(
                 self._x, self._mode, u, self._k, w, rng.random(B), inside=self._inside
             )
-        # an overflowed (inf or NaN) stage cost is saturated and ends the episode as diverged
-        overflow = ~(stage_cost <= MAX_STAGE_COST)
-        if overflow.any():
-            stage_cost[overflow] = MAX_STAGE_COST
         k_new = self._k + 1
 
         if np.any(reset):
@@ -215,10 +244,17 @@ class SDJLSVectorEnv(VectorEnv):
             mode_new[reset] = model.sample_mode0(self._reset_rng, count)
             k_new[reset] = 0
             stage_cost[reset] = 0.0
+        values = None
+        if self._may_overflow:
+            values = self._exact_where_overflowed(x_new, stage_cost, k_new, u, w, reset)
+        # an overflowed (inf) stage cost is saturated and ends the episode as diverged
+        overflow = ~(stage_cost <= MAX_STAGE_COST)
+        if overflow.any():
+            stage_cost[overflow] = MAX_STAGE_COST
         self._x, self._mode, self._k = x_new, mode_new, k_new
 
         with np.errstate(over="ignore", invalid="ignore"):
-            infos = self._infos(stage_cost, overflow & ~reset)
+            infos = self._infos(stage_cost, overflow, values)
         infos["u"] = u
         infos["_u"] = ~reset
         terminated = infos["diverged"] & ~reset

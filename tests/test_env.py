@@ -542,10 +542,10 @@ def _blowup_model(A, Q=None, x0=(1e6, 1e6)):
     )  # fmt: skip
 
 
-# x_0 = [1e6, 1e6]: A x_0 is NaN (1e309 - 1e309), inf (1e309), or the stage cost x_0' Q x_0
-# = 2e312 overflows while the next state 0 is fine
+# x_0 = [1e6, 1e6]: A x_0 is -1e309 (NaN in float64 arithmetic: 1e309 - 2e309), 1e309, or the
+# stage cost x_0' Q x_0 = 2e312 overflows while the next state 0 is fine
 BLOWUPS = {
-    "nan-state": (_blowup_model([[1e303, -1e303], [1e303, -1e303]]), -2e12),
+    "nan-state": (_blowup_model([[1e303, -2e303], [1e303, -2e303]]), -2e12),
     "inf-state": (_blowup_model([[1e303, 0.0], [0.0, 1e303]]), -2e12),
     "cost-overflow": (
         _blowup_model(np.zeros((2, 2)), Q=1e300 * np.eye(2)),
@@ -588,14 +588,17 @@ def test_non_finite_state_or_cost_terminates_as_diverged_in_both_envs(case):
     assert not term_v.any() and np.all(r_v == 0.0) and np.all(infos["k"] == 0)
 
 
-def test_nan_state_counts_every_row_as_violated():
+def test_a_step_that_is_nan_in_float64_gives_the_exact_state():
+    """A x_0 = 1e309 - 2e309 is NaN in float64 arithmetic; the step reports its exact value
+    rounded, -inf, and the row G x = x(2) <= 1e9 holds (tests/test_input_checks.py has more)."""
     model, _ = BLOWUPS["nan-state"]
     env = SDJLSEnv(model, horizon=5, divergence_bound=1e30)
     env.reset(seed=0)
     *_, info = env.step(np.zeros(1, np.float32))
-    assert np.isnan(info["state"]).all() and np.isnan(info["constraint_values"]).all()
-    assert info["violations"].tolist() == [True]
-    assert info["in_region"] is False and info["cost"] == 1.0
+    assert info["state"].tolist() == [-np.inf, -np.inf]
+    assert info["constraint_values"].tolist() == [-np.inf]
+    assert info["violations"].tolist() == [False]
+    assert info["in_region"] is True and info["cost"] == 0.0 and info["diverged"] is True
 
 
 # --------------------------------------------------------------------------- after the end

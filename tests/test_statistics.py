@@ -275,7 +275,7 @@ def test_global_random_generators_are_never_touched():
         ctrl = RecedingHorizonController(model, PAPER_K, **PAPER_RHC, solver=solver, horizon=20)
         ctrl.act([2.0, 2.0], 0, 0)
         ctrl.act_batch(np.ones((3, 2)), np.arange(3), 1)
-        ctrl.predict(np.zeros(6, dtype=np.float32))
+        ctrl.predict(np.array([2, 2, 1, 0, 0, 0], dtype=np.float32))  # mode part one-hot
     synthesize_gains(model)
     verify_mean_square_bound(model, PAPER_K, nu_bound=1.0)
     tightening(model, 0.9, "joint")
