@@ -31,8 +31,13 @@ A policy is one of
 
 An agent trained behind wrappers that rescale its actions or observations
 (``gymnasium.wrappers.RescaleAction``, :class:`~sdjls_gym.wrappers.ScaleObservationReward`,
-:class:`~sdjls_gym.wrappers.ResidualAction`) acts in other units: wrap it with
-``RawEnvPolicy(agent, train_env)``, which reads the wrappers of its training environment.
+:class:`~sdjls_gym.wrappers.ResidualAction`, SB3's ``VecNormalize``) acts in other units: wrap it
+with ``RawEnvPolicy(agent, train_env)``, which reads the wrappers of its training environment.
+An agent whose ``observation_space`` / ``action_space`` are not the scored environment's is
+refused (:func:`benchmarks.policies.check_spaces`). A ``predict`` with SB3's ``state`` and
+``episode_start`` parameters (recurrent policies) gets its state back at each step, as SB3's
+``evaluate_policy`` does. A policy's actions are read by ``env.step``'s rule
+(:func:`sdjls_gym._validate.check_numbers`). A diverged episode's state never reaches the policy.
 
 Command line: ``python -m benchmarks.evaluate --policy PATH.zip --algo ppo`` (an SB3 model;
 ``--train-env package.module:attribute`` names its training environment) or
@@ -346,7 +351,10 @@ def evaluate(
     Raises
     ------
     TypeError, ValueError
-        A bad argument, before any episode is run.
+        A bad argument (a class instead of an agent, an agent whose spaces are not the raw
+        environment's, an unknown ``env_id``), before any episode is run.
+    sdjls_gym._validate.NotANumberError
+        The policy returned what ``env.step`` refuses (``"1.0"``, ``True``, None).
     """
     episodes, seed = check_evaluation(episodes, seed)
     if not isinstance(env_id, str):

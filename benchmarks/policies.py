@@ -181,10 +181,15 @@ class _ObservationPolicy:
 
 def _refuse_class(name: str, value: Any) -> None:
     if isinstance(value, type):  # evaluate(PPO): a class is callable, and has predict
+        cls = value.__name__
+        example = (
+            f"e.g. {cls}.load(path) or the object that {cls}(...).learn(...) returns"
+            if callable(getattr(value, "load", None))
+            else f"an instance, {cls}(...)"
+        )
         raise TypeError(
             f"{name} = {value.__module__}.{value.__qualname__} is a class, not an agent; pass a "
-            f"trained agent, e.g. {value.__name__}.load(path) or the object that "
-            f"{value.__name__}(...).learn(...) returns"
+            f"trained agent, {example}"
         )
 
 
