@@ -40,8 +40,10 @@ refused (:func:`benchmarks.policies.check_spaces`). A ``predict`` with SB3's ``s
 (:func:`sdjls_gym._validate.check_numbers`). A diverged episode's state never reaches the policy.
 
 Command line: ``python -m benchmarks.evaluate --policy PATH.zip --algo ppo`` (an SB3 model;
-``--train-env package.module:attribute`` names its training environment) or
-``--policy package.module:attribute``; ``--json PATH`` writes the score.
+``--train-env package.module:attribute`` names its training environment, ``--vec-normalize
+PATH.pkl`` its VecNormalize statistics) or ``--policy package.module:attribute``; ``--json PATH``
+writes the score. Every input is checked before the evaluation; a bad one is a parser error
+(exit status 2) naming the file, module, attribute or option.
 """
 
 from __future__ import annotations

@@ -95,3 +95,15 @@ def test_extras_are_bounded_below_the_next_breaking_release():
                 assert requirement.replace(" ", "") == "torch>=2.3,<2.14", requirement
     dev = {_requirement_bounds(r)[0] for r in extras["dev"]}
     assert {"pytest", "hypothesis", "ruff", "stable-baselines3", "ray", "rl-zoo3"} <= dev
+
+
+def test_readme_test_times_say_what_was_measured():
+    """The Quickstart's test times are measurements (seconds, test counts, the machine's load),
+    not "a few minutes" / "under two minutes" (issue 28: they took 14-15 and almost 4 minutes)."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    section = re.search(r"^## Quickstart\n(.*?)(?=^## )", readme, flags=re.M | re.S).group(1)
+    text = " ".join(section.split())
+    assert "a few minutes" not in text and "under two minutes" not in text
+    assert re.search(r"\d+ s for `python -m pytest -q` \(\d+ tests\)", text)
+    assert re.search(r'`python -m pytest -q -m "not slow"` took \d+ s \(\d+ tests', text)
+    assert "load average" in text
