@@ -14,7 +14,8 @@ configuration, :func:`benchmarks.rl_train.load_run`), on one of two backends:
 
 Every training is seeded and rebuilt from its :class:`~benchmarks.rl_train.RunSpec`, so the
 results do not depend on the backend or the number of workers. A finished training is written
-by the main process at once (``runs/<name>.pt`` and ``.json``), so an interrupted run resumes.
+by the main process at once (``runs/<name>-<fingerprint>.pt`` and ``.json``), so an interrupted
+run resumes.
 """
 
 from __future__ import annotations

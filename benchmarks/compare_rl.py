@@ -10,12 +10,14 @@ controller (:data:`MODEL_BASED_CURVES`, :data:`SINGLE_CONTROLLERS`) is then scor
 :func:`benchmarks.evaluate.evaluate` on the same ``--eval-episodes`` episodes (common random
 numbers).
 
-Outputs under ``--out`` (default ``results/rl/``): ``summary.json``, ``summary.csv``, the
-figures, ``REPORT.md``, and per training ``runs/<name>.json`` (learning curve, dual ascent,
-training time) and ``runs/<name>.pt`` (the policy's state dict, 40-130 KB). A run whose files
-exist with the same configuration is not trained again (``--retrain`` trains anew); the
-evaluation is not cached, so a change of the evaluation needs no training. The trainings run in
-local processes or as Ray tasks (``--backend``, :mod:`benchmarks.backends`).
+Outputs under ``--out`` (default ``results/rl/``; with ``--quick`` a temporary folder,
+:data:`QUICK_OUT`): ``summary.json``, ``summary.csv``, the figures, ``REPORT.md`` (each written
+atomically), and per training ``runs/<name>-<fingerprint>.json`` (learning curve, dual ascent,
+training time) and ``.pt`` (the policy's state dict, 40-130 KB). A run is named by the fingerprint
+of its whole configuration: a kept run of the same configuration is not trained again
+(``--retrain`` trains anew), and a run of another configuration is kept beside it, never in its
+place. The evaluation is not cached, so a change of the evaluation needs no training. The
+trainings run in local processes or as Ray tasks (``--backend``, :mod:`benchmarks.backends`).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
@@ -34,7 +37,8 @@ from tqdm import tqdm
 
 from benchmarks import rl_hyperparams as HP
 from benchmarks.backends import BACKENDS, train_all
-from benchmarks.evaluate import REFERENCE_XIS, evaluate
+from benchmarks.evaluate import REFERENCE_XIS, check_evaluation, evaluate
+from benchmarks.files import stable_floats, write_atomic
 from benchmarks.montecarlo import multistep_rhc, paper_rhc, rollout
 from benchmarks.rl_figures import make_figures
 from benchmarks.rl_report import (
@@ -51,7 +55,14 @@ from benchmarks.rl_report import (
     write_csv,
     write_report,
 )
-from benchmarks.rl_train import ALGOS, VARIANTS, load_policy, policy_path, run_specs
+from benchmarks.rl_train import (
+    ALGOS,
+    VARIANTS,
+    kept_run_path,
+    load_policy,
+    policy_path,
+    run_specs,
+)
 from benchmarks.stats import curve_status, interval_check
 from benchmarks.versions import package_versions
 from controllers import (
@@ -65,6 +76,9 @@ from sdjls_gym.systems.macro import HORIZON, PAPER_K, PAPER_RHC, macro
 XI = PAPER_RHC["xi"]
 XI_SWEEP = REFERENCE_XIS
 INCOME_TRAJECTORIES = 30  # incomes drawn per panel of the income figure
+DEFAULT_OUT = Path("results/rl")
+#: Where ``--quick`` writes by default: outside the repository (a temporary folder).
+QUICK_OUT = Path(tempfile.gettempdir()) / "sdjls-gym" / "compare_rl-quick"
 
 
 # ----------------------------------------------------------------------------- controllers
@@ -162,9 +176,13 @@ class Options:
         metadata={"help": "evaluation episodes per controller and trained agent (one noise seed)"},
     )
     seed: int = field(default=0, metadata={"help": "noise seed of the evaluation episodes"})
-    out: Path = field(
-        default=Path("results/rl"),
-        metadata={"help": "folder for figures, summary files, REPORT.md and runs/ (*.json, *.pt)"},
+    out: Path | None = field(
+        default=None,
+        metadata={
+            "help": "folder for figures, summary files, REPORT.md and runs/ (*.json, *.pt); "
+            f"default: {DEFAULT_OUT}, or {QUICK_OUT} with --quick (a smoke test never writes "
+            "into the committed results)"
+        },
     )
     workers: int = field(
         default=2,
@@ -222,18 +240,35 @@ def parse_args(argv: list[str] | None = None) -> Options:
     for name in ("seeds", "workers"):
         if getattr(opts, name) < 1:
             parser.error(f"--{name} = {getattr(opts, name)}; expected a positive integer")
-    if opts.eval_episodes < 2:
-        parser.error(
-            f"--eval-episodes = {opts.eval_episodes}; expected an integer >= 2 (the cost "
-            "intervals are over episodes)"
-        )
+    try:  # evaluate()'s own limits, before hours of training
+        check_evaluation(opts.eval_episodes, opts.seed)
+    except ValueError as exc:
+        text = str(exc).replace("episodes = ", "--eval-episodes = ", 1)
+        parser.error(text.replace("seed = ", "--seed = ", 1))
     if opts.timesteps is not None and opts.timesteps < 1:
         parser.error(f"--timesteps = {opts.timesteps}; expected a positive integer")
     if opts.address is not None and opts.backend != "ray":
         parser.error(f"--address = {opts.address!r} needs --backend ray")
+    if opts.out is None:
+        opts.out = QUICK_OUT if opts.quick else DEFAULT_OUT
+    elif opts.quick and _holds_a_full_comparison(opts.out):
+        parser.error(
+            f"--quick with --out {opts.out}: that folder holds the report of a full comparison, "
+            "which a smoke test would replace; give another --out (or none: "
+            f"--quick writes to {QUICK_OUT})"
+        )
     opts.algos = list(dict.fromkeys(opts.algos))
     opts.variants = list(dict.fromkeys(opts.variants))
     return opts
+
+
+def _holds_a_full_comparison(out: Path) -> bool:
+    """Whether ``out/summary.json`` is the report of a run without ``--quick``."""
+    try:
+        options = json.loads((out / "summary.json").read_text())["options"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    return isinstance(options, dict) and options.get("quick") is False
 
 
 # ----------------------------------------------------------------------------- scoring
@@ -293,7 +328,7 @@ def main(argv: list[str] | None = None) -> Summary:
     import torch
 
     torch.set_num_threads(1)  # as in training, and for the agents' decision times
-    policies = {s.name: load_policy(s, policy_path(run_dir / f"{s.name}.json")) for s in specs}
+    policies = {s.name: load_policy(s, policy_path(kept_run_path(run_dir, s))) for s in specs}
     runs = [
         RunResult(run, evaluate(policies[s.name], episodes=opts.eval_episodes, seed=opts.seed))
         for s, run in zip(specs, trained, strict=True)
@@ -339,10 +374,12 @@ def main(argv: list[str] | None = None) -> Summary:
         },  # fmt: skip
         figures=figures,
     )
-    (opts.out / "summary.json").write_text(json.dumps(summary.to_json(), indent=1) + "\n")
+    # atomic (write, then rename), as the runs are: an interrupted run never leaves half a file
+    write_atomic(
+        opts.out / "summary.json", json.dumps(stable_floats(summary.to_json()), indent=1) + "\n"
+    )
     write_csv(opts.out / "summary.csv", mb + aggs + runs)
-    report = write_report(summary, XI, MODEL_BASED_CURVES[0].family)
-    (opts.out / "REPORT.md").write_text(report)
+    write_atomic(opts.out / "REPORT.md", write_report(summary, XI, MODEL_BASED_CURVES[0].family))
     log(f"wrote {opts.out}/REPORT.md")
     return summary
 

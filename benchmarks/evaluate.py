@@ -31,12 +31,19 @@ A policy is one of
 
 An agent trained behind wrappers that rescale its actions or observations
 (``gymnasium.wrappers.RescaleAction``, :class:`~sdjls_gym.wrappers.ScaleObservationReward`,
-:class:`~sdjls_gym.wrappers.ResidualAction`) acts in other units: wrap it with
-``RawEnvPolicy(agent, train_env)``, which reads the wrappers of its training environment.
+:class:`~sdjls_gym.wrappers.ResidualAction`, SB3's ``VecNormalize``) acts in other units: wrap it
+with ``RawEnvPolicy(agent, train_env)``, which reads the wrappers of its training environment.
+An agent whose ``observation_space`` / ``action_space`` are not the scored environment's is
+refused (:func:`benchmarks.policies.check_spaces`). A ``predict`` with SB3's ``state`` and
+``episode_start`` parameters (recurrent policies) gets its state back at each step, as SB3's
+``evaluate_policy`` does. A policy's actions are read by ``env.step``'s rule
+(:func:`sdjls_gym._validate.check_numbers`). A diverged episode's state never reaches the policy.
 
 Command line: ``python -m benchmarks.evaluate --policy PATH.zip --algo ppo`` (an SB3 model;
-``--train-env package.module:attribute`` names its training environment) or
-``--policy package.module:attribute``; ``--json PATH`` writes the score.
+``--train-env package.module:attribute`` names its training environment, ``--vec-normalize
+PATH.pkl`` its VecNormalize statistics) or ``--policy package.module:attribute``; ``--json PATH``
+writes the score. Every input is checked before the evaluation; a bad one is a parser error
+(exit status 2) naming the file, module, attribute or option.
 """
 
 from __future__ import annotations
@@ -50,6 +57,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from benchmarks.files import write_atomic
 from benchmarks.montecarlo import Rollouts, paper_rhc, rollout
 from benchmarks.policies import RawEnvPolicy, _check_policy, as_controller
 from benchmarks.stats import CurveGap, mean_ci, paired_curve_gap, wilson
@@ -62,6 +70,7 @@ __all__ = [
     "REFERENCE_XIS",
     "RawEnvPolicy",
     "Score",
+    "check_evaluation",
     "evaluate",
     "evaluate_rollouts",
 ]
@@ -72,6 +81,9 @@ REFERENCE_XIS: tuple[float, ...] = (0.3, 0.5, 0.7, 0.8, 0.85, 0.9, 0.95, 0.99)
 REFERENCE_CONSTRAINT = "individual"
 #: Visited states drawn from the rollouts to time the decisions on.
 TIMING_STATES = 1000
+#: Most episodes one evaluation simulates: they run together, and their rollouts are held in
+#: memory (about 1 GB for 10**6 episodes of the paper's system).
+MAX_EPISODES = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -145,6 +157,9 @@ class EnvSpec:
     action_bound: float
     divergence_bound: float
     paper_system: bool  # the macro example: the reference curve applies
+    env_id: str = "SDJLS-Macro-v0"
+    observation_space: Any = None  # the raw environment's: what a scored agent must act on
+    action_space: Any = None
 
 
 def _key(model: SDJLSModel) -> str:
@@ -155,7 +170,13 @@ def resolve_env(env_id: str, env_kwargs: dict[str, Any]) -> EnvSpec:
     """Make the environment once and read its model, horizon and bounds."""
     from sdjls_gym.systems.macro import macro
 
-    env = gym.make(env_id, **env_kwargs)
+    try:
+        env = gym.make(env_id, **env_kwargs)
+    except gym.error.Error as exc:  # an unknown or misspelled id, a wrong version
+        raise ValueError(
+            f"env_id = {env_id!r} cannot be made ({exc}); expected a registered SDJLS "
+            "environment, e.g. 'SDJLS-Macro-v0' or 'SDJLS-v0'"
+        ) from None
     try:
         base = env.unwrapped
         if not isinstance(base, SDJLSEnv):
@@ -165,9 +186,14 @@ def resolve_env(env_id: str, env_kwargs: dict[str, Any]) -> EnvSpec:
             )
         limit = env.spec.max_episode_steps if env.spec is not None else None
         if limit is not None and limit != base.horizon:
+            if "horizon" in env_kwargs:  # both given, and they disagree
+                advice = f"pass max_episode_steps={base.horizon} too, or leave it out"
+            else:
+                advice = f"pass horizon={limit} (the environment's episode length) instead"
             raise ValueError(
-                f"env_kwargs give horizon = {base.horizon} but episodes end after "
-                f"max_episode_steps = {limit} steps; pass max_episode_steps={base.horizon} too"
+                f"env_kwargs give max_episode_steps = {limit} but the environment's horizon is "
+                f"{base.horizon} (its episodes, and the time in its observation, run to it); "
+                f"{advice}"
             )
         bound = np.asarray(base.action_space.high, dtype=np.float64)
         return EnvSpec(
@@ -176,6 +202,9 @@ def resolve_env(env_id: str, env_kwargs: dict[str, Any]) -> EnvSpec:
             action_bound=float(bound[0]) if np.all(bound == bound[0]) else bound,
             divergence_bound=float(base.divergence_bound),
             paper_system=_key(base.model) == _key(macro()),
+            env_id=env_id,
+            observation_space=base.observation_space,
+            action_space=base.action_space,
         )
     finally:
         env.close()
@@ -282,6 +311,16 @@ def evaluate_rollouts(
     return score, ro
 
 
+def check_evaluation(episodes: Any, seed: Any) -> tuple[int, int]:
+    """``(episodes, seed)`` as :func:`evaluate` accepts them: ``2 <= episodes <=``
+    :data:`MAX_EPISODES`, ``seed >= 0``; the checks every script runs before its work."""
+    episodes = check_int(
+        "episodes", episodes, low=2, high=MAX_EPISODES,
+        what="the intervals are over episodes; the rollouts of all of them are held in memory",
+    )  # fmt: skip
+    return episodes, check_int("seed", seed, low=0)
+
+
 def evaluate(
     policy: Any,
     *,
@@ -299,7 +338,7 @@ def evaluate(
         deterministic=True)``, or a callable ``obs -> action`` (see the module docstring). An
         agent trained behind rescaling wrappers goes in as ``RawEnvPolicy(agent, train_env)``.
     episodes : int
-        At least 2 (the intervals are over episodes).
+        At least 2 (the intervals are over episodes), at most :data:`MAX_EPISODES`.
     seed : int
         Noise seed, >= 0; the same seed gives every policy the same noise.
     env_id : str
@@ -314,10 +353,12 @@ def evaluate(
     Raises
     ------
     TypeError, ValueError
-        A bad argument, before any episode is run.
+        A bad argument (a class instead of an agent, an agent whose spaces are not the raw
+        environment's, an unknown ``env_id``), before any episode is run.
+    sdjls_gym._validate.NotANumberError
+        The policy returned what ``env.step`` refuses (``"1.0"``, ``True``, None).
     """
-    episodes = check_int("episodes", episodes, low=2, what="the intervals are over episodes")
-    seed = check_int("seed", seed, low=0)
+    episodes, seed = check_evaluation(episodes, seed)
     if not isinstance(env_id, str):
         raise TypeError(f"env_id = {describe(env_id)} is {a_type(env_id)}; expected a str")
     env_kwargs = check_mapping("env_kwargs", env_kwargs)
@@ -328,6 +369,16 @@ def evaluate(
 
 # ----------------------------------------------------------------------------- command line
 SB3_ALGOS = ("a2c", "ddpg", "ppo", "sac", "td3")
+#: The policy module a saved SB3 agent names, and the ``--algo`` values that can load it.
+_SAVED_POLICIES = {
+    "stable_baselines3.common.policies": ("a2c", "ppo"),
+    "stable_baselines3.sac.policies": ("sac",),
+    "stable_baselines3.td3.policies": ("ddpg", "td3"),
+}
+
+
+class CliError(Exception):
+    """A bad command-line input, reported by the parser (exit status 2)."""
 
 
 def _import_attribute(text: str, option: str) -> Any:
@@ -336,28 +387,96 @@ def _import_attribute(text: str, option: str) -> Any:
 
     module, sep, attribute = text.partition(":")
     if not sep or not module or not attribute:
-        raise SystemExit(f"{option} = {text!r}; expected package.module:attribute or a .zip file")
-    obj: Any = importlib.import_module(module)
+        raise CliError(f"{option} = {text!r}; expected package.module:attribute or a .zip file")
+    try:
+        obj: Any = importlib.import_module(module)
+    except ImportError as exc:
+        raise CliError(f"{option} {text}: module {module!r} cannot be imported ({exc})") from None
     for part in attribute.split("."):
-        obj = getattr(obj, part)
+        try:
+            obj = getattr(obj, part)
+        except AttributeError:
+            raise CliError(
+                f"{option} {text}: module {module!r} has no attribute {attribute!r}"
+            ) from None
     return obj
 
 
-def load_cli_policy(policy: str, algo: str | None, train_env: str | None) -> Any:
-    """The policy named on the command line (see :func:`main`)."""
+def _saved_algorithms(path: str) -> tuple[str, ...] | None:
+    """The ``--algo`` values that can load the SB3 file ``path`` (from the policy class it
+    names), or None if the file does not say."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+        return _SAVED_POLICIES.get(data["policy_class"]["__module__"])
+    except Exception:  # noqa: BLE001 - not a readable SB3 file: the load reports it
+        return None
+
+
+def load_cli_policy(
+    policy: str, algo: str | None, train_env: str | None, vec_normalize: str | None = None
+) -> Any:
+    """The policy named on the command line (see :func:`main`); :class:`CliError` for a file,
+    module or attribute that does not load."""
+    from pathlib import Path
+
     if not policy.endswith(".zip"):
-        if algo is not None or train_env is not None:
-            raise SystemExit("--algo and --train-env apply to a stable-baselines3 .zip file only")
+        if algo is not None or train_env is not None or vec_normalize is not None:
+            raise CliError(
+                "--algo, --train-env and --vec-normalize apply to a stable-baselines3 .zip "
+                "file only"
+            )
         return _import_attribute(policy, "--policy")
     if algo is None:
-        raise SystemExit(f"--policy {policy} is a stable-baselines3 file: give --algo {SB3_ALGOS}")
-    import stable_baselines3
-
-    agent = getattr(stable_baselines3, algo.upper()).load(policy, device="cpu")
-    if train_env is None:
+        raise CliError(f"--policy {policy} is a stable-baselines3 file: give --algo {SB3_ALGOS}")
+    if not Path(policy).is_file():
+        raise CliError(f"--policy {policy}: no such file")
+    if vec_normalize is not None and not Path(vec_normalize).is_file():
+        raise CliError(f"--vec-normalize {vec_normalize}: no such file")
+    if vec_normalize is not None and train_env is None:
+        raise CliError("--vec-normalize needs --train-env (the environment it normalized)")
+    env = None
+    if train_env is not None:  # before the agent: a bad name fails fast
+        env = _import_attribute(train_env, "--train-env")
+        env = env() if callable(env) and not isinstance(env, gym.Env) else env
+    try:
+        import stable_baselines3
+    except ImportError:
+        raise CliError(
+            f'--policy {policy} needs stable-baselines3: pip install -e ".[rl]"'
+        ) from None
+    saved = _saved_algorithms(policy)
+    if saved is not None and algo not in saved:
+        raise CliError(
+            f"--policy {policy} holds a {'/'.join(a.upper() for a in saved)} agent, not "
+            f"--algo {algo}; give --algo {saved[-1]}"
+        )
+    try:
+        agent = getattr(stable_baselines3, algo.upper()).load(policy, device="cpu")
+    except Exception as exc:  # noqa: BLE001 - a corrupt or foreign file: name it
+        raise CliError(
+            f"--policy {policy} cannot be loaded as a stable-baselines3 {algo.upper()} agent "
+            f"({type(exc).__name__}: {exc})"
+        ) from None
+    if env is None:
         return agent
-    env = _import_attribute(train_env, "--train-env")
-    return RawEnvPolicy(agent, env() if callable(env) and not isinstance(env, gym.Env) else env)
+    norm = None
+    if vec_normalize is not None:
+        from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+        try:
+            norm = VecNormalize.load(vec_normalize, DummyVecEnv([lambda: env]))
+        except Exception as exc:  # noqa: BLE001 - a corrupt or foreign file: name it
+            raise CliError(
+                f"--vec-normalize {vec_normalize} cannot be loaded as a VecNormalize "
+                f"({type(exc).__name__}: {exc})"
+            ) from None
+    try:
+        return RawEnvPolicy(agent, env, vec_normalize=norm)
+    except (TypeError, ValueError) as exc:
+        raise CliError(f"--train-env {train_env}: {exc}") from None
 
 
 def describe_score(name: str, score: Score) -> list[str]:
@@ -401,12 +520,35 @@ def main(argv: list[str] | None = None) -> Score:
     parser.add_argument("--train-env", help="package.module:attribute: the .zip agent's training "
                         "environment (or a function making it), whose wrappers RawEnvPolicy "
                         "undoes; default: the agent acts on the raw environment")  # fmt: skip
+    parser.add_argument("--vec-normalize", help="the VecNormalize statistics (.pkl) the .zip "
+                        "agent was trained under (with --train-env)")  # fmt: skip
     parser.add_argument("--episodes", type=int, default=1000, help="evaluation episodes")
     parser.add_argument("--seed", type=int, default=0, help="noise seed")
     parser.add_argument("--env-id", default="SDJLS-Macro-v0", help="registered environment")
     parser.add_argument("--json", type=Path, help="write the score (and the versions) here")
     opts = parser.parse_args(argv)
-    policy = load_cli_policy(opts.policy, opts.algo, opts.train_env)
+    # every input is checked before the evaluation, each error naming its option
+    try:
+        check_evaluation(opts.episodes, opts.seed)
+    except ValueError as exc:
+        parser.error(
+            str(exc).replace("episodes = ", "--episodes = ").replace("seed = ", "--seed = ")
+        )
+    if opts.json is not None and (opts.json.is_dir() or not opts.json.parent.is_dir()):
+        parser.error(
+            f"--json {opts.json}: "
+            + ("is a folder" if opts.json.is_dir() else f"the folder {opts.json.parent} does not exist")
+            + "; expected a file path in an existing folder"
+        )  # fmt: skip
+    try:
+        spec = resolve_env(opts.env_id, {})
+        policy = load_cli_policy(opts.policy, opts.algo, opts.train_env, opts.vec_normalize)
+        as_controller(policy, spec)  # the agent's spaces against the environment's
+    except (CliError, TypeError, ValueError) as exc:
+        message = str(exc)
+        if isinstance(exc, ValueError) and "RawEnvPolicy(agent, train_env)" in message:
+            message = f"--policy {opts.policy}: {message}"
+        parser.error(message.replace("env_id = ", "--env-id = "))
     try:
         score = evaluate(policy, episodes=opts.episodes, seed=opts.seed, env_id=opts.env_id)
     except (TypeError, ValueError) as exc:
@@ -414,7 +556,7 @@ def main(argv: list[str] | None = None) -> Score:
     print("\n".join(describe_score(opts.policy, score)))
     if opts.json is not None:
         data = {**score.to_dict(), "policy": opts.policy, "versions": package_versions()}
-        opts.json.write_text(json.dumps(data, indent=1) + "\n")
+        write_atomic(opts.json, json.dumps(data, indent=1) + "\n")
     return score
 
 

@@ -131,8 +131,10 @@ def rollout(
     An episode that diverges (``terminated``: ``max |x|`` beyond the environment's divergence
     bound, 1e6 by default) ends there: the vector environment restarts that row, but the rest of
     the row is not a new episode here; it holds the diverged state (see :attr:`Rollouts.ended`),
-    and the controller's decisions for it are discarded (its input is set to 0, so that no
-    decision on a diverged state can stop the batch). Every row has ``horizon`` steps.
+    and the controller is never shown the diverged state: it decides on ``x = 0`` for that row,
+    and the decision is discarded (the input is set to 0). So a state beyond what a controller
+    accepts (``max |x| > 1e100`` after one step) cannot stop the batch: a diverged episode is a
+    diverged episode, whatever the policy. Every row has ``horizon`` steps.
     """
     env = SDJLSVectorEnv(
         num_envs=runs,
@@ -155,9 +157,11 @@ def rollout(
     done = np.zeros(runs, dtype=bool)  # rows whose episode has diverged
     x[:, 0], modes[:, 0] = info["state"], info["mode"]
     for k in range(horizon):
-        u, rho[:, k], J[:, k], ok[:, k] = decide_batch(
-            controller, info["state"], info["mode"], info["k"]
-        )
+        state = info["state"]
+        if done.any():  # a diverged row's state (up to inf) never reaches the policy
+            state = np.array(state, dtype=np.float64)
+            state[done] = 0.0
+        u, rho[:, k], J[:, k], ok[:, k] = decide_batch(controller, state, info["mode"], info["k"])
         if done.any():
             u = np.array(u, dtype=np.float64)
             u[done] = 0.0

@@ -8,16 +8,85 @@
 
 from __future__ import annotations
 
+import inspect
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from sdjls_gym._validate import a_type, describe
+from sdjls_gym._validate import NotANumberError, a_type, check_numbers, describe
 from sdjls_gym.env import SDJLSEnv, decode_observation, encode_observation
 from sdjls_gym.wrappers import ResidualAction, ScaleObservationReward, scale_observation
 
-__all__ = ["RawEnvPolicy", "as_controller"]
+__all__ = ["RawEnvPolicy", "as_controller", "check_spaces"]
+
+#: How a scored agent that acts in other units should be wrapped (the errors' advice).
+_ADVICE = (
+    "an agent trained behind wrappers is scored as RawEnvPolicy(agent, train_env) "
+    "(python -m benchmarks.evaluate: --train-env)"
+)
+
+
+def check_spaces(agent: Any, observation_space: Any, action_space: Any, where: str) -> None:
+    """Refuse an agent whose ``observation_space`` / ``action_space`` (SB3 models and policies
+    have both) differ from those of the environment it is about to act on (``where``): its
+    observations or actions would be read in other units, and every episode could diverge
+    without a word. An agent without these attributes is not checked."""
+    for kind, env_space in (("observation", observation_space), ("action", action_space)):
+        space = getattr(agent, f"{kind}_space", None)
+        if isinstance(space, gym.spaces.Space) and space != env_space:
+            raise ValueError(
+                f"the agent's {kind} space {space} is not the {kind} space {env_space} of "
+                f"{where}; {_ADVICE}, with the environment it was trained on"
+            )
+
+
+def _actions(value: Any, m: int, obs: np.ndarray) -> np.ndarray:
+    """A policy's answer read by ``env.step``'s rule (:func:`sdjls_gym._validate.check_numbers`):
+    ``"1.0"``, ``True`` or None are not actions."""
+    if value is None:
+        raise NotANumberError(
+            f"the policy returned None for the observation {describe(obs)}; expected "
+            f"{m} number(s) per observation (an action, as env.step takes)"
+        )
+    return check_numbers("the policy's action", value, what=f"{m} number(s) per observation")
+
+
+class _Predict:
+    """``agent.predict`` on a batch of observations, deterministic; an agent whose ``predict``
+    takes ``state`` and ``episode_start`` (stable-baselines3's signature, sb3-contrib's
+    recurrent policies) gets its state back at the next step and ``episode_start`` True at an
+    episode's first step, as SB3's own ``evaluate_policy`` does."""
+
+    def __init__(self, agent: Any) -> None:
+        self.agent = agent
+        try:
+            params = inspect.signature(agent.predict).parameters
+        except (TypeError, ValueError):
+            params = {}
+        self.stateful = "state" in params and "episode_start" in params
+        self.state: Any = None
+        self.rows: int | None = None  # the batch the state belongs to
+
+    def __call__(self, obs: np.ndarray, k: np.ndarray | None = None) -> Any:
+        if not self.stateful:
+            out = self.agent.predict(obs, deterministic=True)
+        else:
+            B = len(obs)
+            start = np.ones(B, dtype=bool) if k is None else np.asarray(k) == 0
+            if self.rows != B:  # another batch (the timing states): a fresh state
+                self.state, start = None, np.ones(B, dtype=bool)
+            out = self.agent.predict(
+                obs, state=self.state, episode_start=start, deterministic=True
+            )  # fmt: skip
+        if not (isinstance(out, tuple) and len(out) == 2):
+            raise TypeError(
+                f"the agent's predict returned {describe(out)}; expected stable-baselines3's "
+                "(actions, state)"
+            )
+        if self.stateful:
+            self.state, self.rows = out[1], len(obs)
+        return out[0]
 
 
 class _ObservationPolicy:
@@ -25,16 +94,17 @@ class _ObservationPolicy:
 
     def __init__(self, policy: Any, spec: Any) -> None:
         if callable(getattr(policy, "predict", None)):
-            self.call = lambda obs: policy.predict(obs, deterministic=True)[0]
+            self.call: Any = _Predict(policy)
         elif callable(policy):
-            self.call = policy
+            self.call = lambda obs, k=None: policy(obs)
         else:  # checked by as_controller first
             raise TypeError(f"policy is {a_type(policy)}")
         self.spec, self.m = spec, spec.model.m
-        self.batched: bool | None = None  # decided at the first batch
+        # decided at the first batch; a stateful agent is always called on the whole batch
+        self.batched: bool | None = True if getattr(self.call, "stateful", False) else None
 
     def _one(self, obs: np.ndarray) -> np.ndarray:
-        a = np.asarray(self.call(obs), dtype=np.float64)
+        a = _actions(self.call(obs), self.m, obs)
         if a.size != self.m:
             raise ValueError(
                 f"the policy returned {describe(a)} (shape {a.shape}) for one observation; "
@@ -45,17 +115,27 @@ class _ObservationPolicy:
     def _rows(self, obs: np.ndarray) -> np.ndarray:
         return np.stack([self._one(o) for o in obs])
 
-    def _batch(self, obs: np.ndarray) -> np.ndarray:
+    def _whole(self, obs: np.ndarray, k: np.ndarray) -> np.ndarray:
+        B = len(obs)
+        a = _actions(self.call(obs, k), self.m, obs[0])
+        if a.shape not in ((B, self.m), (B,) * (self.m == 1)):
+            raise ValueError(
+                f"the policy returned shape {a.shape} for {B} observations; expected "
+                f"({B}, {self.m})"
+            )
+        return a.reshape(B, self.m)
+
+    def _batch(self, obs: np.ndarray, k: np.ndarray) -> np.ndarray:
         B = len(obs)
         if self.batched is False:
             return self._rows(obs)
         if self.batched:
-            return np.asarray(self.call(obs), dtype=np.float64).reshape(B, self.m)
+            return self._whole(obs, k)
         # undecided: one call on all rows, checked against single calls on up to 8 distinct rows
         # (decided only on a batch with distinct rows: a batch of equal rows cannot show a
         # policy that mixes up its rows)
         try:
-            a = np.asarray(self.call(obs), dtype=np.float64)
+            a = _actions(self.call(obs), self.m, obs[0])
             a = a.reshape(B, self.m) if a.shape in ((B, self.m), (B,) * (self.m == 1)) else None
         except Exception:  # noqa: BLE001 - a policy for one observation may fail on many
             a = None
@@ -83,7 +163,7 @@ class _ObservationPolicy:
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         s = self.spec
         obs = encode_observation(s.model, x, mode, k, s.horizon, s.divergence_bound)
-        u = self._batch(obs)
+        u = self._batch(obs, np.asarray(k))
         if not np.all(np.isfinite(u)):
             row = int(np.argwhere(~np.isfinite(u))[0, 0])
             raise ValueError(
@@ -99,7 +179,22 @@ class _ObservationPolicy:
         return u[0], {key: value[0] for key, value in info.items()}
 
 
+def _refuse_class(name: str, value: Any) -> None:
+    if isinstance(value, type):  # evaluate(PPO): a class is callable, and has predict
+        cls = value.__name__
+        example = (
+            f"e.g. {cls}.load(path) or the object that {cls}(...).learn(...) returns"
+            if callable(getattr(value, "load", None))
+            else f"an instance, {cls}(...)"
+        )
+        raise TypeError(
+            f"{name} = {value.__module__}.{value.__qualname__} is a class, not an agent; pass a "
+            f"trained agent, {example}"
+        )
+
+
 def _check_policy(policy: Any) -> None:
+    _refuse_class("policy", policy)
     if not (
         callable(getattr(policy, "act_batch", None))
         or callable(getattr(policy, "predict", None))
@@ -113,10 +208,16 @@ def _check_policy(policy: Any) -> None:
 
 
 def as_controller(policy: Any, spec: Any) -> Any:
-    """``policy`` behind ``act_batch(x, mode, k)`` / ``act(x, mode, k)`` (see the module doc)."""
+    """``policy`` behind ``act_batch(x, mode, k)`` / ``act(x, mode, k)`` (see the module doc).
+
+    An agent with SB3's ``observation_space`` and ``action_space`` must act on the raw
+    environment's (``spec.observation_space``, ``spec.action_space``): see :func:`check_spaces`.
+    """
     _check_policy(policy)
     if callable(getattr(policy, "act_batch", None)) and callable(getattr(policy, "act", None)):
         return policy
+    where = f"the raw environment it is scored on ({spec.env_id})"
+    check_spaces(policy, spec.observation_space, spec.action_space, where)
     return _ObservationPolicy(policy, spec)
 
 
@@ -130,14 +231,23 @@ class RawEnvPolicy:
     (``u = K_theta x + nu``). Wrappers that change only the reward or the episode's end
     (``ViolationPenalty``, ``TerminateOutside``, ``FiniteHorizon``, ``TimeLimit``, SB3's
     ``Monitor``) are skipped; any other wrapper that changes the observation or action space is
-    an error.
+    an error. An agent trained under SB3's ``VecNormalize`` sees normalized observations: pass
+    the ``VecNormalize`` (the training ``VecEnv`` itself, or ``vec_normalize=``, e.g.
+    ``VecNormalize.load(path, venv)``), whose saved statistics are applied, frozen. An agent
+    whose ``observation_space`` / ``action_space`` differ from ``env``'s is refused
+    (:func:`check_spaces`): ``env`` is not the one it was trained on. A recurrent agent
+    (sb3-contrib's ``RecurrentPPO``) keeps its state from step to step of an episode.
 
     Parameters
     ----------
     agent : object
         With ``predict(obs, deterministic=True)``: an SB3 model or policy.
-    env : gymnasium.Env
-        The training environment (wrapped), or one built the same way.
+    env : gymnasium.Env or stable_baselines3 VecEnv
+        The training environment (wrapped), or one built the same way; or the training
+        ``VecEnv`` (a ``DummyVecEnv``, possibly under ``VecNormalize`` and ``VecMonitor``).
+    vec_normalize : stable_baselines3 VecNormalize, optional
+        The normalization the agent was trained under. Default: the one in ``env``, else the
+        agent's own (``agent.get_vec_normalize_env()``), else none.
 
     Examples
     --------
@@ -153,21 +263,30 @@ class RawEnvPolicy:
     100.0
     """
 
-    def __init__(self, agent: Any, env: gym.Env) -> None:
+    def __init__(self, agent: Any, env: Any, vec_normalize: Any = None) -> None:
+        _refuse_class("agent", agent)
         if not callable(getattr(agent, "predict", None)):
             raise TypeError(
                 f"agent = {describe(agent)} is {a_type(agent)}; expected an object with "
                 "predict(obs, deterministic=True), such as a stable-baselines3 model"
             )
+        env, found = _unwrap_vec_env(env)
         if not isinstance(env, gym.Env):
             raise TypeError(
                 f"env = {describe(env)} is {a_type(env)}; expected the agent's training "
-                "environment, a gymnasium.Env (for an SB3 VecEnv pass venv.envs[0])"
+                "environment, a gymnasium.Env or a stable-baselines3 DummyVecEnv"
             )
         base = env.unwrapped
         if not isinstance(base, SDJLSEnv):
             raise TypeError(f"env has a {type(base).__name__} underneath; expected an SDJLSEnv")
+        check_spaces(agent, env.observation_space, env.action_space, "env (RawEnvPolicy's env)")
+        if vec_normalize is None:
+            vec_normalize = found
+        if vec_normalize is None and callable(getattr(agent, "get_vec_normalize_env", None)):
+            vec_normalize = agent.get_vec_normalize_env()
+        self.normalization = None if vec_normalize is None else _normalization(vec_normalize)
         self.agent, self.model = agent, base.model
+        self._predict = _Predict(agent)
         self.horizon, self.divergence_bound = int(base.horizon), float(base.divergence_bound)
         self.action_bound = float(np.max(base.action_space.high))
         box = env.action_space
@@ -203,7 +322,13 @@ class RawEnvPolicy:
     def observe(self, x: np.ndarray, mode: np.ndarray, k: np.ndarray) -> np.ndarray:
         """The observations (B, n + N + 1) the agent was trained on, for states (B, n)."""
         obs = encode_observation(self.model, x, mode, k, self.horizon, self.divergence_bound)
-        return obs if self.scaling is None else scale_observation(obs, self.model.n, *self.scaling)
+        if self.scaling is not None:
+            obs = scale_observation(obs, self.model.n, *self.scaling)
+        if self.normalization is not None:  # VecNormalize.normalize_obs on float32 observations
+            mean, var, epsilon, clip = self.normalization
+            obs = np.asarray(obs, dtype=np.float32)
+            obs = np.clip((obs - mean) / np.sqrt(var + epsilon), -clip, clip).astype(np.float32)
+        return obs
 
     def act_batch(
         self, x: np.ndarray, mode: np.ndarray, k: np.ndarray
@@ -211,8 +336,9 @@ class RawEnvPolicy:
         """``u`` (B, m) for states ``x`` (B, n), modes (B,), times (B,); info as a controller's."""
         x = np.asarray(x, dtype=np.float64)
         mode = np.asarray(mode, dtype=np.int64)
-        a, _ = self.agent.predict(self.observe(x, mode, k), deterministic=True)
-        v = np.clip(np.asarray(a, dtype=np.float64).reshape(len(x), -1), self.low, self.high)
+        obs = self.observe(x, mode, k)
+        a = _actions(self._predict(obs, np.asarray(k)), len(self.low), obs[0])
+        v = np.clip(a.reshape(len(x), -1), self.low, self.high)
         nu = np.zeros_like(v)
         for kind, data in self.actions:
             if kind == "rescale":
@@ -243,3 +369,51 @@ class RawEnvPolicy:
         x, mode, k = decode_observation(self.model, np.atleast_2d(observation), self.horizon)
         u = self.act_batch(x, mode, k)[0].astype(np.float32)
         return (u[0] if single else u), state
+
+
+def _unwrap_vec_env(env: Any) -> tuple[Any, Any]:
+    """``(the gymnasium.Env of env, the VecNormalize around it or None)`` for an SB3 VecEnv;
+    ``(env, None)`` for anything else."""
+    try:
+        from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecMonitor, VecNormalize
+    except ImportError:  # without stable-baselines3 there is no VecEnv to unwrap
+        return env, None
+    if not isinstance(env, VecEnv):
+        return env, None
+    norm, e = None, env
+    while isinstance(e, VecEnvWrapper):
+        if isinstance(e, VecNormalize):
+            norm = norm if norm is not None else e
+        elif not isinstance(e, VecMonitor):
+            raise ValueError(
+                f"env is wrapped in {type(e).__name__}, which RawEnvPolicy cannot undo; it knows "
+                "VecNormalize and VecMonitor around a DummyVecEnv"
+            )
+        e = e.venv
+    envs = getattr(e, "envs", None)
+    if not envs:
+        raise TypeError(
+            f"env is a {type(e).__name__}, whose environments live in other processes; pass one "
+            "environment built as the training one (a gymnasium.Env), and its VecNormalize as "
+            "vec_normalize="
+        )
+    return envs[0], norm
+
+
+def _normalization(vec_normalize: Any) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+    """The frozen statistics ``(mean, var, epsilon, clip_obs)`` of a ``VecNormalize``; None if
+    it does not normalize observations."""
+    rms = getattr(vec_normalize, "obs_rms", None)
+    if rms is None or not hasattr(rms, "mean") or not hasattr(vec_normalize, "clip_obs"):
+        raise TypeError(
+            f"vec_normalize = {describe(vec_normalize)} is {a_type(vec_normalize)}; expected a "
+            "stable-baselines3 VecNormalize with observation statistics (obs_rms)"
+        )
+    if not getattr(vec_normalize, "norm_obs", True):
+        return None
+    return (
+        np.array(rms.mean, dtype=np.float64),
+        np.array(rms.var, dtype=np.float64),
+        float(vec_normalize.epsilon),
+        float(vec_normalize.clip_obs),
+    )

@@ -28,10 +28,11 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from benchmarks.files import stable_floats, write_atomic
 from benchmarks.montecarlo import Rollouts, paper_rhc, rollout
 from benchmarks.paper_figures import KINDS, make_figures, row_labels
 from benchmarks.stats import format_p, mean_ci, two_proportion_p, wilson
-from benchmarks.versions import package_versions
+from benchmarks.versions import CORE_PACKAGES, package_versions
 from controllers import verify_mean_square_bound
 from sdjls_gym.systems.macro import ACTION_BOUND, HORIZON, PAPER_K, PAPER_RHC, macro
 
@@ -282,12 +283,13 @@ _NUMBER_LIST = re.compile(r"\[\s*(-?[0-9][-+.eE0-9]*(?:,\s*-?[0-9][-+.eE0-9]*)*)
 
 
 def dump_json(data: Any) -> str:
-    """Indented JSON with each list of numbers on one line (the file stays small and readable)."""
+    """Indented JSON with each list of numbers on one line (the file stays small and readable),
+    floats at the digits that are the same on every machine (:func:`benchmarks.files.stable_floats`)."""
 
     def one_line(m: re.Match) -> str:
         return "[" + ", ".join(item.strip() for item in m.group(1).split(",")) + "]"
 
-    return _NUMBER_LIST.sub(one_line, json.dumps(data, indent=1)) + "\n"
+    return _NUMBER_LIST.sub(one_line, json.dumps(stable_floats(data), indent=1)) + "\n"
 
 
 def _configurations(summary: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
@@ -533,11 +535,17 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
     ro_fig = {name: ro[name] for name in ro}
     figures = make_figures(opts.out, opts.runs, model, ro_fig, calib, mean_square)
+    # what the numbers depend on: --no-progress changes only the display, not the files
+    argv = [a for a in argv if a != "--no-progress"]
     summary = {
         "command": "python -m benchmarks.reproduce_paper"
         + ("" if not argv else " " + " ".join(argv)),
-        "options": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(opts).items()},
-        "versions": package_versions(),
+        "options": {
+            k: str(v) if isinstance(v, Path) else v
+            for k, v in asdict(opts).items()
+            if k != "no_progress"
+        },  # fmt: skip
+        "versions": package_versions(CORE_PACKAGES),  # never an optional extra's
         "rows": row_labels(model),
         "schema": SCHEMA,
         "paper_configs": [summaries[c.name] for c in PAPER_CONFIGS],
@@ -546,10 +554,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "claims": check_claims(summaries, ro),
         "figures": figures,
     }
-    (opts.out / "summary.json").write_text(dump_json(summary))
+    summary = stable_floats(summary)  # what the files hold, the report's numbers included
+    write_atomic(opts.out / "summary.json", dump_json(summary))
     n_configs = write_csv(opts.out / "summary.csv", summary)
     n_per_step = write_per_step_csv(opts.out / "summary_per_step.csv", summary)
-    (opts.out / "REPORT.md").write_text(write_report(opts, summary, figures, n_configs, n_per_step))
+    write_atomic(
+        opts.out / "REPORT.md", write_report(opts, summary, figures, n_configs, n_per_step)
+    )
     agree = sum(c["agree"] for c in summary["claims"])
     print(f"{agree}/{len(summary['claims'])} claims of section 6 agree; wrote {opts.out}/REPORT.md")
     for c in summary["claims"]:

@@ -7,6 +7,7 @@ the README.
 from __future__ import annotations
 
 import csv
+import io
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -16,6 +17,7 @@ import numpy as np
 
 from benchmarks import rl_hyperparams as HP
 from benchmarks.evaluate import Score
+from benchmarks.files import write_atomic
 from benchmarks.rl_train import RunRecord
 from benchmarks.stats import (
     FLAT_TOL,
@@ -343,11 +345,13 @@ def csv_row(r: Any) -> list[Any]:
 
 
 def write_csv(path: Path, rows: list[Any]) -> None:
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(CSV_HEADER)
-        for r in rows:
-            w.writerow(csv_row(r))
+    """``summary.csv``, written atomically (:func:`benchmarks.files.write_atomic`)."""
+    buffer = io.StringIO(newline="")
+    w = csv.writer(buffer)
+    w.writerow(CSV_HEADER)
+    for r in rows:
+        w.writerow(csv_row(r))
+    write_atomic(path, buffer.getvalue())
 
 
 def _signed(x: float) -> str:

@@ -3,8 +3,9 @@
 A run is described by a :class:`RunSpec` (algorithm, variant, seed, budget, learning-curve
 settings). :func:`train_run` trains it and returns its :class:`RunRecord` (learning curve, dual
 ascent, training time) and its policy's state dict (tens of KB); :func:`save_run` writes both
-under ``runs/<name>.json`` and ``runs/<name>.pt``, and :func:`load_run` reads them back if the
-run's configuration, hashed into :meth:`RunSpec.fingerprint`, is unchanged. Training runs in a
+under ``runs/<name>-<fingerprint>.json`` and ``.pt``, named by the run's whole configuration
+hashed into :meth:`RunSpec.fingerprint`, so that a run of another configuration never replaces a
+kept one; :func:`load_run` reads the kept run of a spec back. Training runs in a
 worker (a process or a Ray task); the files are written by the main process.
 """
 
@@ -14,7 +15,6 @@ import copy
 import hashlib
 import io
 import json
-import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
@@ -28,6 +28,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from benchmarks import rl_hyperparams as HP
 from benchmarks.evaluate import resolve_env, statistics
+from benchmarks.files import write_atomic
 from benchmarks.montecarlo import rollout
 from benchmarks.policies import RawEnvPolicy
 from sdjls_gym._validate import check_choice, check_positive
@@ -461,35 +462,50 @@ def train_run(
 
 
 # ----------------------------------------------------------------------------- run files
+def run_path(run_dir: str | Path, name: str, fingerprint: str) -> Path:
+    """``run_dir/<name>-<fingerprint>.json``: a run's record is named by its whole configuration,
+    so that a run of another configuration (``--quick``, ``--timesteps``, changed
+    hyperparameters) lands beside a kept run and never replaces it."""
+    return Path(run_dir) / f"{name}-{fingerprint}.json"
+
+
 def policy_path(json_path: str | Path) -> Path:
     """Where the trained policy of the run recorded in ``json_path`` is kept."""
     return Path(json_path).with_suffix(".pt")
 
 
 def save_run(run_dir: Path, record: RunRecord, policy: bytes) -> Path:
-    """Write ``<name>.pt`` then ``<name>.json`` (a JSON file implies its policy); each atomically."""
-    path = run_dir / f"{record.name}.json"
-    pt = policy_path(path)
-    pt.with_suffix(".pt.tmp").write_bytes(policy)
-    os.replace(pt.with_suffix(".pt.tmp"), pt)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(record.to_json()) + "\n")
-    os.replace(tmp, path)
+    """Write ``<name>-<fingerprint>.pt`` then ``.json`` (a JSON file implies its policy), each
+    atomically (:func:`benchmarks.files.write_atomic`); only a run of the same configuration
+    (``--retrain``) is replaced."""
+    path = run_path(run_dir, record.name, record.fingerprint)
+    write_atomic(policy_path(path), policy)
+    write_atomic(path, json.dumps(record.to_json()) + "\n")
     return path
+
+
+def kept_run_path(run_dir: Path, spec: RunSpec) -> Path | None:
+    """The record file of the kept run of ``spec`` (with its policy beside it), or None.
+
+    Reads ``<name>-<fingerprint>.json``, and the older layout ``<name>.json`` when the
+    fingerprint recorded in it matches (such a file is read, never written)."""
+    fingerprint = spec.fingerprint()
+    for path in (run_path(run_dir, spec.name, fingerprint), Path(run_dir) / f"{spec.name}.json"):
+        if not (path.exists() and policy_path(path).exists()):
+            continue
+        try:
+            data = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            continue
+        if isinstance(data, dict) and data.get("fingerprint") == fingerprint:
+            return path
+    return None
 
 
 def load_run(run_dir: Path, spec: RunSpec) -> RunRecord | None:
     """The kept run of ``spec``, or None if it is missing, unreadable or of another configuration."""
-    path = run_dir / f"{spec.name}.json"
-    if not (path.exists() and policy_path(path).exists()):
-        return None
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError:
-        return None
-    if data.get("fingerprint") != spec.fingerprint():
-        return None
-    return RunRecord.from_json(data)
+    path = kept_run_path(run_dir, spec)
+    return None if path is None else RunRecord.from_json(json.loads(path.read_text()))
 
 
 def load_policy(spec: RunSpec, path: str | Path) -> RawEnvPolicy:

@@ -216,8 +216,9 @@ def test_cli_scores_an_sb3_zip_with_its_training_env(tmp_path, monkeypatch, caps
               "--episodes", "30"])  # fmt: skip
     assert s.diverged == 0  # u = K x + nu: the residual agent is pre-stabilized
     assert f"| {zip_path} | 30 |" in capsys.readouterr().out
-    with pytest.raises(SystemExit, match="give --algo"):
+    with pytest.raises(SystemExit) as exc:
         main(["--policy", zip_path])
+    assert exc.value.code == 2 and "give --algo" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------ the README example

@@ -11,6 +11,7 @@ import csv
 import json
 import re
 
+import numpy as np
 import pytest
 
 from benchmarks import reproduce_paper
@@ -269,9 +270,62 @@ def test_bad_options_are_rejected(capsys):
 
 
 def test_summary_records_the_package_versions(run):
-    from benchmarks.versions import PACKAGES
+    from benchmarks.versions import CORE_PACKAGES
 
     out, _ = run
     versions = json.loads((out / "summary.json").read_text())["versions"]
-    assert set(versions) == {"python", *PACKAGES}
+    assert set(versions) == {"python", *CORE_PACKAGES}
     assert versions["numpy"] and versions["gymnasium"] and versions["python"].count(".") == 2
+    assert versions["cvxpy"] and versions["osqp"]
+
+
+SMALL = ["--runs", "3", "--stat-runs", "20", "--seed", "3", "--no-progress"]
+
+
+def test_files_do_not_depend_on_the_installed_extras(tmp_path, monkeypatch):
+    """Without the rl extra (stable-baselines3, torch absent) the reproduction writes the same
+    files: the paper's results record only the packages they run on (on the base commit
+    summary.json recorded stable-baselines3's version, null without the extra)."""
+    from importlib import metadata
+
+    reproduce_paper.main([*SMALL, "--out", str(tmp_path / "all")])
+    real = metadata.version
+    optional = {"stable-baselines3", "torch", "ray", "rl-zoo3", "rl_zoo3", "sb3-contrib"}
+
+    def without_extras(name: str) -> str:
+        if name in optional:
+            raise metadata.PackageNotFoundError(name)
+        return real(name)
+
+    monkeypatch.setattr(metadata, "version", without_extras)
+    reproduce_paper.main([*SMALL, "--out", str(tmp_path / "core")])
+    for name in ("summary.json", "summary.csv", "summary_per_step.csv", "REPORT.md"):
+        core, every = ((tmp_path / d / name).read_text() for d in ("core", "all"))
+        assert core.replace(str(tmp_path / "core"), "OUT") == every.replace(
+            str(tmp_path / "all"), "OUT"
+        )
+    text = (tmp_path / "core" / "summary.json").read_text()
+    assert "stable-baselines3" not in text and "null" not in text
+
+
+def _floats(value):
+    if isinstance(value, dict):
+        return [f for v in value.values() for f in _floats(v)]
+    if isinstance(value, list):
+        return [f for v in value for f in _floats(v)]
+    return [value] if isinstance(value, float) else []
+
+
+def test_json_floats_carry_only_machine_stable_digits(run):
+    """Every float of summary.json has at most 10 significant digits, so a statistic whose last
+    float64 digits differ between machines (summation order) is written the same."""
+    out, _ = run
+    floats = _floats(json.loads((out / "summary.json").read_text()))
+    assert len(floats) > 1000
+    long = [f for f in floats if len(f"{f:.17g}".lstrip("-").replace(".", "").strip("0")) > 10
+            and float(f"{f:.10g}") != f]  # fmt: skip
+    assert not long, long[:5]
+    # the same statistic from another summation order: one bit off, the same text
+    cost = 4822.123456789012
+    other = float(np.nextafter(cost, np.inf))
+    assert reproduce_paper.dump_json({"c": cost}) == reproduce_paper.dump_json({"c": other})

@@ -119,3 +119,17 @@ def test_rl_zoo3_trains_a_few_hundred_steps_with_the_file(tmp_path):
     done = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     assert list(tmp_path.rglob("SDJLS-Macro-v0.zip"))
+
+
+def test_readme_zoo_command_writes_outside_the_checkout():
+    """The README's rl_zoo3 command sets its log folder outside the repository (rl_zoo3's
+    default, logs/, landed in the checkout), and each file's comment shows the same command."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    commands = [line for line in readme.splitlines() if line.startswith("python -m rl_zoo3.train")]
+    assert commands
+    for command in commands:
+        folder = command.split(" -f ")[1].split()[0]
+        assert Path(folder).is_absolute() and ROOT not in Path(folder).parents, command
+    for algo in FILES:
+        text = (ROOT / "benchmarks" / "zoo" / f"{algo}.yml").read_text()
+        assert f"-conf benchmarks/zoo/{algo}.yml -f /tmp/sdjls-zoo" in text
