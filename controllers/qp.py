@@ -59,7 +59,7 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache
 from itertools import chain, combinations
 from typing import Any
@@ -69,6 +69,8 @@ import osqp
 import scipy.sparse as sp
 
 from sdjls_gym._validate import check_mapping, describe
+
+from .kkt import KKT_TOL, ActiveSetMaps, active_set_maps
 
 __all__ = [
     "DEFAULT_OSQP_SETTINGS",
@@ -81,10 +83,6 @@ __all__ = [
     "check_osqp_settings",
     "candidate_count",
 ]
-
-#: Relative tolerance of the KKT test: a residual is accepted when it is at most this fraction of
-#: the magnitude of the terms summed to compute it.
-KKT_TOL = 1e-9
 
 #: Largest number of candidate active sets enumerated up front (all subsets of at most ``d`` of
 #: the one-sided rows). Families with more are solved by OSQP and an exact re-solve of the active
@@ -107,10 +105,6 @@ MAX_CACHED_MAPS = 512
 #: A row whose residual at OSQP's solution is within this fraction of its terms counts as nearly
 #: active (OSQP's polished solutions are accurate to ~1e-10 relative).
 NEAR_ACTIVE_TOL = 1e-6
-
-#: Rank and definiteness thresholds of the exact solve, relative to the scale of the matrices.
-_RANK_TOL = 1e-11
-_PD_TOL = 1e-12
 
 #: OSQP's infinity: bounds beyond it are clipped by OSQP.
 OSQP_INFTY = float(osqp.constant("OSQP_INFTY"))
@@ -160,151 +154,6 @@ def _triu_csc(d: int) -> tuple[np.ndarray, np.ndarray]:
 def candidate_count(rows: int, d: int) -> int:
     """Number of subsets of at most ``d`` of ``rows`` one-sided constraints."""
     return sum(math.comb(rows, s) for s in range(min(rows, d) + 1))
-
-
-@dataclass(frozen=True, eq=False)
-class ActiveSetMaps:
-    """Exact solution of one active set as linear maps of the instance ``w = [q; h]``.
-
-    Attributes
-    ----------
-    rows : tuple of int
-        The active rows of ``C`` (sorted).
-    Z : (d, d + c)
-        ``z = Z w``.
-    R : (c + s, d + c)
-        KKT residuals ``[C z - h; -lambda_S] = R w``: all ``<= 0`` at a KKT point (``s = len(rows)``).
-    T : (c + s, d + c)
-        Nonnegative: ``T |w|`` is the magnitude of the terms summed to compute each residual.
-    """
-
-    rows: tuple[int, ...]
-    Z: np.ndarray
-    R: np.ndarray
-    T: np.ndarray
-    RZ: np.ndarray = field(init=False, repr=False)  # [R; Z]: residuals and z in one product
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "RZ", np.vstack([self.R, self.Z]))
-
-    def check(self, w: np.ndarray) -> list[float] | None:
-        """``z`` (a list of d floats) if the active set passes the KKT test at ``w``, else None."""
-        v = (self.RZ @ w).tolist()
-        nr = self.R.shape[0]
-        worst = max(v[:nr], default=-math.inf)
-        z = v[nr:]
-        if not math.isfinite(worst + sum(z)):  # NaN or inf anywhere
-            return None
-        if worst > 0.0:  # a residual above 0: within round-off of its terms?
-            tol = KKT_TOL * (self.T @ np.abs(w))
-            if not np.all(np.asarray(v[:nr]) <= tol):
-                return None
-        return z
-
-
-def _equilibrate(P: np.ndarray, CS: np.ndarray, sweeps: int = 30) -> tuple[np.ndarray, np.ndarray]:
-    """Scalings ``(Dc, Dr)`` of the variables and of the active rows: Ruiz equilibration of the
-    active rows ``CS`` (every row and every column of ``Dr CS Dc`` then has its largest entry
-    near 1); a variable in no active row is scaled by its curvature, ``1 / sqrt(P_ii)``.
-    Variables of very different sizes (an offset of 1 next to a slack of 1e12, rows scaled by
-    1e-11) then get comparable scaled sizes, and rank and conditioning are judged in them."""
-    d, s = P.shape[0], CS.shape[0]
-    absC = np.abs(CS)
-    Dc, Dr = np.ones(d), np.ones(s)
-    used = absC.max(axis=0, initial=0.0) > 0.0
-    for _ in range(sweeps):
-        scaled = absC * Dr[:, None] * Dc[None, :]
-        row = scaled.max(axis=1, initial=0.0)
-        col = scaled.max(axis=0, initial=0.0)
-        fr = np.sqrt(np.where(row > 0.0, row, 1.0))
-        fc = np.sqrt(np.where(col > 0.0, col, 1.0))
-        if np.all(np.abs(fr - 1.0) < 1e-6) and np.all(np.abs(fc - 1.0) < 1e-6):
-            break
-        Dr, Dc = Dr / fr, Dc / fc
-    diag = np.abs(np.diag(P))
-    free = ~used & (diag > 0.0)
-    Dc[free] = 1.0 / np.sqrt(diag[free])
-    return Dc, Dr
-
-
-def active_set_maps(P: np.ndarray, C: np.ndarray, rows: tuple[int, ...]) -> ActiveSetMaps | None:
-    """The maps of :class:`ActiveSetMaps` for ``min 1/2 z'Pz + q'z  s.t.  C_S z = h_S``.
-
-    Computed on the equilibrated KKT system (:func:`_equilibrate`; ``z = Dc z~``), by the
-    null-space method on row-normalized constraints. Returns None when the active set is not a
-    candidate: its rows are linearly dependent, or the reduced Hessian on their null space is not
-    positive definite (the minimizer is not unique); both tests are made on the scaled system,
-    so they do not depend on the units of the variables or of the rows.
-    """
-    d, c = P.shape[0], C.shape[0]
-    s = len(rows)
-    if s > d:
-        return None
-    idx = np.array(rows, dtype=np.int64)
-    CS = C[idx]
-    Dc, Dr = _equilibrate(P, CS)
-    Pt = P * Dc[:, None] * Dc[None, :]
-    Ct = CS * Dr[:, None] * Dc[None, :]
-    norms = np.sqrt(np.einsum("ij,ij->i", Ct, Ct)) if s else np.zeros(0)
-    if s and not np.all(norms > 0.0):
-        return None
-    Dn = Dr / norms if s else norms  # the full row scaling of the active rows
-    Chat = CS * Dn[:, None] * Dc[None, :]
-    select = np.zeros((s, c))
-    select[np.arange(s), idx] = 1.0
-    eye_q = np.hstack([np.diag(Dc), np.zeros((d, c))])  # q~ = Dc q
-    eye_h = np.hstack([np.zeros((c, d)), np.eye(c)])
-    if s:
-        Q, Rfull = np.linalg.qr(Chat.T, mode="complete")
-        R1 = Rfull[:s, :s]
-        if not np.all(np.abs(np.diag(R1)) > _RANK_TOL):  # normalized rows: a scale-free test
-            return None
-        Q1, Q2 = Q[:, :s], Q[:, s:]
-        R1inv_T = np.linalg.inv(R1.T)
-        Zp_h = Q1 @ (R1inv_T @ (Dn[:, None] * select))  # z~_p = Q1 R1^{-T} D h_S
-        # magnitude of the terms summed to compute z~_p, per datum (absolute values carried
-        # through every product, so that cancellations are not mistaken for small terms)
-        Tp_h = np.abs(Q1) @ (np.abs(R1inv_T) @ (Dn[:, None] * select))
-    else:
-        Q1, Q2, R1 = np.zeros((d, 0)), np.eye(d), np.zeros((0, 0))
-        Zp_h, Tp_h = np.zeros((d, c)), np.zeros((d, c))
-    Tp = np.hstack([np.zeros((d, d)), Tp_h])
-    k = d - s
-    if k:
-        M = Q2.T @ Pt @ Q2
-        M = 0.5 * (M + M.T)
-        eig = np.linalg.eigvalsh(M)
-        if not (eig[-1] > 0.0 and eig[0] > _PD_TOL * eig[-1]):
-            return None
-        Y = -np.linalg.inv(M) @ Q2.T  # y = Y (q~ + P~ z~_p)
-        Zt_q = Q2 @ (Y * Dc[None, :])
-        Zt_h = Zp_h + Q2 @ (Y @ Pt @ Zp_h)
-        Tz = Tp + np.abs(Q2) @ (np.abs(Y) @ (np.abs(eye_q) + np.abs(Pt) @ Tp))
-    else:
-        Zt_q, Zt_h = np.zeros((d, d)), Zp_h
-        Tz = Tp
-    Zt = np.hstack([Zt_q, Zt_h])  # z~ = Zt w, (d, d + c)
-    Z = Zt * Dc[:, None]  # z = Dc z~
-    primal = C @ Z - eye_h
-    # the terms of C_i z - h_i: |C_i| Dc times the largest term of any scaled component of z (a
-    # component that is zero in exact arithmetic carries the round-off of the others), and |h_i|
-    primal_T = (np.abs(C) @ Dc)[:, None] * Tz.max(axis=0, keepdims=True) + eye_h
-    # the active rows hold with equality by construction: only the others are tested
-    primal[idx] = 0.0
-    primal_T[idx] = 0.0
-    if s:
-        # stationarity P~ z~ + q~ + Chat' lam_hat = 0  =>  lam_hat = -R1^{-1} Q1'(P~ z~ + q~);
-        # lam_hat has the sign of the multiplier of the unscaled row
-        Lmap = np.linalg.solve(R1, Q1.T)  # (s, d)
-        lam = -Lmap @ (Pt @ Zt + eye_q)
-        lam_T = np.abs(Lmap) @ (np.abs(Pt) @ Tz + np.abs(eye_q))
-        R = np.vstack([primal, -lam])
-        T = np.vstack([primal_T, lam_T])
-    else:
-        R, T = primal, primal_T
-    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(T)) and np.all(np.isfinite(Z))):
-        return None
-    return ActiveSetMaps(tuple(int(i) for i in rows), Z, R, T)
 
 
 class EnumerationBudget:

@@ -16,8 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from .kkt import ActiveSetFactor, active_set_factor, check_active_set
 from .p3 import CLARABEL_SETTINGS
-from .qp import KKT_TOL, QPFamily
+from .qp import QPFamily
 
 __all__ = [
     "FACTOR_CACHE_FLOATS",
@@ -26,10 +27,6 @@ __all__ = [
     "solve_condensed_cvxpy",
     "solve_tree_cvxpy",
 ]
-
-#: Rank and definiteness thresholds of the exact solve (those of :mod:`controllers.qp`).
-_RANK_TOL = 1e-11
-_PD_TOL = 1e-12
 
 #: Floats of the active-set factors one family keeps (least recently used dropped first; 32 MB).
 FACTOR_CACHE_FLOATS = 4_000_000
@@ -63,15 +60,13 @@ class TreeQP(QPFamily):
 
     def _reset_state(self) -> None:
         super()._reset_state()
-        self._factors: OrderedDict[tuple[int, ...], tuple | None] = OrderedDict()
+        self._factors: OrderedDict[tuple[int, ...], ActiveSetFactor | None] = OrderedDict()
         self._factor_floats = 0
-        self._absP: np.ndarray | None = None
-        self._absC_sum = self.absC.sum(axis=1)
         self._osqp_P: np.ndarray | None = None  # the Hessian the OSQP object holds (None: P)
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
-        for key in ("_factors", "_factor_floats", "_absP", "_absC_sum", "_osqp_P"):
+        for key in ("_factors", "_factor_floats", "_osqp_P"):
             state.pop(key, None)
         return state
 
@@ -85,7 +80,6 @@ class TreeQP(QPFamily):
             super().update_P(P)  # checks P, replaces it, clears the caches
         finally:
             self._osqp = solver
-        self._absP = None
 
     def run_osqp(self, w: np.ndarray, retry: bool = False) -> tuple:
         if self._osqp is not None and self._osqp_P is not None:
@@ -94,100 +88,32 @@ class TreeQP(QPFamily):
         self._osqp_P = None
         return super().run_osqp(w, retry)
 
-    def _factor(self, rows: tuple[int, ...]) -> tuple | None:
-        """The active set's factors that do not depend on P (cached), or None when its rows are
-        linearly dependent."""
+    def _factor(self, rows: tuple[int, ...]) -> ActiveSetFactor | None:
+        """The active set's factor (:func:`controllers.kkt.active_set_factor`, independent of
+        ``P``; cached within :data:`FACTOR_CACHE_FLOATS`), or None when its rows are dependent."""
         cache = self._factors
         if rows in cache:
             cache.move_to_end(rows)
             return cache[rows]
-        d, s = self.d, len(rows)
-        out: tuple | None
-        if s:
-            idx = np.array(rows, dtype=np.int64)
-            CS = self.C[idx]
-            norms = np.sqrt(np.einsum("ij,ij->i", CS, CS))
-            out = None
-            if np.all(norms > 0.0):
-                Q, Rfull = np.linalg.qr((CS / norms[:, None]).T, mode="complete")
-                R1 = Rfull[:s, :s]
-                if np.all(np.abs(np.diag(R1)) > _RANK_TOL):  # rows normalized: scale-free
-                    Q1, Q2 = Q[:, :s], np.ascontiguousarray(Q[:, s:])
-                    R1T_inv = np.linalg.inv(R1.T)
-                    Zh = Q1 @ R1T_inv / norms  # z_p = Zh h_S
-                    Lmap = np.linalg.solve(R1, Q1.T)  # multipliers of the normalized rows
-                    out = (idx, Zh, np.abs(Zh), Q2, None, Lmap, np.abs(Lmap))
-        else:
-            out = (None, None, None, np.eye(d), None, None, None)
-        size = 0 if out is None else sum(a.size for a in out if a is not None)
+        out = active_set_factor(self.C, rows)
         cache[rows] = out
-        self._factor_floats += size
+        self._factor_floats += 0 if out is None else out.floats
         while self._factor_floats > FACTOR_CACHE_FLOATS and len(cache) > 1:
             _, old = cache.popitem(last=False)
             if old is not None:
-                self._factor_floats -= sum(a.size for a in old if a is not None)
+                self._factor_floats -= old.floats
         return out
 
     def verify(self, rows: tuple[int, ...], w: np.ndarray) -> list[float] | None:
-        """``z`` if the active set ``rows`` gives the optimum of instance ``w``, else None.
-
-        The same answer and the same test as :meth:`controllers.qp.ActiveSetMaps.check` of
-        :func:`controllers.qp.active_set_maps`, computed for the one instance: the solution's
-        linear map is formed only for the data this instance uses (``q`` and ``h_S``), which is
-        what the magnitudes of the terms need.
-        """
-        d = self.d
-        if len(rows) > d:
+        """``z`` if the active set ``rows`` gives the optimum of instance ``w``, else None: the
+        engine's one KKT test (:func:`controllers.kkt.check_active_set`, the numbers of
+        :meth:`controllers.kkt.ActiveSetMaps.check`) for the one instance."""
+        if len(rows) > self.d:
             return None
-        f = self._factor(rows)
-        if f is None:
+        fac = self._factor(rows)
+        if fac is None:
             return None
-        idx, Zh, absZh, Q2, absQ2, Lmap, absLmap = f
-        P = self.P
-        absP = self._absP
-        if absP is None:
-            absP = self._absP = np.abs(P)
-        q, h = w[:d], w[d:]
-        hS = h[idx] if idx is not None else None
-        # z = -Gq q + Zs h_S with Gq = Q2 (Q2'P Q2)^{-1} Q2' and Zs = (I - Gq P) Zh
-        if Q2.shape[1]:
-            M = Q2.T @ P @ Q2
-            vals, vecs = np.linalg.eigh(0.5 * (M + M.T))
-            if not (vals[-1] > 0.0 and vals[0] > _PD_TOL * vals[-1]):
-                return None
-            V = Q2 @ vecs
-            Gq = (V / vals) @ V.T
-            absGq = np.abs(Gq)
-            z = -(Gq @ q)
-            z_max = absGq.max(axis=0) @ np.abs(q)  # the largest term of any component
-            z_terms = absGq @ np.abs(q)  # |Z| |w|, per component
-            if hS is not None:
-                Zs = Zh - Gq @ (P @ Zh)
-                absZs = np.abs(Zs)
-                z = z + Zs @ hS
-                z_max += absZs.max(axis=0) @ np.abs(hS)
-                z_terms = z_terms + absZs @ np.abs(hS)
-        else:  # a vertex: z does not depend on q
-            z = Zh @ hS
-            z_max = absZh.max(axis=0) @ np.abs(hS)
-            z_terms = absZh @ np.abs(hS)
-        if not np.all(np.isfinite(z)):
-            return None
-        # [C z - h; -lambda] and the magnitudes of their terms (see controllers.qp)
-        primal = self.C @ z - h
-        primal_t = self._absC_sum * float(z_max) + np.abs(h)
-        if idx is not None:
-            primal[idx] = 0.0  # the active rows hold with equality by construction
-            primal_t[idx] = 0.0
-            resid = np.concatenate([primal, Lmap @ (P @ z + q)])
-            terms = np.concatenate([primal_t, absLmap @ (absP @ z_terms + np.abs(q))])
-        else:
-            resid, terms = primal, primal_t
-        worst = float(resid.max(initial=-math.inf))
-        if not worst <= 0.0:
-            if not math.isfinite(worst) or not np.all(resid <= KKT_TOL * terms):
-                return None
-        return z.tolist()
+        return check_active_set(fac, self.P, self.C, w, self.absC)
 
 
 def solve_condensed_cvxpy(
