@@ -363,14 +363,20 @@ def check_active_set(
     C: np.ndarray,
     w: np.ndarray,
     absC: np.ndarray | None = None,
+    report: dict | None = None,
 ) -> list[float] | None:
     """``z`` (a list of d floats) if the active set of ``fac`` passes the KKT test at the
     instance ``w`` of ``min 1/2 z'Pz + q'z  s.t.  C z <= h``, else None.
 
     The test of :meth:`ActiveSetMaps.check` of :func:`active_set_maps`, computed for the one
     instance (the maps only on the data ``q`` and ``h_S`` the solution depends on). ``absC``:
-    ``|C|``, when the caller keeps it.
+    ``|C|``, when the caller keeps it. ``report``: a dict that receives, when the test fails,
+    ``"add"`` (the inactive row most violated relative to its tolerance, or None) and ``"drop"``
+    (the active row whose multiplier is most negative relative to its tolerance, or None); both
+    None when the set is not a candidate.
     """
+    if report is not None:
+        report.update(add=None, drop=None)
     cols = _columns(fac, P)
     if cols is None:
         return None
@@ -403,5 +409,15 @@ def check_active_set(
     if not (math.isfinite(worst + float(z.sum())) and np.all(np.isfinite(terms))):
         return None
     if worst > 0.0 and not np.all(resid <= KKT_TOL * terms):
+        if report is not None:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                excess = np.where(resid > KKT_TOL * terms, resid / np.maximum(terms, 1e-300), 0.0)
+            c = C.shape[0]
+            inactive = excess[:c].copy()
+            inactive[idx] = 0.0
+            if inactive.max(initial=0.0) > 0.0:
+                report["add"] = int(np.argmax(inactive))
+            if excess[c:].max(initial=0.0) > 0.0:
+                report["drop"] = int(idx[np.argmax(excess[c:])])
         return None
     return z.tolist()

@@ -70,6 +70,7 @@ import scipy.sparse as sp
 
 from sdjls_gym._validate import check_mapping, describe
 
+from .dual_qp import DaqpData, daqp_data, run_daqp
 from .kkt import KKT_TOL, ActiveSetMaps, active_set_maps
 
 __all__ = [
@@ -209,6 +210,12 @@ class QPFamily:
         Settings of the OSQP object (see :data:`controllers.rhc.DEFAULT_OSQP_SETTINGS`).
     enumerate_all : bool
         Whether a full enumeration may be built (when the family is small enough).
+    budget : EnumerationBudget, optional
+        The memory budget the family's enumeration shares with others.
+    use_daqp : bool
+        Whether DAQP (:mod:`controllers.dual_qp`) looks for the active set before OSQP.
+    osqp_runs : int
+        OSQP runs at most: 2 (a run, then a cold retry with ten times the iterations), 1 or 0.
 
     Notes
     -----
@@ -225,6 +232,8 @@ class QPFamily:
         osqp_settings: dict[str, Any],
         enumerate_all: bool = True,
         budget: EnumerationBudget | None = None,
+        use_daqp: bool = False,
+        osqp_runs: int = 2,
     ) -> None:
         self.P = np.asarray(P, dtype=np.float64)
         self.A = np.asarray(A, dtype=np.float64)
@@ -252,17 +261,25 @@ class QPFamily:
             and self.enumeration_floats <= MAX_ENUMERATION_FLOATS
         )
         self.budget = budget if budget is not None else EnumerationBudget()
+        self.use_daqp = bool(use_daqp)
+        self.osqp_runs = int(osqp_runs)
+        d = self.d
+        # DAQP takes the identity rows of A (one per variable, in order) as simple bounds
+        self._daqp_simple = bool(
+            self.A.shape[0] >= d and np.array_equal(self.A[self.A.shape[0] - d :], np.eye(d))
+        )
         self._reset_state()
 
     def _reset_state(self) -> None:
         self._maps: dict[tuple[int, ...], ActiveSetMaps | None] = {}
         self._osqp: osqp.OSQP | None = None
         self._enum: Any = None  # the ActiveSetQP of a full enumeration, built on first use
+        self._daqp: DaqpData | None = None  # DAQP's scaled data for the current P
         self.warm: tuple[int, ...] | None = None
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
-        for key in ("_maps", "_osqp", "_enum", "warm"):
+        for key in ("_maps", "_osqp", "_enum", "_daqp", "warm"):
             state.pop(key, None)
         return state
 
@@ -309,6 +326,7 @@ class QPFamily:
         self.P = P
         self._maps.clear()
         self._enum = None
+        self._daqp = None
         self.can_enumerate = False
 
     # ------------------------------------------------------------------ data
@@ -353,7 +371,7 @@ class QPFamily:
         self.budget.use(self, self.enumeration_floats)
         return self._enum
 
-    def _near_active(self, z: np.ndarray, w: np.ndarray, loose: bool = False) -> np.ndarray:
+    def near_active(self, z: np.ndarray, w: np.ndarray, loose: bool = False) -> np.ndarray:
         """Rows of ``C`` that are nearly active at the approximate solution ``z``: the slack is
         within :data:`NEAR_ACTIVE_TOL` of the row's own terms (with a floor from the largest
         component: a slack of 1e-106 where the terms are 1e-106 is zero for OSQP), or, with
@@ -371,7 +389,7 @@ class QPFamily:
         the nearly active rows, then their subsets (largest first); the same again with the
         looser test of nearly active rows. At most :data:`MAX_LOCAL_CANDIDATES` sets in all."""
         tried: set[tuple[int, ...]] = set()
-        nears = [self._near_active(z, w, loose) for loose in (False, True)]
+        nears = [self.near_active(z, w, loose) for loose in (False, True)]
         guesses: list[tuple[int, ...]] = []
         for near in nears:  # the cheap guesses of both tests first
             if y is not None:
@@ -463,8 +481,13 @@ class QPFamily:
             z = self.verify(self.warm, w)
             if z is not None:
                 return Solution(z, self.warm, "warm")
+        if self.use_daqp:
+            sol = self._solve_daqp(w, self.warm if warm else None, notes)
+            if sol is not None:
+                self.warm = sol.rows
+                return sol
         enumerated = False
-        for retry in (False, True):
+        for retry in (False, True)[: self.osqp_runs]:
             z, y, status = self.run_osqp(w, retry)
             if z is None:
                 notes.append(f"osqp {'retry ' if retry else ''}status {status!r}")
@@ -477,13 +500,53 @@ class QPFamily:
                     return Solution(sol.z, sol.rows, "osqp_retry" if retry else "osqp")
             if not enumerated:
                 enumerated = True
-                sol = self.enumerate_one(w)
+                sol = self._enumerate_noted(w, notes, z is None)
                 if sol is not None:
-                    self.warm = sol.rows
                     return sol
-                if self.can_enumerate and z is None:
-                    notes.append("no enumerated active set verified")
+        if not enumerated:
+            return self._enumerate_noted(w, notes, True)
         return None
+
+    def _enumerate_noted(self, w: np.ndarray, notes: list[str], note: bool) -> Solution | None:
+        sol = self.enumerate_one(w)
+        if sol is not None:
+            self.warm = sol.rows
+        elif self.can_enumerate and note:
+            notes.append("no enumerated active set verified")
+        return sol
+
+    def _solve_daqp(
+        self, w: np.ndarray, start: tuple[int, ...] | None, notes: list[str]
+    ) -> Solution | None:
+        """DAQP warm-started from ``start`` (an active set), then from a cold start; the active
+        set of its answer re-solved exactly and verified (:meth:`local`)."""
+        status = ""
+        for begin in (start, None) if start is not None else (None,):
+            z, y, status = self.run_daqp(w, begin)
+            if z is not None:
+                sol = self.local(z, w, y)
+                if sol is not None:
+                    return Solution(sol.z, sol.rows, "daqp")
+                status = "answer did not verify"
+        notes.append(f"daqp {status}")
+        return None
+
+    def run_daqp(
+        self, w: np.ndarray, start: tuple[int, ...] | None = None
+    ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+        """DAQP on instance ``w`` (:func:`controllers.dual_qp.run_daqp`), warm-started from the
+        active set ``start``: ``(z, y, status)``, ``z = y = None`` on failure."""
+        if self._daqp is None:
+            self._daqp = daqp_data(self.P, self.A, self._daqp_simple)
+        lo, hi = self.bounds(np.asarray(w[self.d :]))
+        nu = self.upper_idx.size
+        begin = None
+        if start is not None:
+            begin = [
+                (int(self.upper_idx[i]), False) if i < nu else (int(self.lower_idx[i - nu]), True)
+                for i in start
+            ]
+        return run_daqp(self._daqp, np.asarray(w[: self.d]), lo, hi, begin)
 
     def enumerate_one(self, w: np.ndarray) -> Solution | None:
         """Full enumeration for one instance (None if the family is too large or nothing

@@ -61,7 +61,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 
 from sdjls_gym._validate import check_bool, check_choice, check_int
 from sdjls_gym.model import SDJLSModel
@@ -71,15 +70,23 @@ from .chance import CONSTRAINT_KINDS, check_xi
 from .qp import KKT_TOL, check_osqp_settings
 from .rhc import MAX_QP_ENTRY, check_slack_and_offsets
 from .tree_data import (
-    WEIGHT_FLOOR,
+    FamilyCache,
     RegionClasses,
     TreeFamily,
     build_tree_family,
     check_tree_size,
+    family_magnitudes,
 )
 from .tree_qp import solve_condensed_cvxpy, solve_tree_cvxpy
 
-__all__ = ["ScenarioTreeController", "TreePlan", "PROB_TOL", "DAMPING", "MAX_WEIGHT_RATIO"]
+__all__ = [
+    "DAMPING",
+    "MAX_WEIGHT_RATIO",
+    "PROB_TOL",
+    "TINY_PROBABILITY",
+    "ScenarioTreeController",
+    "TreePlan",
+]
 
 SOLVERS = ("osqp", "cvxpy")
 
@@ -95,6 +102,11 @@ DAMPING = 0.5
 #: verification (reported, not silent) from about 1e16 at steps = 3. P3 accepts more (its cost
 #: condition, :data:`controllers.p3.MAX_COST_CONDITION`).
 MAX_WEIGHT_RATIO = 1e12
+
+#: Nodes of positive path probability below this are weighted exactly; only when the exact
+#: answer cannot be verified (the KKT test cannot resolve multipliers this many times smaller
+#: than the root's) are they left out, and the answer is reported as "approximate" (ok False).
+TINY_PROBABILITY = 1e-12
 
 _PATHS = {"warm": "active_set_warm", "osqp": "osqp", "osqp_retry": "osqp_retry"}
 
@@ -150,7 +162,8 @@ class _Probabilities:
     q: np.ndarray  # (S,) region probabilities of the nodes tree.sq
     branch: np.ndarray  # (M, N)
     path: np.ndarray  # (M,)
-    weight: np.ndarray  # (M,) path probabilities floored at WEIGHT_FLOOR
+    weight: np.ndarray  # (M,) the path probabilities that weight the objective (= path)
+    idle: np.ndarray  # (M,) bool: nodes of path probability 0 (left out of the QP)
 
 
 class ScenarioTreeController(Controller):
@@ -257,12 +270,9 @@ class ScenarioTreeController(Controller):
         self.A_tilde = model.A + model.B @ self.K  # eq. (sys:stabilized_input)
         self.A_tilde.setflags(write=False)
         self._regions = RegionClasses(model.G)
-        self._families: dict[tuple[int, bool], TreeFamily] = {
-            (mode, inside): build_tree_family(self, mode, inside, self._regions)
-            for mode in range(model.N)
-            for inside in (True, False)
-        }
         self._check_magnitudes()
+        #: the families, built when a decision first needs one (within a memory budget)
+        self._families = FamilyCache(self._build_family)
         #: active-set warm start of the OSQP path; False: OSQP at every solve
         self._warm_start = True
         #: how many QP solves each path answered
@@ -291,20 +301,22 @@ class ScenarioTreeController(Controller):
     def _check_magnitudes(self) -> None:
         """ValueError unless every matrix of every family is finite and at most
         :data:`controllers.rhc.MAX_QP_ENTRY` in magnitude (long horizons of unstable
-        ``A + B K`` overflow)."""
-        for fam in self._families.values():
-            for name in ("Lx", "Lz", "chance_x", "cov_next", "tightening", "term_trace"):
-                arr = getattr(fam, name)
-                arr = arr.data if sp.issparse(arr) else arr
-                worst = float(np.max(np.abs(arr))) if arr.size else 0.0
-                if not worst <= MAX_QP_ENTRY:  # NaN included
-                    raise ValueError(
-                        f"the scenario tree of mode {fam.mode} with steps = {self.steps} has an "
-                        f"entry of magnitude {worst:.3g} in {name} (K up to "
-                        f"{float(np.max(np.abs(self.K))):.3g}, Psi up to "
-                        f"{float(np.max(np.abs(self.Psi))):.3g}); every entry must be at most "
-                        f"{MAX_QP_ENTRY:.0e}: lower steps, or use gains K that stabilize A + B K"
-                    )
+        ``A + B K`` overflow); from the nodes' laws, without building the families."""
+        for mode in range(self.model.N):
+            for inside in (True, False):
+                for name, worst in family_magnitudes(self, mode, inside).items():
+                    if not worst <= MAX_QP_ENTRY:
+                        raise ValueError(
+                            f"the scenario tree of mode {mode} with steps = {self.steps} has an "
+                            f"entry of magnitude {worst:.3g} in {name} (K up to "
+                            f"{float(np.max(np.abs(self.K))):.3g}, Psi up to "
+                            f"{float(np.max(np.abs(self.Psi))):.3g}); every entry must be at "
+                            f"most {MAX_QP_ENTRY:.0e}: lower steps, or use gains K that "
+                            "stabilize A + B K"
+                        )
+
+    def _build_family(self, mode: int, inside: bool) -> TreeFamily:
+        return build_tree_family(self, mode, inside, self._regions)
 
     # ------------------------------------------------------------------ probabilities
     def _region_q(self, fam: TreeFamily, x: np.ndarray, k: int, z: np.ndarray | None):
@@ -328,8 +340,7 @@ class ScenarioTreeController(Controller):
         for idx in tree.by_stage[1:]:
             par = tree.parent[idx]
             path[idx] = path[par] * branch[par, tree.mode[idx]]
-        weight = np.maximum(path, WEIGHT_FLOOR)
-        return _Probabilities(q, branch, path, weight)
+        return _Probabilities(q, branch, path, path, path == 0.0)
 
     # ------------------------------------------------------------------ the QP
     @staticmethod
@@ -341,8 +352,13 @@ class ScenarioTreeController(Controller):
         return v, v[fam.row_source]
 
     def _qp(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities):
-        """``(P, w)``: the Hessian and the instance ``[q; h]`` of the engine."""
-        M, m = fam.size, self.model.m
+        """``(P, w)``: the Hessian and the instance ``[q; h]`` of the engine.
+
+        A node of path probability 0 (and its subtree) weighs nothing: its offset and slack
+        appear in no other node's cost or rows, so they are decoupled exactly, with unit
+        curvature, no linear cost and chance rows made slack for every ``z`` (their optimum is
+        then ``nu = rho = 0``; the plan reports their smallest feasible slacks)."""
+        M, m, r = fam.size, self.model.m, self.model.r
         v, wrow = self._row_weights(fam, pr)
         d = fam.engine.d
         P = (fam.P_stack @ v).reshape(d, d)
@@ -352,6 +368,15 @@ class ScenarioTreeController(Controller):
         model = self.model
         band = model.H0 + (k + fam.chance_time)[:, None] * model.H_rate  # H_{k + t + 1}
         h_chance = (band - fam.tightening).ravel() + fam.chance_x @ x
+        if pr.idle.any():
+            nodes = np.flatnonzero(pr.idle)
+            idle = np.concatenate([(nodes[:, None] * m + np.arange(m)).ravel(), M * m + nodes])
+            P[idle, :] = 0.0
+            P[:, idle] = 0.0
+            P[idle, idle] = 1.0
+            qlin[idle] = 0.0
+            rows = np.repeat(pr.idle, r)
+            h_chance[rows] = np.maximum(h_chance[rows], fam.idle_bound[rows])
         w = np.concatenate([qlin, h_chance, fam.h_fixed])
         return P, w
 
@@ -389,57 +414,101 @@ class ScenarioTreeController(Controller):
 
     def _solve(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities):
         """One QP with fixed probabilities: ``(nu (M, m), rho (M,), cost, status, path)``;
-        ``cost`` is None unless a solver reported it (the caller computes the last one only)."""
+        ``cost`` is None unless a solver reported it (the caller computes the last one only).
+        Whatever path found the answer (the warm active set, DAQP, OSQP, cvxpy), it is called
+        solved only after the engine's KKT test (:mod:`controllers.kkt`)."""
         M, m = fam.size, self.model.m
-        if self.solver == "cvxpy":
-            out = solve_tree_cvxpy(self, fam, x, k, pr)
-            if out is not None:
-                nu, rho, cost = out
-                return nu, rho, cost, "solved", "cvxpy"
-            return self._answer(fam, x, k, np.zeros((M, m)), "fallback_nu0: cvxpy failed",
-                                "fallback")  # fmt: skip
         P, w = self._qp(fam, x, k, pr)
         engine = fam.engine
         engine.update_P(P)
         notes: list[str] = []
+        if self.solver == "cvxpy":  # the plain reference, its active set verified
+            out = solve_tree_cvxpy(self, fam, x, k, pr)
+            if out is None:
+                return self._answer(fam, x, k, np.zeros((M, m)), "fallback_nu0: cvxpy failed",
+                                    "fallback")  # fmt: skip
+            return self._verified(fam, x, k, pr, w, out[0], None, notes, "cvxpy")
         sol = engine.solve(w, warm=self._warm_start, notes=notes)
-        path = None if sol is None else _PATHS.get(sol.path, sol.path)
-        if sol is None and self.cvxpy_fallback:
-            rescue = solve_condensed_cvxpy(P, w, engine)
-            if rescue is None:
-                notes.append("cvxpy failed")
-            else:
-                # the smallest feasible slacks for its offsets: a slack of small weight is left
-                # loose within the solver's tolerance, which hides the active set
-                z, y = rescue
-                nu = np.clip(z[: M * m].reshape(M, m), -self.nu_bound, self.nu_bound)
-                z = np.concatenate([nu.ravel(), self._excess(fam, x, k, nu)])
-                sol = engine.local(z, w, y)
-                path = "cvxpy"
-                if sol is None:
-                    notes.append("the cvxpy answer did not verify")
-                    nu = z[: M * m].reshape(M, m)
-                    return self._answer(fam, x, k, nu, "unverified: " + "; ".join(notes),
-                                        "cvxpy")  # fmt: skip
-        elif sol is None:
+        if sol is not None:
+            nu, rho = self._exact(fam, x, k, pr, sol)
+            status = "solved" if not notes else f"solved ({'; '.join(notes)})"
+            return nu, rho, None, status, _PATHS.get(sol.path, sol.path)
+        tiny = (pr.path > 0.0) & (pr.path < TINY_PROBABILITY)
+        if tiny.any():  # the test cannot resolve their weights: an answer without them
+            rough = _Probabilities(pr.q, pr.branch, pr.path, pr.weight, pr.idle | tiny)
+            P2, w2 = self._qp(fam, x, k, rough)
+            engine.update_P(P2)
+            sol = engine.solve(w2, warm=False, notes=[])
+            if sol is not None:
+                nu, rho = self._exact(fam, x, k, rough, sol)
+                notes.append(
+                    f"{int(tiny.sum())} nodes of path probability below {TINY_PROBABILITY:g} "
+                    "left out"
+                )
+                status = "approximate: " + "; ".join(notes)
+                return nu, rho, None, status, _PATHS.get(sol.path, sol.path)
+            engine.update_P(P)
+        if not self.cvxpy_fallback:
             notes.append("cvxpy retry disabled")
+        else:
+            rescue = solve_condensed_cvxpy(P, w, engine)
+            if rescue is not None:
+                z, y = rescue
+                return self._verified(fam, x, k, pr, w, z[: M * m].reshape(M, m), y, notes,
+                                      "cvxpy")  # fmt: skip
+            notes.append("cvxpy failed")
+        return self._answer(fam, x, k, np.zeros((M, m)), "fallback_nu0: " + "; ".join(notes),
+                            "fallback")  # fmt: skip
+
+    def _verified(self, fam, x, k, pr: _Probabilities, w, nu, y, notes: list[str], path: str):
+        """The answer of a solver outside the engine (offsets ``nu`` (M, m), multipliers ``y``
+        or None): its active set re-solved exactly and verified by the engine's KKT test
+        (then "solved", or "solved by cvxpy (...)" after failures), else "unverified" with its
+        offsets and their smallest feasible slacks."""
+        M, m = fam.size, self.model.m
+        nu = np.clip(np.asarray(nu, dtype=np.float64).reshape(M, m), -self.nu_bound, self.nu_bound)
+        nu[pr.idle] = 0.0
+        # the smallest feasible slacks for its offsets: a slack of small weight is left loose
+        # within the solver's tolerance, which hides the active set
+        rho = self._excess(fam, x, k, nu)
+        rho[pr.idle] = 0.0
+        engine = fam.engine
+        z = np.concatenate([nu.ravel(), rho])
+        sol = engine.local(z, w, y)
         if sol is None:
-            return self._answer(fam, x, k, np.zeros((M, m)), "fallback_nu0: " + "; ".join(notes),
-                                "fallback")  # fmt: skip
+            # an offset of tiny path probability is determined by the objective only to about
+            # sqrt(tolerance / probability): complete the active set with DAQP, started from
+            # the rows the answer leaves nearly active, and verify again
+            near = tuple(engine.near_active(z, w, loose=True).tolist())
+            z2, y2, _ = engine.run_daqp(w, near)
+            sol = None if z2 is None else engine.local(z2, w, y2)
+            if sol is not None:
+                notes.append(f"the {path} answer's active set completed by daqp")
+        if sol is None:
+            notes.append(f"the {path} answer did not verify")
+            return self._answer(fam, x, k, nu, "unverified: " + "; ".join(notes), path)
+        nu, rho = self._exact(fam, x, k, pr, sol)
+        status = "solved" if not notes else f"solved by {path} ({'; '.join(notes)})"
+        return nu, rho, None, status, path
+
+    def _exact(self, fam: TreeFamily, x, k, pr: _Probabilities, sol) -> tuple:
+        """``(nu, rho)`` of a verified solution: ``rho = 0`` where the bound ``rho >= 0`` is
+        active (the node's rows then hold at the returned offsets to the KKT test's tolerance
+        of their own terms), else the exact solution's; the smallest feasible slacks at the
+        nodes of path probability 0 (left out of the QP)."""
+        M, m = fam.size, self.model.m
+        engine = fam.engine
         z = np.asarray(sol.z)
         nb = self.nu_bound
         nu = np.clip(z[: M * m].reshape(M, m), -nb, nb)  # round-off outside U
-        # rho = 0 where the bound rho >= 0 is active (the node's rows then hold to the KKT
-        # test's tolerance), else the exact solution's (the excess of its worst row)
         rho = np.maximum(z[M * m :], 0.0)
         active = np.zeros(engine.c, dtype=bool)
         active[list(sol.rows)] = True
         rho[active[engine.c - M :]] = 0.0
-        if not notes:
-            status = "solved"
-        else:
-            status = f"solved {'by cvxpy ' if path == 'cvxpy' else ''}({'; '.join(notes)})"
-        return nu, rho, None, status, path
+        if pr.idle.any():  # decoupled: their exact optimum is nu = 0
+            nu[pr.idle] = 0.0
+            rho[pr.idle] = self._excess(fam, x, k, nu)[pr.idle]
+        return nu, rho
 
     def _answer(self, fam, x, k, nu, status, path):
         """An answer that is not an exact verified one: ``nu`` projected on ``U`` and the
@@ -468,7 +537,10 @@ class ScenarioTreeController(Controller):
             ``"solver"``: the path of the last solve; ``"in_region"``; ``"plan"``: a
             :class:`TreePlan`; ``"iterations"``: QP solves; ``"fixed_point_gap"``: the largest
             change of a region probability that the last solve would cause (0 when the
-            probabilities do not depend on the plan).
+            probabilities do not depend on the plan); ``"converged"``: whether that gap is at
+            most :data:`PROB_TOL`. ``"ok"`` is True only for a verified QP answer at a
+            converged fixed point; a verified answer whose fixed point did not converge within
+            ``iterations`` solves has the status ``"unconverged: the last QP was solved ..."``.
         """
         x, mode, k = self._check_inputs(x, mode, k)
         with self._lock:
@@ -496,6 +568,15 @@ class ScenarioTreeController(Controller):
             if cost is None:
                 cost = self._objective(fam, x, nu, rho, pr)
             plan = self._plan(fam, x, k, pr, nu, rho)
+        ok = status == "solved" or status.startswith("solved ")
+        converged = gap <= PROB_TOL
+        if ok and not converged:  # the QP is solved, but not at the fixed point
+            ok = False
+            status = (
+                f"unconverged: the last QP was {status}, but a region probability still moves "
+                f"by {gap:.2g} > PROB_TOL = {PROB_TOL:g} after {it} solves (iterations = "
+                f"{self.iterations})"
+            )
         m = self.model.m
         u = self.K[mode] @ x + nu[0]  # eq. (eq:stabilization_input)
         info = {
@@ -503,14 +584,35 @@ class ScenarioTreeController(Controller):
             "rho": float(rho[0]),
             "cost": float(cost),
             "status": status,
-            "ok": status == "solved" or status.startswith("solved "),
+            "ok": ok,
             "solver": path,
             "in_region": bool(inside),
             "plan": plan,
             "iterations": it,
             "fixed_point_gap": gap,
+            "converged": converged,
         }
         return np.asarray(u, dtype=np.float64), info
+
+    def act_batch(
+        self, x: np.ndarray, mode: np.ndarray, k: np.ndarray | int
+    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """:meth:`act` for each state of a batch (a loop; see
+        :meth:`controllers.base.Controller.act_batch` for the shapes). An empty batch gives
+        empty arrays: ``u`` (0, m), ``"nu"`` (0, m), ``"rho"``, ``"cost"``, ``"status"`` and
+        ``"ok"`` (0,)."""
+        x, mode, k = self._check_batch_inputs(x, mode, k)
+        if x.shape[0]:
+            return super().act_batch(x, mode, k)
+        m = self.model.m
+        info = {
+            "nu": np.zeros((0, m)),
+            "rho": np.zeros(0),
+            "cost": np.zeros(0),
+            "status": np.zeros(0, dtype=object),
+            "ok": np.zeros(0, dtype=bool),
+        }
+        return np.zeros((0, m)), info
 
     def _plan(self, fam: TreeFamily, x, k, pr: _Probabilities, nu, rho) -> TreePlan:
         M, n = fam.size, self.model.n

@@ -1,10 +1,14 @@
 """Solving the scenario tree's QP: the engine with per-instance exact solves, and cvxpy.
 
-:class:`TreeQP` is the :class:`controllers.qp.QPFamily` of a tree family (warm active set, OSQP,
-exact re-solve of the active set, verified by the KKT test). :func:`solve_tree_cvxpy` is the
-reference: the same tree written plainly in cvxpy, node by node from the model's matrices, and
-solved by Clarabel; :func:`solve_condensed_cvxpy` is the fallback of the fast path (its condensed
-QP in cvxpy).
+:class:`TreeQP` is the :class:`controllers.qp.QPFamily` of a tree family: the warm active set,
+then DAQP (:mod:`controllers.dual_qp`; warm-started from the last active set, then cold), then,
+for small trees only, OSQP; when the family's Hessian has not changed since its first value
+(``steps=1``, or jumps that do not depend on the state), the full enumeration of P3. Every
+answer is the exact re-solve of an active set, verified by the one KKT test of
+:mod:`controllers.kkt`. :func:`solve_tree_cvxpy` is the reference: the same tree written plainly
+in cvxpy, node by node from the model's matrices, and solved by Clarabel;
+:func:`solve_condensed_cvxpy` is the rescue of the fast path (its condensed QP in cvxpy). The
+answers of both are verified by the same test before they are called solved.
 """
 
 from __future__ import annotations
@@ -18,10 +22,11 @@ import numpy as np
 
 from .kkt import ActiveSetFactor, active_set_factor, check_active_set
 from .p3 import CLARABEL_SETTINGS
-from .qp import QPFamily
+from .qp import QPFamily, Solution
 
 __all__ = [
     "FACTOR_CACHE_FLOATS",
+    "OSQP_MAX_VARIABLES",
     "TREE_CLARABEL_SETTINGS",
     "TreeQP",
     "solve_condensed_cvxpy",
@@ -30,6 +35,14 @@ __all__ = [
 
 #: Floats of the active-set factors one family keeps (least recently used dropped first; 32 MB).
 FACTOR_CACHE_FLOATS = 4_000_000
+
+#: Largest number of add / drop steps of :meth:`TreeQP.local` after its candidates fail.
+REPAIR_STEPS = 8
+
+#: OSQP runs (after DAQP) only for trees of at most this many QP variables. On larger trees its
+#: iterations cost more than the cvxpy rescue it would precede (a 111-node tree ran OSQP to its
+#: iteration limit twice, 7 s, before a 2 s cvxpy solve): DAQP failing there goes to cvxpy.
+OSQP_MAX_VARIABLES = 64
 
 #: Clarabel settings of the cvxpy reference: tighter than P3's, since the offsets of nodes of
 #: small path probability weigh little in the objective and are determined only to about
@@ -58,6 +71,13 @@ class TreeQP(QPFamily):
     search) is the engine's.
     """
 
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        #: whether P has been set (update_P) since construction; the enumeration is allowed
+        #: while P keeps its first value
+        self._has_P = False
+        self._may_enumerate = self.can_enumerate
+
     def _reset_state(self) -> None:
         super()._reset_state()
         self._factors: OrderedDict[tuple[int, ...], ActiveSetFactor | None] = OrderedDict()
@@ -72,7 +92,11 @@ class TreeQP(QPFamily):
 
     def update_P(self, P: np.ndarray) -> None:
         """:meth:`QPFamily.update_P`, with the OSQP object brought up to date only when OSQP
-        runs next (most solves are answered by the warm active set without OSQP)."""
+        runs next (most solves are answered by the warm active set without OSQP). An unchanged
+        ``P`` changes nothing; the first ``P`` keeps the full enumeration allowed (the family's
+        constructor only had a placeholder)."""
+        if self._has_P and np.array_equal(P, self.P):
+            return
         if self._osqp is not None and self._osqp_P is None:
             self._osqp_P = self.P
         solver, self._osqp = self._osqp, None
@@ -80,6 +104,9 @@ class TreeQP(QPFamily):
             super().update_P(P)  # checks P, replaces it, clears the caches
         finally:
             self._osqp = solver
+        if not self._has_P:
+            self._has_P = True
+            self.can_enumerate = self._may_enumerate
 
     def run_osqp(self, w: np.ndarray, retry: bool = False) -> tuple:
         if self._osqp is not None and self._osqp_P is not None:
@@ -104,16 +131,47 @@ class TreeQP(QPFamily):
                 self._factor_floats -= old.floats
         return out
 
-    def verify(self, rows: tuple[int, ...], w: np.ndarray) -> list[float] | None:
+    def verify(
+        self, rows: tuple[int, ...], w: np.ndarray, report: dict | None = None
+    ) -> list[float] | None:
         """``z`` if the active set ``rows`` gives the optimum of instance ``w``, else None: the
         engine's one KKT test (:func:`controllers.kkt.check_active_set`, the numbers of
-        :meth:`controllers.kkt.ActiveSetMaps.check`) for the one instance."""
+        :meth:`controllers.kkt.ActiveSetMaps.check`) for the one instance. ``report``: see
+        :func:`controllers.kkt.check_active_set`."""
+        if report is not None:
+            report.update(add=None, drop=None)
         if len(rows) > self.d:
             return None
         fac = self._factor(rows)
         if fac is None:
             return None
-        return check_active_set(fac, self.P, self.C, w, self.absC)
+        return check_active_set(fac, self.P, self.C, w, self.absC, report)
+
+    def local(self, z: np.ndarray, w: np.ndarray, y: np.ndarray | None = None) -> Solution | None:
+        """:meth:`QPFamily.local`, then up to :data:`REPAIR_STEPS` primal-dual steps from the
+        rows the solver left nearly active: add the most violated row, else drop the active row
+        of the most negative multiplier, and verify again (a node of tiny path probability can
+        need its chance row active where the solver, blind to its weight, left its slack's
+        bound)."""
+        sol = super().local(z, w, y)
+        if sol is not None:
+            return sol
+        rows = set(self.near_active(z, w, loose=True).tolist())
+        if len(rows) > self.d:
+            return None
+        report: dict = {}
+        for _ in range(REPAIR_STEPS):
+            key = tuple(sorted(rows))
+            out = self.verify(key, w, report)
+            if out is not None:
+                return Solution(out, key, "")
+            if report["add"] is not None and len(rows) < self.d:
+                rows.add(report["add"])
+            elif report["drop"] is not None:
+                rows.discard(report["drop"])
+            else:
+                return None
+        return None
 
 
 def solve_condensed_cvxpy(
