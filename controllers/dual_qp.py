@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DaqpData", "daqp_data", "kkt_scaling", "run_daqp"]
+__all__ = ["REGULARIZE", "DaqpData", "daqp_data", "kkt_scaling", "run_daqp"]
 
 #: DAQP's infinity: bounds beyond it are treated as absent.
 DAQP_INF = 1e30
@@ -29,6 +29,10 @@ _ACTIVE, _LOWER = 1, 2
 
 #: Sweeps of the Ruiz equilibration of the KKT matrix.
 RUIZ_SWEEPS = 15
+
+#: Proximal terms of the regularized attempts (see :func:`run_daqp`), tried in turn when DAQP
+#: fails on the QP itself or its answer does not verify.
+REGULARIZE = (1e-9, 1e-12, 1e-15)
 
 
 def kkt_scaling(
@@ -95,18 +99,31 @@ def run_daqp(
     lo: np.ndarray,
     hi: np.ndarray,
     warm: list[tuple[int, bool]] | None = None,
+    regularize: float = 0.0,
 ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
     """DAQP on ``min 1/2 z'Pz + q'z  s.t.  lo <= A z <= hi`` (the rows of :func:`daqp_data`).
 
-    ``warm``: ``(row of A, at its lower side)`` pairs to start from. Returns ``(z, y, status)``:
-    ``y`` holds the multipliers in OSQP's form (one per row of ``A``, positive where the upper
-    side is active, negative for the lower), ``z = y = None`` unless DAQP reports an optimum.
+    ``warm``: ``(row of A, at its lower side)`` pairs to start from. ``regularize``: 0 for the
+    QP itself; else the objective is normalized by its largest linear coefficient and
+    ``regularize`` times the identity is added to its Hessian (in the scaled variables). A
+    state of size 1e30 makes the linear term 1e30 times the Hessian: DAQP then reports the
+    problem infeasible, while the regularized problem (an LP with a small proximal term, whose
+    optimal vertex it finds) gives the active set. Returns ``(z, y, status)``: ``y`` holds the
+    multipliers in OSQP's form (one per row of ``A``, positive where the upper side is active,
+    negative for the lower), ``z = y = None`` unless DAQP reports an optimum.
     """
     import daqp
 
     D, E, cs = data.D, data.E, data.cs
     d = D.size
     f = np.ascontiguousarray(q * D * cs)
+    H = data.H
+    settings: dict = {}
+    if regularize:
+        top = max(1.0, float(np.max(np.abs(f), initial=0.0)))
+        f = f / top
+        H = H / top + regularize * np.eye(d)
+        settings = {"eps_prox": 0.0, "fval_bound": 1e300}
     scale = np.empty_like(lo)
     scale[data.general] = E[data.general]
     if data.simple:
@@ -121,7 +138,7 @@ def run_daqp(
         sense[data.index[a]] = _ACTIVE | (_LOWER if lower else 0)
     try:
         x, _, flag, info = daqp.solve(
-            data.H, f, data.A_gen, bu, bl, sense, iter_limit=max(1000, 20 * m)
+            H, f, data.A_gen, bu, bl, sense, iter_limit=max(1000, 20 * m), **settings
         )
     except Exception as exc:  # noqa: BLE001 - an episode must not crash on a solver error
         return None, None, f"error {type(exc).__name__}: {exc}"

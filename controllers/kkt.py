@@ -371,12 +371,12 @@ def check_active_set(
     The test of :meth:`ActiveSetMaps.check` of :func:`active_set_maps`, computed for the one
     instance (the maps only on the data ``q`` and ``h_S`` the solution depends on). ``absC``:
     ``|C|``, when the caller keeps it. ``report``: a dict that receives, when the test fails,
-    ``"add"`` (the inactive row most violated relative to its tolerance, or None) and ``"drop"``
-    (the active row whose multiplier is most negative relative to its tolerance, or None); both
-    None when the set is not a candidate.
+    ``"add"`` (the inactive rows violated beyond their tolerance, most violated first, relative
+    to it) and ``"drop"`` (the active rows whose multipliers are negative beyond their
+    tolerance); both empty when the set is not a candidate.
     """
     if report is not None:
-        report.update(add=None, drop=None)
+        report.update(add=[], drop=[])
     cols = _columns(fac, P)
     if cols is None:
         return None
@@ -415,9 +415,8 @@ def check_active_set(
             c = C.shape[0]
             inactive = excess[:c].copy()
             inactive[idx] = 0.0
-            if inactive.max(initial=0.0) > 0.0:
-                report["add"] = int(np.argmax(inactive))
-            if excess[c:].max(initial=0.0) > 0.0:
-                report["drop"] = int(idx[np.argmax(excess[c:])])
+            add = np.flatnonzero(inactive > 0.0)
+            report["add"] = add[np.argsort(-inactive[add], kind="stable")].tolist()
+            report["drop"] = idx[excess[c:] > 0.0].tolist()
         return None
     return z.tolist()

@@ -70,7 +70,7 @@ import scipy.sparse as sp
 
 from sdjls_gym._validate import check_mapping, describe
 
-from .dual_qp import DaqpData, daqp_data, run_daqp
+from .dual_qp import REGULARIZE, DaqpData, daqp_data, run_daqp
 from .kkt import KKT_TOL, ActiveSetMaps, active_set_maps
 
 __all__ = [
@@ -520,19 +520,22 @@ class QPFamily:
     ) -> Solution | None:
         """DAQP warm-started from ``start`` (an active set), then from a cold start; the active
         set of its answer re-solved exactly and verified (:meth:`local`)."""
-        status = ""
-        for begin in (start, None) if start is not None else (None,):
-            z, y, status = self.run_daqp(w, begin)
+        status = first = ""
+        attempts = [(start, 0.0)] if start is not None else []
+        attempts += [(None, 0.0)] + [(None, mu) for mu in REGULARIZE]
+        for begin, mu in attempts:
+            z, y, status = self.run_daqp(w, begin, mu)
             if z is not None:
                 sol = self.local(z, w, y)
                 if sol is not None:
                     return Solution(sol.z, sol.rows, "daqp")
                 status = "answer did not verify"
-        notes.append(f"daqp {status}")
+            first = first or status
+        notes.append(f"daqp {first}")
         return None
 
     def run_daqp(
-        self, w: np.ndarray, start: tuple[int, ...] | None = None
+        self, w: np.ndarray, start: tuple[int, ...] | None = None, regularize: float = 0.0
     ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
         """DAQP on instance ``w`` (:func:`controllers.dual_qp.run_daqp`), warm-started from the
         active set ``start``: ``(z, y, status)``, ``z = y = None`` on failure."""
@@ -546,7 +549,7 @@ class QPFamily:
                 (int(self.upper_idx[i]), False) if i < nu else (int(self.lower_idx[i - nu]), True)
                 for i in start
             ]
-        return run_daqp(self._daqp, np.asarray(w[: self.d]), lo, hi, begin)
+        return run_daqp(self._daqp, np.asarray(w[: self.d]), lo, hi, begin, regularize)
 
     def enumerate_one(self, w: np.ndarray) -> Solution | None:
         """Full enumeration for one instance (None if the family is too large or nothing

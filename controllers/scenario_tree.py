@@ -108,6 +108,11 @@ MAX_WEIGHT_RATIO = 1e12
 #: than the root's) are they left out, and the answer is reported as "approximate" (ok False).
 TINY_PROBABILITY = 1e-12
 
+#: When the chain fails at a state larger than this, the QP is solved by continuation from the
+#: state scaled to this size, by factors of ``CONTINUATION_STEP`` (see ``_continuation``).
+CONTINUATION_FROM = 1e3
+CONTINUATION_STEP = 1e3
+
 _PATHS = {"warm": "active_set_warm", "osqp": "osqp", "osqp_retry": "osqp_retry"}
 
 
@@ -429,6 +434,8 @@ class ScenarioTreeController(Controller):
                                     "fallback")  # fmt: skip
             return self._verified(fam, x, k, pr, w, out[0], None, notes, "cvxpy")
         sol = engine.solve(w, warm=self._warm_start, notes=notes)
+        if sol is None:
+            sol = self._continuation(fam, x, k, pr, notes)
         if sol is not None:
             nu, rho = self._exact(fam, x, k, pr, sol)
             status = "solved" if not notes else f"solved ({'; '.join(notes)})"
@@ -459,6 +466,27 @@ class ScenarioTreeController(Controller):
             notes.append("cvxpy failed")
         return self._answer(fam, x, k, np.zeros((M, m)), "fallback_nu0: " + "; ".join(notes),
                             "fallback")  # fmt: skip
+
+    def _continuation(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities, notes):
+        """The QP at a huge state by continuation in the state: its data are affine in ``x``
+        and its Hessian does not depend on ``x``, so the instances at ``t x`` for ``t`` growing
+        by :data:`CONTINUATION_STEP` from ``|t x| = CONTINUATION_FROM`` to ``t = 1`` are solved
+        in turn, each started from the last one's active set. A function of ``(x, k)`` and the
+        probabilities only: a state of size 1e30 makes the linear term 1e30 times the Hessian,
+        where the solvers fail from a cold start. None if a step fails (or ``x`` is small)."""
+        size = float(np.max(np.abs(x), initial=0.0))
+        if not size > CONTINUATION_FROM:
+            return None
+        engine = fam.engine
+        t, warm, sol = CONTINUATION_FROM / size, False, None
+        while True:
+            sol = engine.solve(self._qp(fam, t * x, k, pr)[1], warm=warm)
+            if sol is None:
+                return None
+            if t == 1.0:
+                notes.append(f"by continuation from {CONTINUATION_FROM:g} / |x| times the state")
+                return sol
+            t, warm = min(1.0, t * CONTINUATION_STEP), True
 
     def _verified(self, fam, x, k, pr: _Probabilities, w, nu, y, notes: list[str], path: str):
         """The answer of a solver outside the engine (offsets ``nu`` (M, m), multipliers ``y``

@@ -36,8 +36,9 @@ __all__ = [
 #: Floats of the active-set factors one family keeps (least recently used dropped first; 32 MB).
 FACTOR_CACHE_FLOATS = 4_000_000
 
-#: Largest number of add / drop steps of :meth:`TreeQP.local` after its candidates fail.
-REPAIR_STEPS = 8
+#: Largest number of primal-dual active-set steps of :meth:`TreeQP.local` after its candidates
+#: fail.
+REPAIR_STEPS = 20
 
 #: OSQP runs (after DAQP) only for trees of at most this many QP variables. On larger trees its
 #: iterations cost more than the cvxpy rescue it would precede (a 111-node tree ran OSQP to its
@@ -139,7 +140,7 @@ class TreeQP(QPFamily):
         :meth:`controllers.kkt.ActiveSetMaps.check`) for the one instance. ``report``: see
         :func:`controllers.kkt.check_active_set`."""
         if report is not None:
-            report.update(add=None, drop=None)
+            report.update(add=[], drop=[])
         if len(rows) > self.d:
             return None
         fac = self._factor(rows)
@@ -148,11 +149,12 @@ class TreeQP(QPFamily):
         return check_active_set(fac, self.P, self.C, w, self.absC, report)
 
     def local(self, z: np.ndarray, w: np.ndarray, y: np.ndarray | None = None) -> Solution | None:
-        """:meth:`QPFamily.local`, then up to :data:`REPAIR_STEPS` primal-dual steps from the
-        rows the solver left nearly active: add the most violated row, else drop the active row
-        of the most negative multiplier, and verify again (a node of tiny path probability can
-        need its chance row active where the solver, blind to its weight, left its slack's
-        bound)."""
+        """:meth:`QPFamily.local`, then up to :data:`REPAIR_STEPS` primal-dual active-set
+        steps from the rows the solver left nearly active: the rows whose multipliers are
+        negative leave the set and the violated rows join it (the most violated first, up to
+        ``d`` rows), and the new set is verified. A node of tiny path probability, or the
+        stages whose costs a huge state dwarfs, can need rows that the solver, blind to their
+        weight, left otherwise."""
         sol = super().local(z, w, y)
         if sol is not None:
             return sol
@@ -160,16 +162,17 @@ class TreeQP(QPFamily):
         if len(rows) > self.d:
             return None
         report: dict = {}
+        seen: set[tuple[int, ...]] = set()
         for _ in range(REPAIR_STEPS):
             key = tuple(sorted(rows))
+            seen.add(key)
             out = self.verify(key, w, report)
             if out is not None:
                 return Solution(out, key, "")
-            if report["add"] is not None and len(rows) < self.d:
-                rows.add(report["add"])
-            elif report["drop"] is not None:
-                rows.discard(report["drop"])
-            else:
+            kept = rows.difference(report["drop"])
+            room = self.d - len(kept)
+            rows = kept.union(report["add"][: max(room, 0)])
+            if not (report["add"] or report["drop"]) or tuple(sorted(rows)) in seen:
                 return None
         return None
 
