@@ -14,39 +14,31 @@ How an instance is solved (:meth:`QPFamily.solve`)
 --------------------------------------------------
 1. *Warm start*: the active set of the family's last solution is re-solved exactly and kept if
    it passes the KKT test.
-2. *OSQP*: the family's ``osqp.OSQP`` object (set up on first use; later only ``update`` and a
+2. *DAQP* (families built with ``use_daqp``, the scenario tree's): a dense dual active-set solver
+   (:mod:`controllers.dual_qp`), started from the last active set, then cold, then on a
+   regularized objective; the active set of its answer is re-solved exactly and verified.
+3. *OSQP*: the family's ``osqp.OSQP`` object (set up on first use; later only ``update`` and a
    warm-started ``solve``) finds an approximate optimum; the active set it identifies (nonzero
    multipliers, then the rows it leaves nearly active) is re-solved exactly and verified.
-3. *Enumeration*: the candidate active sets among the rows OSQP left nearly active; then, when the
+4. *Enumeration*: the candidate active sets among the rows OSQP left nearly active; then, when the
    family is small enough (:data:`MAX_CANDIDATES`), every candidate active set.
-4. OSQP again from a cold start with ten times the iterations, then steps 2-3.
+5. OSQP again from a cold start with ten times the iterations, then steps 3-4 (``osqp_runs``: 2
+   OSQP runs by default, fewer for families where its iterations are hopeless).
 
 The caller (the controller) decides what to do when all of this fails (the cvxpy reference, then
 a safe default). Every answer this class returns is the exact solution of the equality-
 constrained KKT system of a verified active set, so it is a function of the instance and the
 active set, not of the path that found it.
 
-Exact solve of an active set
-----------------------------
-For an active set ``S`` (rows of ``C``), the solution and the multipliers are linear maps of
-``w`` (:func:`active_set_maps`). The active rows and the variables are first equilibrated (Ruiz
-scaling of ``C_S``; a variable in no active row by its curvature), then the null-space method runs
-on the scaled, row-normalized rows: ``C_S' = Q R``, ``z = Q1 R1^{-T} h_S + Q2 y`` with
-``(Q2' P Q2) y = -Q2'(q + P z_p)``, and the multipliers from stationarity. Components that do not
-depend on a datum get exact zeros in its column (a vertex does not depend on ``q`` at all), so a
-huge slack penalty or a loose bound does not leak round-off into the answer. A set is a candidate
-only if its scaled rows are linearly independent and the reduced Hessian is positive definite,
-relative to its own scale.
-
-Tolerances relative to scale
-----------------------------
-The KKT test accepts an active set when every primal residual ``C_i z - h_i`` of an inactive row
-and every negated multiplier is at most :data:`KKT_TOL` times the magnitude of the terms summed
-to compute it. Those magnitudes are carried through every intermediate product with absolute
-values (so a cancellation, e.g. a particular solution and a correction of 2.27 each, is not
-mistaken for a small term), in the equilibrated variables. The test is therefore invariant under
-a scaling of the rows, of the variables or of the objective, and one loose row (a bound of 1e9)
-or a huge penalty (1e12) does not widen the tolerance of the others.
+Exact solve of an active set, and the KKT test
+----------------------------------------------
+Both are :mod:`controllers.kkt`, the one verification of every receding-horizon QP: the active
+rows and the variables are equilibrated, the null-space method solves the active set, and the
+answer is accepted when every row holds at the returned ``z`` to :data:`KKT_TOL` of its own
+terms and every multiplier is nonnegative to :data:`KKT_TOL` of the magnitude of its terms. A
+family with a fixed Hessian keeps the solution's maps per active set
+(:func:`controllers.kkt.active_set_maps`); the scenario tree, whose Hessian changes at every
+solve, solves each instance (:func:`controllers.kkt.check_active_set`) with the same numbers.
 
 Thread safety
 -------------
