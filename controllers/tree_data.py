@@ -75,8 +75,10 @@ MAX_TREE_VARIABLES = 1000
 #: Largest number of floats in the dense matrices of one family (64 MB).
 MAX_FAMILY_FLOATS = 8_000_000
 
-#: Largest number of floats the built families of one controller hold together (256 MB): beyond,
-#: the least recently used family is dropped (and built again when a decision needs it).
+#: Largest number of floats the matrices of the built families of one controller hold together
+#: (256 MB): beyond, the least recently used family is dropped (and built again when a decision
+#: needs it). Each family's engine also caches active-set factors (at most
+#: :data:`controllers.tree_qp.FACTOR_CACHE_FLOATS`) and DAQP's scaled rows.
 FAMILY_BUDGET_FLOATS = 32_000_000
 
 
