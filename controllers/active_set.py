@@ -11,9 +11,11 @@ candidates are ordered with the largest active sets first, the usual optima of t
 receding-horizon problems. Ties (degenerate problems) are broken by that order, so the answer
 does not depend on earlier calls.
 
-The KKT test is that of :class:`controllers.qp.ActiveSetMaps`: each residual at most
-:data:`controllers.qp.KKT_TOL` times the magnitude of its terms. Residuals that are ``<= 0`` pass
-outright; only the rare borderline ones get the per-term tolerance computed.
+The KKT test is that of :class:`controllers.kkt.ActiveSetMaps`: each row, at the returned
+solution, at most :data:`controllers.kkt.KKT_TOL` times its own terms, and each negated
+multiplier at most that fraction of the magnitude of its terms. Residuals that are ``<= 0`` pass
+outright; only the rare borderline ones get the tolerance computed; the winner's rows are
+checked at its solution.
 
 Instances that no candidate settles are flagged, and the caller solves them otherwise. The
 family's size is capped (:data:`controllers.qp.MAX_CANDIDATES`); the caller builds an
@@ -27,7 +29,7 @@ from itertools import combinations
 
 import numpy as np
 
-from .qp import KKT_TOL, active_set_maps
+from .kkt import KKT_TOL, active_set_maps
 
 __all__ = ["ActiveSetQP"]
 
@@ -62,6 +64,14 @@ class ActiveSetQP:
                 m = active_set_maps(P, C, rows)
                 if m is not None:
                     maps.append(m)
+        self._maps = maps
+        self.C, self.absC = C, np.abs(C)
+        # the active bounds of each candidate (kkt.snap_bounds): row and coefficient per variable
+        self._snap_row = np.full((len(maps), d), -1, dtype=np.int64)
+        self._snap_coef = np.ones((len(maps), d))
+        for i, m in enumerate(maps):
+            for row, j, a in m.bounds:
+                self._snap_row[i, j], self._snap_coef[i, j] = row, a
         self.active_sets = [m.rows for m in maps]
         self.index = {rows: i for i, rows in enumerate(self.active_sets)}
         self.n_candidates = len(maps)
@@ -102,11 +112,28 @@ class ActiveSetQP:
         return out
 
     def _exact_ok(self, cand: np.ndarray, wr: np.ndarray) -> np.ndarray:
-        """KKT test with per-residual tolerances for pairs (candidate ``cand[i]``, column i)."""
+        """KKT test with per-residual tolerances for pairs (candidate ``cand[i]``, column i):
+        the multipliers against their terms, every row at the candidate's solution."""
         w = wr.T  # (B', width)
-        res = np.einsum("bij,bj->bi", self._R[cand], w)
-        tol = KKT_TOL * np.einsum("bij,bj->bi", self._T[cand], np.abs(w))
-        return np.all(res <= tol, axis=1)
+        c = self.c
+        res = np.einsum("bij,bj->bi", self._R[cand, c:], w)
+        tol = KKT_TOL * np.einsum("bij,bj->bi", self._T[cand, c:], np.abs(w))
+        z = self._snap(np.einsum("bij,bj->bi", self._Z[cand], w), cand, w[:, self.d :])
+        return np.all(res <= tol, axis=1) & self._rows_hold(z, w[:, self.d :])
+
+    def _snap(self, z: np.ndarray, cand: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """``z`` (B, d) of candidates ``cand`` (B,) with their active bounds set exactly."""
+        rows = self._snap_row[cand]
+        on = rows >= 0
+        if not on.any():
+            return z
+        bound = np.take_along_axis(h, np.where(on, rows, 0), axis=1) / self._snap_coef[cand]
+        return np.where(on, bound, z)
+
+    def _rows_hold(self, z: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """Whether every row holds at ``z`` (B, d) to :data:`KKT_TOL` of its own terms (B,)."""
+        primal = z @ self.C.T - h
+        return np.all(primal <= KKT_TOL * (np.abs(z) @ self.absC.T + np.abs(h)), axis=1)
 
     def solve(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Solve a batch of instances.
@@ -128,6 +155,7 @@ class ActiveSetQP:
         scale = np.abs(wT).max(axis=0, initial=0.0)
         z = np.full((B, d), np.nan)
         found = np.zeros(B, dtype=bool)
+        chosen = np.zeros(B, dtype=np.int64)
         # The lowest-index candidate that passes wins. For speed the candidates are tried in two
         # ranges: up to the one that won most often in the previous call, then the rest.
         g = self._guess
@@ -155,8 +183,16 @@ class ActiveSetQP:
             zr = (Z_rows @ wr).reshape(h, d, -1)
             z[idx[hit]] = zr[best, :, np.arange(best.size)]
             found[idx[hit]] = True
+            chosen[idx[hit]] = lo + best
             winners.append(lo + best)
             todo = idx[~hit]
+        if found.any():  # the active rows, and every row, at the returned solutions
+            idx = np.flatnonzero(found)
+            z[idx] = self._snap(z[idx], chosen[idx], w[idx, d:])
+            held = self._rows_hold(z[idx], w[idx, d:])
+            if not held.all():
+                z[idx[~held]] = np.nan
+                found[idx[~held]] = False
         if winners:
             counts = np.bincount(np.concatenate(winners), minlength=nc)
             self._guess = int(counts.argmax()) if counts.any() else self._guess
@@ -170,9 +206,6 @@ class ActiveSetQP:
         worst = res.max(axis=1)
         loose = self._loose * float(np.max(np.abs(w), initial=0.0))
         for cand in np.flatnonzero(worst <= loose).tolist():
-            if worst[cand] <= 0.0:
-                return self.active_sets[cand]
-            tol = KKT_TOL * (self._T[cand] @ np.abs(w))
-            if np.all(res[cand] <= tol):
+            if self._maps[cand].check(w) is not None:
                 return self.active_sets[cand]
         return None

@@ -14,39 +14,31 @@ How an instance is solved (:meth:`QPFamily.solve`)
 --------------------------------------------------
 1. *Warm start*: the active set of the family's last solution is re-solved exactly and kept if
    it passes the KKT test.
-2. *OSQP*: the family's ``osqp.OSQP`` object (set up on first use; later only ``update`` and a
+2. *DAQP* (families built with ``use_daqp``, the scenario tree's): a dense dual active-set solver
+   (:mod:`controllers.dual_qp`), started from the last active set, then cold, then on a
+   regularized objective; the active set of its answer is re-solved exactly and verified.
+3. *OSQP*: the family's ``osqp.OSQP`` object (set up on first use; later only ``update`` and a
    warm-started ``solve``) finds an approximate optimum; the active set it identifies (nonzero
    multipliers, then the rows it leaves nearly active) is re-solved exactly and verified.
-3. *Enumeration*: the candidate active sets among the rows OSQP left nearly active; then, when the
+4. *Enumeration*: the candidate active sets among the rows OSQP left nearly active; then, when the
    family is small enough (:data:`MAX_CANDIDATES`), every candidate active set.
-4. OSQP again from a cold start with ten times the iterations, then steps 2-3.
+5. OSQP again from a cold start with ten times the iterations, then steps 3-4 (``osqp_runs``: 2
+   OSQP runs by default, fewer for families where its iterations are hopeless).
 
 The caller (the controller) decides what to do when all of this fails (the cvxpy reference, then
 a safe default). Every answer this class returns is the exact solution of the equality-
 constrained KKT system of a verified active set, so it is a function of the instance and the
 active set, not of the path that found it.
 
-Exact solve of an active set
-----------------------------
-For an active set ``S`` (rows of ``C``), the solution and the multipliers are linear maps of
-``w`` (:func:`active_set_maps`). The active rows and the variables are first equilibrated (Ruiz
-scaling of ``C_S``; a variable in no active row by its curvature), then the null-space method runs
-on the scaled, row-normalized rows: ``C_S' = Q R``, ``z = Q1 R1^{-T} h_S + Q2 y`` with
-``(Q2' P Q2) y = -Q2'(q + P z_p)``, and the multipliers from stationarity. Components that do not
-depend on a datum get exact zeros in its column (a vertex does not depend on ``q`` at all), so a
-huge slack penalty or a loose bound does not leak round-off into the answer. A set is a candidate
-only if its scaled rows are linearly independent and the reduced Hessian is positive definite,
-relative to its own scale.
-
-Tolerances relative to scale
-----------------------------
-The KKT test accepts an active set when every primal residual ``C_i z - h_i`` of an inactive row
-and every negated multiplier is at most :data:`KKT_TOL` times the magnitude of the terms summed
-to compute it. Those magnitudes are carried through every intermediate product with absolute
-values (so a cancellation, e.g. a particular solution and a correction of 2.27 each, is not
-mistaken for a small term), in the equilibrated variables. The test is therefore invariant under
-a scaling of the rows, of the variables or of the objective, and one loose row (a bound of 1e9)
-or a huge penalty (1e12) does not widen the tolerance of the others.
+Exact solve of an active set, and the KKT test
+----------------------------------------------
+Both are :mod:`controllers.kkt`, the one verification of every receding-horizon QP: the active
+rows and the variables are equilibrated, the null-space method solves the active set, and the
+answer is accepted when every row holds at the returned ``z`` to :data:`KKT_TOL` of its own
+terms and every multiplier is nonnegative to :data:`KKT_TOL` of the magnitude of its terms. A
+family with a fixed Hessian keeps the solution's maps per active set
+(:func:`controllers.kkt.active_set_maps`); the scenario tree, whose Hessian changes at every
+solve, solves each instance (:func:`controllers.kkt.check_active_set`) with the same numbers.
 
 Thread safety
 -------------
@@ -59,7 +51,7 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache
 from itertools import chain, combinations
 from typing import Any
@@ -69,6 +61,9 @@ import osqp
 import scipy.sparse as sp
 
 from sdjls_gym._validate import check_mapping, describe
+
+from .dual_qp import REGULARIZE, DaqpData, daqp_data, run_daqp
+from .kkt import KKT_TOL, ActiveSetMaps, active_set_maps
 
 __all__ = [
     "DEFAULT_OSQP_SETTINGS",
@@ -81,10 +76,6 @@ __all__ = [
     "check_osqp_settings",
     "candidate_count",
 ]
-
-#: Relative tolerance of the KKT test: a residual is accepted when it is at most this fraction of
-#: the magnitude of the terms summed to compute it.
-KKT_TOL = 1e-9
 
 #: Largest number of candidate active sets enumerated up front (all subsets of at most ``d`` of
 #: the one-sided rows). Families with more are solved by OSQP and an exact re-solve of the active
@@ -107,10 +98,6 @@ MAX_CACHED_MAPS = 512
 #: A row whose residual at OSQP's solution is within this fraction of its terms counts as nearly
 #: active (OSQP's polished solutions are accurate to ~1e-10 relative).
 NEAR_ACTIVE_TOL = 1e-6
-
-#: Rank and definiteness thresholds of the exact solve, relative to the scale of the matrices.
-_RANK_TOL = 1e-11
-_PD_TOL = 1e-12
 
 #: OSQP's infinity: bounds beyond it are clipped by OSQP.
 OSQP_INFTY = float(osqp.constant("OSQP_INFTY"))
@@ -160,151 +147,6 @@ def _triu_csc(d: int) -> tuple[np.ndarray, np.ndarray]:
 def candidate_count(rows: int, d: int) -> int:
     """Number of subsets of at most ``d`` of ``rows`` one-sided constraints."""
     return sum(math.comb(rows, s) for s in range(min(rows, d) + 1))
-
-
-@dataclass(frozen=True, eq=False)
-class ActiveSetMaps:
-    """Exact solution of one active set as linear maps of the instance ``w = [q; h]``.
-
-    Attributes
-    ----------
-    rows : tuple of int
-        The active rows of ``C`` (sorted).
-    Z : (d, d + c)
-        ``z = Z w``.
-    R : (c + s, d + c)
-        KKT residuals ``[C z - h; -lambda_S] = R w``: all ``<= 0`` at a KKT point (``s = len(rows)``).
-    T : (c + s, d + c)
-        Nonnegative: ``T |w|`` is the magnitude of the terms summed to compute each residual.
-    """
-
-    rows: tuple[int, ...]
-    Z: np.ndarray
-    R: np.ndarray
-    T: np.ndarray
-    RZ: np.ndarray = field(init=False, repr=False)  # [R; Z]: residuals and z in one product
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "RZ", np.vstack([self.R, self.Z]))
-
-    def check(self, w: np.ndarray) -> list[float] | None:
-        """``z`` (a list of d floats) if the active set passes the KKT test at ``w``, else None."""
-        v = (self.RZ @ w).tolist()
-        nr = self.R.shape[0]
-        worst = max(v[:nr], default=-math.inf)
-        z = v[nr:]
-        if not math.isfinite(worst + sum(z)):  # NaN or inf anywhere
-            return None
-        if worst > 0.0:  # a residual above 0: within round-off of its terms?
-            tol = KKT_TOL * (self.T @ np.abs(w))
-            if not np.all(np.asarray(v[:nr]) <= tol):
-                return None
-        return z
-
-
-def _equilibrate(P: np.ndarray, CS: np.ndarray, sweeps: int = 30) -> tuple[np.ndarray, np.ndarray]:
-    """Scalings ``(Dc, Dr)`` of the variables and of the active rows: Ruiz equilibration of the
-    active rows ``CS`` (every row and every column of ``Dr CS Dc`` then has its largest entry
-    near 1); a variable in no active row is scaled by its curvature, ``1 / sqrt(P_ii)``.
-    Variables of very different sizes (an offset of 1 next to a slack of 1e12, rows scaled by
-    1e-11) then get comparable scaled sizes, and rank and conditioning are judged in them."""
-    d, s = P.shape[0], CS.shape[0]
-    absC = np.abs(CS)
-    Dc, Dr = np.ones(d), np.ones(s)
-    used = absC.max(axis=0, initial=0.0) > 0.0
-    for _ in range(sweeps):
-        scaled = absC * Dr[:, None] * Dc[None, :]
-        row = scaled.max(axis=1, initial=0.0)
-        col = scaled.max(axis=0, initial=0.0)
-        fr = np.sqrt(np.where(row > 0.0, row, 1.0))
-        fc = np.sqrt(np.where(col > 0.0, col, 1.0))
-        if np.all(np.abs(fr - 1.0) < 1e-6) and np.all(np.abs(fc - 1.0) < 1e-6):
-            break
-        Dr, Dc = Dr / fr, Dc / fc
-    diag = np.abs(np.diag(P))
-    free = ~used & (diag > 0.0)
-    Dc[free] = 1.0 / np.sqrt(diag[free])
-    return Dc, Dr
-
-
-def active_set_maps(P: np.ndarray, C: np.ndarray, rows: tuple[int, ...]) -> ActiveSetMaps | None:
-    """The maps of :class:`ActiveSetMaps` for ``min 1/2 z'Pz + q'z  s.t.  C_S z = h_S``.
-
-    Computed on the equilibrated KKT system (:func:`_equilibrate`; ``z = Dc z~``), by the
-    null-space method on row-normalized constraints. Returns None when the active set is not a
-    candidate: its rows are linearly dependent, or the reduced Hessian on their null space is not
-    positive definite (the minimizer is not unique); both tests are made on the scaled system,
-    so they do not depend on the units of the variables or of the rows.
-    """
-    d, c = P.shape[0], C.shape[0]
-    s = len(rows)
-    if s > d:
-        return None
-    idx = np.array(rows, dtype=np.int64)
-    CS = C[idx]
-    Dc, Dr = _equilibrate(P, CS)
-    Pt = P * Dc[:, None] * Dc[None, :]
-    Ct = CS * Dr[:, None] * Dc[None, :]
-    norms = np.sqrt(np.einsum("ij,ij->i", Ct, Ct)) if s else np.zeros(0)
-    if s and not np.all(norms > 0.0):
-        return None
-    Dn = Dr / norms if s else norms  # the full row scaling of the active rows
-    Chat = CS * Dn[:, None] * Dc[None, :]
-    select = np.zeros((s, c))
-    select[np.arange(s), idx] = 1.0
-    eye_q = np.hstack([np.diag(Dc), np.zeros((d, c))])  # q~ = Dc q
-    eye_h = np.hstack([np.zeros((c, d)), np.eye(c)])
-    if s:
-        Q, Rfull = np.linalg.qr(Chat.T, mode="complete")
-        R1 = Rfull[:s, :s]
-        if not np.all(np.abs(np.diag(R1)) > _RANK_TOL):  # normalized rows: a scale-free test
-            return None
-        Q1, Q2 = Q[:, :s], Q[:, s:]
-        R1inv_T = np.linalg.inv(R1.T)
-        Zp_h = Q1 @ (R1inv_T @ (Dn[:, None] * select))  # z~_p = Q1 R1^{-T} D h_S
-        # magnitude of the terms summed to compute z~_p, per datum (absolute values carried
-        # through every product, so that cancellations are not mistaken for small terms)
-        Tp_h = np.abs(Q1) @ (np.abs(R1inv_T) @ (Dn[:, None] * select))
-    else:
-        Q1, Q2, R1 = np.zeros((d, 0)), np.eye(d), np.zeros((0, 0))
-        Zp_h, Tp_h = np.zeros((d, c)), np.zeros((d, c))
-    Tp = np.hstack([np.zeros((d, d)), Tp_h])
-    k = d - s
-    if k:
-        M = Q2.T @ Pt @ Q2
-        M = 0.5 * (M + M.T)
-        eig = np.linalg.eigvalsh(M)
-        if not (eig[-1] > 0.0 and eig[0] > _PD_TOL * eig[-1]):
-            return None
-        Y = -np.linalg.inv(M) @ Q2.T  # y = Y (q~ + P~ z~_p)
-        Zt_q = Q2 @ (Y * Dc[None, :])
-        Zt_h = Zp_h + Q2 @ (Y @ Pt @ Zp_h)
-        Tz = Tp + np.abs(Q2) @ (np.abs(Y) @ (np.abs(eye_q) + np.abs(Pt) @ Tp))
-    else:
-        Zt_q, Zt_h = np.zeros((d, d)), Zp_h
-        Tz = Tp
-    Zt = np.hstack([Zt_q, Zt_h])  # z~ = Zt w, (d, d + c)
-    Z = Zt * Dc[:, None]  # z = Dc z~
-    primal = C @ Z - eye_h
-    # the terms of C_i z - h_i: |C_i| Dc times the largest term of any scaled component of z (a
-    # component that is zero in exact arithmetic carries the round-off of the others), and |h_i|
-    primal_T = (np.abs(C) @ Dc)[:, None] * Tz.max(axis=0, keepdims=True) + eye_h
-    # the active rows hold with equality by construction: only the others are tested
-    primal[idx] = 0.0
-    primal_T[idx] = 0.0
-    if s:
-        # stationarity P~ z~ + q~ + Chat' lam_hat = 0  =>  lam_hat = -R1^{-1} Q1'(P~ z~ + q~);
-        # lam_hat has the sign of the multiplier of the unscaled row
-        Lmap = np.linalg.solve(R1, Q1.T)  # (s, d)
-        lam = -Lmap @ (Pt @ Zt + eye_q)
-        lam_T = np.abs(Lmap) @ (np.abs(Pt) @ Tz + np.abs(eye_q))
-        R = np.vstack([primal, -lam])
-        T = np.vstack([primal_T, lam_T])
-    else:
-        R, T = primal, primal_T
-    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(T)) and np.all(np.isfinite(Z))):
-        return None
-    return ActiveSetMaps(tuple(int(i) for i in rows), Z, R, T)
 
 
 class EnumerationBudget:
@@ -360,6 +202,12 @@ class QPFamily:
         Settings of the OSQP object (see :data:`controllers.rhc.DEFAULT_OSQP_SETTINGS`).
     enumerate_all : bool
         Whether a full enumeration may be built (when the family is small enough).
+    budget : EnumerationBudget, optional
+        The memory budget the family's enumeration shares with others.
+    use_daqp : bool
+        Whether DAQP (:mod:`controllers.dual_qp`) looks for the active set before OSQP.
+    osqp_runs : int
+        OSQP runs at most: 2 (a run, then a cold retry with ten times the iterations), 1 or 0.
 
     Notes
     -----
@@ -376,6 +224,8 @@ class QPFamily:
         osqp_settings: dict[str, Any],
         enumerate_all: bool = True,
         budget: EnumerationBudget | None = None,
+        use_daqp: bool = False,
+        osqp_runs: int = 2,
     ) -> None:
         self.P = np.asarray(P, dtype=np.float64)
         self.A = np.asarray(A, dtype=np.float64)
@@ -403,17 +253,25 @@ class QPFamily:
             and self.enumeration_floats <= MAX_ENUMERATION_FLOATS
         )
         self.budget = budget if budget is not None else EnumerationBudget()
+        self.use_daqp = bool(use_daqp)
+        self.osqp_runs = int(osqp_runs)
+        d = self.d
+        # DAQP takes the identity rows of A (one per variable, in order) as simple bounds
+        self._daqp_simple = bool(
+            self.A.shape[0] >= d and np.array_equal(self.A[self.A.shape[0] - d :], np.eye(d))
+        )
         self._reset_state()
 
     def _reset_state(self) -> None:
         self._maps: dict[tuple[int, ...], ActiveSetMaps | None] = {}
         self._osqp: osqp.OSQP | None = None
         self._enum: Any = None  # the ActiveSetQP of a full enumeration, built on first use
+        self._daqp: DaqpData | None = None  # DAQP's scaled data for the current P
         self.warm: tuple[int, ...] | None = None
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
-        for key in ("_maps", "_osqp", "_enum", "warm"):
+        for key in ("_maps", "_osqp", "_enum", "_daqp", "warm"):
             state.pop(key, None)
         return state
 
@@ -460,6 +318,7 @@ class QPFamily:
         self.P = P
         self._maps.clear()
         self._enum = None
+        self._daqp = None
         self.can_enumerate = False
 
     # ------------------------------------------------------------------ data
@@ -504,7 +363,7 @@ class QPFamily:
         self.budget.use(self, self.enumeration_floats)
         return self._enum
 
-    def _near_active(self, z: np.ndarray, w: np.ndarray, loose: bool = False) -> np.ndarray:
+    def near_active(self, z: np.ndarray, w: np.ndarray, loose: bool = False) -> np.ndarray:
         """Rows of ``C`` that are nearly active at the approximate solution ``z``: the slack is
         within :data:`NEAR_ACTIVE_TOL` of the row's own terms (with a floor from the largest
         component: a slack of 1e-106 where the terms are 1e-106 is zero for OSQP), or, with
@@ -522,7 +381,7 @@ class QPFamily:
         the nearly active rows, then their subsets (largest first); the same again with the
         looser test of nearly active rows. At most :data:`MAX_LOCAL_CANDIDATES` sets in all."""
         tried: set[tuple[int, ...]] = set()
-        nears = [self._near_active(z, w, loose) for loose in (False, True)]
+        nears = [self.near_active(z, w, loose) for loose in (False, True)]
         guesses: list[tuple[int, ...]] = []
         for near in nears:  # the cheap guesses of both tests first
             if y is not None:
@@ -614,8 +473,13 @@ class QPFamily:
             z = self.verify(self.warm, w)
             if z is not None:
                 return Solution(z, self.warm, "warm")
+        if self.use_daqp:
+            sol = self._solve_daqp(w, self.warm if warm else None, notes)
+            if sol is not None:
+                self.warm = sol.rows
+                return sol
         enumerated = False
-        for retry in (False, True):
+        for retry in (False, True)[: self.osqp_runs]:
             z, y, status = self.run_osqp(w, retry)
             if z is None:
                 notes.append(f"osqp {'retry ' if retry else ''}status {status!r}")
@@ -628,13 +492,56 @@ class QPFamily:
                     return Solution(sol.z, sol.rows, "osqp_retry" if retry else "osqp")
             if not enumerated:
                 enumerated = True
-                sol = self.enumerate_one(w)
+                sol = self._enumerate_noted(w, notes, z is None)
                 if sol is not None:
-                    self.warm = sol.rows
                     return sol
-                if self.can_enumerate and z is None:
-                    notes.append("no enumerated active set verified")
+        if not enumerated:
+            return self._enumerate_noted(w, notes, True)
         return None
+
+    def _enumerate_noted(self, w: np.ndarray, notes: list[str], note: bool) -> Solution | None:
+        sol = self.enumerate_one(w)
+        if sol is not None:
+            self.warm = sol.rows
+        elif self.can_enumerate and note:
+            notes.append("no enumerated active set verified")
+        return sol
+
+    def _solve_daqp(
+        self, w: np.ndarray, start: tuple[int, ...] | None, notes: list[str]
+    ) -> Solution | None:
+        """DAQP warm-started from ``start`` (an active set), then from a cold start; the active
+        set of its answer re-solved exactly and verified (:meth:`local`)."""
+        status = first = ""
+        attempts = [(start, 0.0)] if start is not None else []
+        attempts += [(None, 0.0)] + [(None, mu) for mu in REGULARIZE]
+        for begin, mu in attempts:
+            z, y, status = self.run_daqp(w, begin, mu)
+            if z is not None:
+                sol = self.local(z, w, y)
+                if sol is not None:
+                    return Solution(sol.z, sol.rows, "daqp")
+                status = "answer did not verify"
+            first = first or status
+        notes.append(f"daqp {first}")
+        return None
+
+    def run_daqp(
+        self, w: np.ndarray, start: tuple[int, ...] | None = None, regularize: float = 0.0
+    ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+        """DAQP on instance ``w`` (:func:`controllers.dual_qp.run_daqp`), warm-started from the
+        active set ``start``: ``(z, y, status)``, ``z = y = None`` on failure."""
+        if self._daqp is None:
+            self._daqp = daqp_data(self.P, self.A, self._daqp_simple)
+        lo, hi = self.bounds(np.asarray(w[self.d :]))
+        nu = self.upper_idx.size
+        begin = None
+        if start is not None:
+            begin = [
+                (int(self.upper_idx[i]), False) if i < nu else (int(self.lower_idx[i - nu]), True)
+                for i in start
+            ]
+        return run_daqp(self._daqp, np.asarray(w[: self.d]), lo, hi, begin, regularize)
 
     def enumerate_one(self, w: np.ndarray) -> Solution | None:
         """Full enumeration for one instance (None if the family is too large or nothing

@@ -31,7 +31,10 @@ Solvers
     cvxpy + Clarabel instead.
 ``solver="cvxpy"``
     The plain formulation written with cvxpy and solved by Clarabel, rebuilt at every call; a
-    reference for checking the fast path (its answer is returned as the solver gives it).
+    reference for checking the fast path. Its answer is verified like every other: the active
+    set it identifies is re-solved exactly and must pass the engine's KKT test ("solved"), else
+    it is returned as "unverified" (``ok`` False) with the smallest feasible ``rho`` for its
+    offset.
 ``solver="active_set"``
     Exact solution by enumeration of the candidate active sets at every call (no warm start),
     for families small enough to enumerate (:data:`controllers.qp.MAX_CANDIDATES`).
@@ -411,11 +414,7 @@ class RecedingHorizonController(Controller):
         m = self.model.m
         inside = max(self.model.constraint_values_one(x, k).tolist()) <= 0.0  # in C1 at time k
         fam = self._families[(mode, inside)]
-        y = fam.lin @ x  # [K x; W x; Atilde x; Q x]
-        w0 = fam.offsets.get(k)
-        if w0 is None:
-            w0 = self._offset(fam, k)
-        w = y[m : m + w0.shape[0]] + w0  # [q; h] of the family's QP
+        y, w = self._instance(fam, x, k)
         engine = fam.engine
         notes: list[str] = []
         sol = None
@@ -436,17 +435,39 @@ class RecedingHorizonController(Controller):
         u = y[:m] + np.asarray(nu)  # eq. (eq:stabilization_input)
         return u, self._info(nu, rho, cost, status, path, fam)
 
-    def _rescue(self, fam: Family, x: np.ndarray, k: int, w: np.ndarray | None, notes: list[str]):
-        """The end of the fallback chain: the cvxpy reference (unless ``cvxpy_fallback=False``;
-        always for the second-order cone program), its active set verified when it is a QP;
-        then ``nu = 0``. Returns ``(nu, rho, cost, status, path)``."""
-        if self._uses_socp or self.cvxpy_fallback:
+    def _instance(self, fam: Family, x: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(y, w)``: ``y = [K x; W x; Atilde x; Q x]`` and the instance ``w = [q; h]``."""
+        m = self.model.m
+        y = fam.lin @ x
+        w0 = fam.offsets.get(k)
+        if w0 is None:
+            w0 = self._offset(fam, k)
+        return y, y[m : m + w0.shape[0]] + w0
+
+    def _rescue(
+        self,
+        fam: Family,
+        x: np.ndarray,
+        k: int,
+        w: np.ndarray | None,
+        notes: list[str],
+        always: bool = False,
+    ):
+        """The end of the fallback chain, and the whole of ``solver="cvxpy"`` (``always``):
+        the cvxpy reference (unless ``cvxpy_fallback=False``; always for the second-order cone
+        program), its active set verified by the engine's KKT test when it is a QP (else
+        "unverified", with its offset and the smallest feasible slack); then ``nu = 0``.
+        Returns ``(nu, rho, cost, status, path)``."""
+        if self._uses_socp or self.cvxpy_fallback or always:
             nu, _, _, status = solve_p3_cvxpy(self, fam, x, k)
             path = "cvxpy_socp" if self._uses_socp else "cvxpy"
             if nu is not None:
                 if self._uses_socp:
                     text = "solved" if not notes else f"solved by cvxpy ({'; '.join(notes)})"
                     return self._answer(fam, x, k, nu, text, path)
+                if w is None:
+                    w = self._instance(fam, x, k)[1]
+                nu = self._project_nu(nu)
                 z = np.concatenate([nu, self._min_rho(fam, x[None], np.array([k]), nu[None])])
                 sol = fam.engine.local(z, w)
                 if sol is not None:
@@ -515,17 +536,7 @@ class RecedingHorizonController(Controller):
             else:
                 inside = max(self.model.constraint_values_one(x, k).tolist()) <= 0.0
                 fam = self._families[(mode, inside)]
-                if self.solver == "cvxpy" and not self._uses_socp:
-                    nu, rho, cost, status = solve_p3_cvxpy(self, fam, x, k)
-                    if nu is not None:  # the plain reference: values as the solver gave them
-                        answer = (nu, rho, cost, "solved", "cvxpy")
-                    else:
-                        answer = self._answer(
-                            fam, x, k, np.zeros(self.model.m),
-                            f"fallback_nu0: cvxpy status {status!r}", "fallback",
-                        )  # fmt: skip
-                else:
-                    answer = self._rescue(fam, x, k, None, [])
+                answer = self._rescue(fam, x, k, None, [], always=self.solver == "cvxpy")
                 nu, rho, cost, status, path = answer
                 u = fam.K @ x + nu  # eq. (eq:stabilization_input)
                 info = self._info(nu, rho, cost, status, path, fam)

@@ -61,25 +61,32 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 
 from sdjls_gym._validate import check_bool, check_choice, check_int
 from sdjls_gym.model import SDJLSModel
 
 from .base import Controller, check_gain, check_terminal_weights
 from .chance import CONSTRAINT_KINDS, check_xi
-from .qp import KKT_TOL, check_osqp_settings
+from .qp import check_osqp_settings
 from .rhc import MAX_QP_ENTRY, check_slack_and_offsets
 from .tree_data import (
-    WEIGHT_FLOOR,
+    FamilyCache,
     RegionClasses,
     TreeFamily,
     build_tree_family,
     check_tree_size,
+    family_magnitudes,
 )
-from .tree_qp import solve_condensed_cvxpy, solve_tree_cvxpy
+from .tree_solve import TINY_PROBABILITY, TreeSolver, _Probabilities
 
-__all__ = ["ScenarioTreeController", "TreePlan", "PROB_TOL", "DAMPING", "MAX_WEIGHT_RATIO"]
+__all__ = [
+    "DAMPING",
+    "MAX_WEIGHT_RATIO",
+    "PROB_TOL",
+    "TINY_PROBABILITY",
+    "ScenarioTreeController",
+    "TreePlan",
+]
 
 SOLVERS = ("osqp", "cvxpy")
 
@@ -95,8 +102,6 @@ DAMPING = 0.5
 #: verification (reported, not silent) from about 1e16 at steps = 3. P3 accepts more (its cost
 #: condition, :data:`controllers.p3.MAX_COST_CONDITION`).
 MAX_WEIGHT_RATIO = 1e12
-
-_PATHS = {"warm": "active_set_warm", "osqp": "osqp", "osqp_retry": "osqp_retry"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,17 +148,7 @@ class TreePlan:
     tightening: np.ndarray
 
 
-@dataclass
-class _Probabilities:
-    """The probabilities one QP is built with."""
-
-    q: np.ndarray  # (S,) region probabilities of the nodes tree.sq
-    branch: np.ndarray  # (M, N)
-    path: np.ndarray  # (M,)
-    weight: np.ndarray  # (M,) path probabilities floored at WEIGHT_FLOOR
-
-
-class ScenarioTreeController(Controller):
+class ScenarioTreeController(TreeSolver, Controller):
     """Multi-step receding-horizon control on a scenario tree of modes (beyond the paper).
 
     See the module docstring for the problem, its approximation of the state-dependent jumps
@@ -257,12 +252,9 @@ class ScenarioTreeController(Controller):
         self.A_tilde = model.A + model.B @ self.K  # eq. (sys:stabilized_input)
         self.A_tilde.setflags(write=False)
         self._regions = RegionClasses(model.G)
-        self._families: dict[tuple[int, bool], TreeFamily] = {
-            (mode, inside): build_tree_family(self, mode, inside, self._regions)
-            for mode in range(model.N)
-            for inside in (True, False)
-        }
         self._check_magnitudes()
+        #: the families, built when a decision first needs one (within a memory budget)
+        self._families = FamilyCache(self._build_family)
         #: active-set warm start of the OSQP path; False: OSQP at every solve
         self._warm_start = True
         #: how many QP solves each path answered
@@ -291,20 +283,22 @@ class ScenarioTreeController(Controller):
     def _check_magnitudes(self) -> None:
         """ValueError unless every matrix of every family is finite and at most
         :data:`controllers.rhc.MAX_QP_ENTRY` in magnitude (long horizons of unstable
-        ``A + B K`` overflow)."""
-        for fam in self._families.values():
-            for name in ("Lx", "Lz", "chance_x", "cov_next", "tightening", "term_trace"):
-                arr = getattr(fam, name)
-                arr = arr.data if sp.issparse(arr) else arr
-                worst = float(np.max(np.abs(arr))) if arr.size else 0.0
-                if not worst <= MAX_QP_ENTRY:  # NaN included
-                    raise ValueError(
-                        f"the scenario tree of mode {fam.mode} with steps = {self.steps} has an "
-                        f"entry of magnitude {worst:.3g} in {name} (K up to "
-                        f"{float(np.max(np.abs(self.K))):.3g}, Psi up to "
-                        f"{float(np.max(np.abs(self.Psi))):.3g}); every entry must be at most "
-                        f"{MAX_QP_ENTRY:.0e}: lower steps, or use gains K that stabilize A + B K"
-                    )
+        ``A + B K`` overflow); from the nodes' laws, without building the families."""
+        for mode in range(self.model.N):
+            for inside in (True, False):
+                for name, worst in family_magnitudes(self, mode, inside).items():
+                    if not worst <= MAX_QP_ENTRY:
+                        raise ValueError(
+                            f"the scenario tree of mode {mode} with steps = {self.steps} has an "
+                            f"entry of magnitude {worst:.3g} in {name} (K up to "
+                            f"{float(np.max(np.abs(self.K))):.3g}, Psi up to "
+                            f"{float(np.max(np.abs(self.Psi))):.3g}); every entry must be at "
+                            f"most {MAX_QP_ENTRY:.0e}: lower steps, or use gains K that "
+                            "stabilize A + B K"
+                        )
+
+    def _build_family(self, mode: int, inside: bool) -> TreeFamily:
+        return build_tree_family(self, mode, inside, self._regions)
 
     # ------------------------------------------------------------------ probabilities
     def _region_q(self, fam: TreeFamily, x: np.ndarray, k: int, z: np.ndarray | None):
@@ -328,124 +322,7 @@ class ScenarioTreeController(Controller):
         for idx in tree.by_stage[1:]:
             par = tree.parent[idx]
             path[idx] = path[par] * branch[par, tree.mode[idx]]
-        weight = np.maximum(path, WEIGHT_FLOOR)
-        return _Probabilities(q, branch, path, weight)
-
-    # ------------------------------------------------------------------ the QP
-    @staticmethod
-    def _row_weights(fam: TreeFamily, pr: _Probabilities) -> tuple[np.ndarray, np.ndarray]:
-        """``(v, wrow)``: the weight of each source (node, then last node and mode) and of
-        each row of the objective."""
-        last = fam.tree.last
-        v = np.concatenate([pr.weight, (pr.weight[last, None] * pr.branch[last]).ravel()])
-        return v, v[fam.row_source]
-
-    def _qp(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities):
-        """``(P, w)``: the Hessian and the instance ``[q; h]`` of the engine."""
-        M, m = fam.size, self.model.m
-        v, wrow = self._row_weights(fam, pr)
-        d = fam.engine.d
-        P = (fam.P_stack @ v).reshape(d, d)
-        lx = fam.Lx @ x
-        qlin = 2.0 * (fam.LzT @ (wrow * lx))
-        qlin[M * m :] += self.alpha * pr.weight
-        model = self.model
-        band = model.H0 + (k + fam.chance_time)[:, None] * model.H_rate  # H_{k + t + 1}
-        h_chance = (band - fam.tightening).ravel() + fam.chance_x @ x
-        w = np.concatenate([qlin, h_chance, fam.h_fixed])
-        return P, w
-
-    def _objective(self, fam: TreeFamily, x, nu, rho, pr: _Probabilities) -> float:
-        """``J`` at ``(nu, rho)`` with every constant term (Lemma 1's traces included): a sum of
-        nonnegative terms, computed as such (no cancellation)."""
-        _, wrow = self._row_weights(fam, pr)
-        t = fam.Lx @ x + fam.Lz @ np.concatenate([nu.ravel(), rho])
-        last = fam.tree.last
-        return float(
-            wrow @ (t * t)
-            + pr.weight @ fam.stage_trace
-            + np.sum(pr.weight[last, None] * pr.branch[last] * fam.term_trace)
-            + self.alpha * (pr.weight @ rho)
-        )
-
-    def _excess(self, fam: TreeFamily, x: np.ndarray, k: int, nu: np.ndarray) -> np.ndarray:
-        """Smallest feasible ``rho`` (M,) for the offsets ``nu`` (M, m); an excess within
-        round-off of its row's terms is 0."""
-        M, n = fam.size, self.model.n
-        z = np.concatenate([nu.ravel(), np.zeros(M)])
-        mean = (fam.mean_x @ x + fam.mean_z @ z).reshape(M, n)
-        GAm = np.einsum("irn,in->ir", fam.GA, mean)
-        GBnu = np.einsum("irm,im->ir", fam.GB, nu)
-        model = self.model
-        hbar = model.H0 + (k + fam.chance_time)[:, None] * model.H_rate - fam.tightening
-        excess = GAm + GBnu - hbar
-        terms = (
-            np.einsum("irn,in->ir", np.abs(fam.GA), np.abs(mean))
-            + np.einsum("irm,im->ir", np.abs(fam.GB), np.abs(nu))
-            + np.abs(hbar)
-        )
-        excess = np.where(excess <= KKT_TOL * terms, 0.0, excess)
-        return np.maximum(excess.max(axis=1), 0.0)
-
-    def _solve(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities):
-        """One QP with fixed probabilities: ``(nu (M, m), rho (M,), cost, status, path)``;
-        ``cost`` is None unless a solver reported it (the caller computes the last one only)."""
-        M, m = fam.size, self.model.m
-        if self.solver == "cvxpy":
-            out = solve_tree_cvxpy(self, fam, x, k, pr)
-            if out is not None:
-                nu, rho, cost = out
-                return nu, rho, cost, "solved", "cvxpy"
-            return self._answer(fam, x, k, np.zeros((M, m)), "fallback_nu0: cvxpy failed",
-                                "fallback")  # fmt: skip
-        P, w = self._qp(fam, x, k, pr)
-        engine = fam.engine
-        engine.update_P(P)
-        notes: list[str] = []
-        sol = engine.solve(w, warm=self._warm_start, notes=notes)
-        path = None if sol is None else _PATHS.get(sol.path, sol.path)
-        if sol is None and self.cvxpy_fallback:
-            rescue = solve_condensed_cvxpy(P, w, engine)
-            if rescue is None:
-                notes.append("cvxpy failed")
-            else:
-                # the smallest feasible slacks for its offsets: a slack of small weight is left
-                # loose within the solver's tolerance, which hides the active set
-                z, y = rescue
-                nu = np.clip(z[: M * m].reshape(M, m), -self.nu_bound, self.nu_bound)
-                z = np.concatenate([nu.ravel(), self._excess(fam, x, k, nu)])
-                sol = engine.local(z, w, y)
-                path = "cvxpy"
-                if sol is None:
-                    notes.append("the cvxpy answer did not verify")
-                    nu = z[: M * m].reshape(M, m)
-                    return self._answer(fam, x, k, nu, "unverified: " + "; ".join(notes),
-                                        "cvxpy")  # fmt: skip
-        elif sol is None:
-            notes.append("cvxpy retry disabled")
-        if sol is None:
-            return self._answer(fam, x, k, np.zeros((M, m)), "fallback_nu0: " + "; ".join(notes),
-                                "fallback")  # fmt: skip
-        z = np.asarray(sol.z)
-        nb = self.nu_bound
-        nu = np.clip(z[: M * m].reshape(M, m), -nb, nb)  # round-off outside U
-        # rho = 0 where the bound rho >= 0 is active (the node's rows then hold to the KKT
-        # test's tolerance), else the exact solution's (the excess of its worst row)
-        rho = np.maximum(z[M * m :], 0.0)
-        active = np.zeros(engine.c, dtype=bool)
-        active[list(sol.rows)] = True
-        rho[active[engine.c - M :]] = 0.0
-        if not notes:
-            status = "solved"
-        else:
-            status = f"solved {'by cvxpy ' if path == 'cvxpy' else ''}({'; '.join(notes)})"
-        return nu, rho, None, status, path
-
-    def _answer(self, fam, x, k, nu, status, path):
-        """An answer that is not an exact verified one: ``nu`` projected on ``U`` and the
-        smallest feasible slacks."""
-        nu = np.clip(np.asarray(nu, dtype=np.float64), -self.nu_bound, self.nu_bound)
-        return nu, self._excess(fam, x, k, nu), None, status, path
+        return _Probabilities(q, branch, path, path, path == 0.0)
 
     # ------------------------------------------------------------------ decisions
     def act(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, dict[str, Any]]:
@@ -468,7 +345,10 @@ class ScenarioTreeController(Controller):
             ``"solver"``: the path of the last solve; ``"in_region"``; ``"plan"``: a
             :class:`TreePlan`; ``"iterations"``: QP solves; ``"fixed_point_gap"``: the largest
             change of a region probability that the last solve would cause (0 when the
-            probabilities do not depend on the plan).
+            probabilities do not depend on the plan); ``"converged"``: whether that gap is at
+            most :data:`PROB_TOL`. ``"ok"`` is True only for a verified QP answer at a
+            converged fixed point; a verified answer whose fixed point did not converge within
+            ``iterations`` solves has the status ``"unconverged: the last QP was solved ..."``.
         """
         x, mode, k = self._check_inputs(x, mode, k)
         with self._lock:
@@ -496,6 +376,15 @@ class ScenarioTreeController(Controller):
             if cost is None:
                 cost = self._objective(fam, x, nu, rho, pr)
             plan = self._plan(fam, x, k, pr, nu, rho)
+        ok = status == "solved" or status.startswith("solved ")
+        converged = gap <= PROB_TOL
+        if ok and not converged:  # the QP is solved, but not at the fixed point
+            ok = False
+            status = (
+                f"unconverged: the last QP was {status}, but a region probability still moves "
+                f"by {gap:.2g} > PROB_TOL = {PROB_TOL:g} after {it} solves (iterations = "
+                f"{self.iterations})"
+            )
         m = self.model.m
         u = self.K[mode] @ x + nu[0]  # eq. (eq:stabilization_input)
         info = {
@@ -503,14 +392,35 @@ class ScenarioTreeController(Controller):
             "rho": float(rho[0]),
             "cost": float(cost),
             "status": status,
-            "ok": status == "solved" or status.startswith("solved "),
+            "ok": ok,
             "solver": path,
             "in_region": bool(inside),
             "plan": plan,
             "iterations": it,
             "fixed_point_gap": gap,
+            "converged": converged,
         }
         return np.asarray(u, dtype=np.float64), info
+
+    def act_batch(
+        self, x: np.ndarray, mode: np.ndarray, k: np.ndarray | int
+    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """:meth:`act` for each state of a batch (a loop; see
+        :meth:`controllers.base.Controller.act_batch` for the shapes). An empty batch gives
+        empty arrays: ``u`` (0, m), ``"nu"`` (0, m), ``"rho"``, ``"cost"``, ``"status"`` and
+        ``"ok"`` (0,)."""
+        x, mode, k = self._check_batch_inputs(x, mode, k)
+        if x.shape[0]:
+            return super().act_batch(x, mode, k)
+        m = self.model.m
+        info = {
+            "nu": np.zeros((0, m)),
+            "rho": np.zeros(0),
+            "cost": np.zeros(0),
+            "status": np.zeros(0, dtype=object),
+            "ok": np.zeros(0, dtype=bool),
+        }
+        return np.zeros((0, m)), info
 
     def _plan(self, fam: TreeFamily, x, k, pr: _Probabilities, nu, rho) -> TreePlan:
         M, n = fam.size, self.model.n

@@ -19,8 +19,7 @@ Condensed QP
 ------------
 The decisions are ``z = [nu_0 .. nu_{M-1}, rho_0 .. rho_{M-1}]`` (``M`` decision nodes); every
 node's state mean is affine in ``(x_k, z)``: ``mean_i = Mx_i x_k + Mz_i z``. With ``w_i`` the
-node's path probability (floored at :data:`WEIGHT_FLOOR`) and ``b_i`` its branch probabilities,
-the objective is::
+node's path probability and ``b_i`` its branch probabilities, the objective is::
 
     sum_i w_i ( E[x'Q x + u'R u] + alpha rho_i )                 x ~ N(mean_i, Sigma_i), u = K x + nu_i
     + sum_{i at stage steps-1} w_i sum_j b_ij E[x'Psi_j x]       x ~ N(next mean_i, next Sigma_i)
@@ -31,16 +30,21 @@ with the node's next covariance), the box ``|nu| <= nu_bound`` and ``rho >= 0``;
 matrix depends only on the family, the weights (through the path probabilities) change the
 Hessian.
 
-Size limit
-----------
+Size limit, and families built on first use
+--------------------------------------------
 A tree has at most :data:`MAX_TREE_VARIABLES` QP variables (``M (m + 1)``) and the dense
 matrices of one family hold at most :data:`MAX_FAMILY_FLOATS` floats; :func:`check_tree_size`
-raises a ValueError naming ``steps`` and ``branching`` before anything is built.
+raises a ValueError naming ``steps`` and ``branching`` before anything is built. A controller
+builds a family when a decision first needs it (:class:`FamilyCache`) and keeps the built ones
+within :data:`FAMILY_BUDGET_FLOATS` floats, least recently used first out; the constructor
+computes only the magnitudes of every family's matrices (:func:`family_magnitudes`), so that bad
+magnitudes fail before any work.
 """
 
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
@@ -48,17 +52,20 @@ import numpy as np
 import scipy.sparse as sp
 from scipy import special, stats
 
-from .tree_qp import TreeQP
+from .tree_qp import OSQP_MAX_VARIABLES, TreeQP
+from .tree_region import RegionClasses
 
 __all__ = [
+    "FAMILY_BUDGET_FLOATS",
     "MAX_FAMILY_FLOATS",
     "MAX_TREE_VARIABLES",
-    "WEIGHT_FLOOR",
+    "FamilyCache",
     "RegionClasses",
     "Tree",
     "TreeFamily",
     "build_tree_family",
     "check_tree_size",
+    "family_magnitudes",
     "tree_node_count",
 ]
 
@@ -68,16 +75,11 @@ MAX_TREE_VARIABLES = 1000
 #: Largest number of floats in the dense matrices of one family (64 MB).
 MAX_FAMILY_FLOATS = 8_000_000
 
-#: Path probabilities below this weight a node's cost as if they were this small. It keeps the
-#: QP well conditioned: a branch of probability 0 (or 1e-11) makes a node's offset and slack
-#: nearly free, solvers leave them loose within their tolerances and its active set cannot be
-#: read off. It changes ``J*`` by at most this fraction of such a node's cost; the root and the
-#: one-step tree are never floored, nor is any node of the macro example up to ``steps=5`` (its
-#: transition probabilities are at least 0.1).
-WEIGHT_FLOOR = 1e-4
-
-#: Two rows of G are parallel when |cos| of their angle is within this of 1.
-_PARALLEL_TOL = 1e-12
+#: Largest number of floats the matrices of the built families of one controller hold together
+#: (256 MB): beyond, the least recently used family is dropped (and built again when a decision
+#: needs it). Each family's engine also caches active-set factors (at most
+#: :data:`controllers.tree_qp.FACTOR_CACHE_FLOATS`) and DAQP's scaled rows.
+FAMILY_BUDGET_FLOATS = 32_000_000
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -247,86 +249,6 @@ def build_tree(
     return out
 
 
-# ---------------------------------------------------------------------------------- region
-class RegionClasses:
-    """``Pr{G x <= H}`` for Gaussian ``x``, by classes of parallel rows of ``G``.
-
-    The rows of ``G`` are grouped into classes of parallel or antiparallel rows; within a class
-    the rows bound one projection ``g'x`` from above and below, an interval whose Gaussian
-    probability is exact. The probability of the region is the product over the classes: exact
-    for one class (e.g. a band, as in the macroeconomic example) and for classes whose
-    projections are uncorrelated; otherwise an approximation (deterministic). A row ``G_j = 0``
-    holds iff ``0 <= H_j``.
-
-    Parameters
-    ----------
-    G : (r, n)
-    """
-
-    def __init__(self, G: np.ndarray) -> None:
-        G = np.asarray(G, dtype=np.float64)
-        r = G.shape[0]
-        norms = np.linalg.norm(G, axis=1)
-        self.zero_rows = np.flatnonzero(norms == 0.0)
-        directions: list[np.ndarray] = []
-        members: list[list[int]] = []
-        scale = np.ones(r)  # G_j = scale_j g_c: g_c'x <= H_j / scale_j (>= when scale_j < 0)
-        for j in np.flatnonzero(norms > 0.0).tolist():
-            unit = G[j] / norms[j]
-            for c, g in enumerate(directions):
-                cos = float(g @ unit)
-                if abs(cos) >= 1.0 - _PARALLEL_TOL:
-                    members[c].append(j)
-                    scale[j] = math.copysign(norms[j], cos)
-                    break
-            else:
-                directions.append(unit)
-                members.append([j])
-                scale[j] = norms[j]
-        self.directions = _frozen(np.array(directions).reshape(len(directions), G.shape[1]))
-        self._inv_scale = _frozen(1.0 / scale)
-        # per class, the rows bounding g'x from above and from below, padded with the index r
-        # (upper: +inf) or r + 1 (lower: -inf) of the two columns appended to H / scale
-        width_u = max([sum(scale[j] > 0 for j in mem) for mem in members] + [1])
-        width_l = max([sum(scale[j] < 0 for j in mem) for mem in members] + [1])
-        up = np.full((len(members), width_u), r)
-        lo = np.full((len(members), width_l), r + 1)
-        for c, mem in enumerate(members):
-            rows_u = [j for j in mem if scale[j] > 0]
-            rows_l = [j for j in mem if scale[j] < 0]
-            up[c, : len(rows_u)] = rows_u
-            lo[c, : len(rows_l)] = rows_l
-        self._up, self._lo = up, lo
-
-    @property
-    def count(self) -> int:
-        """Number of classes."""
-        return int(self.directions.shape[0])
-
-    def probability(self, mu: np.ndarray, sd: np.ndarray, H: np.ndarray) -> np.ndarray:
-        """``Pr{G x <= H}`` (S,) for ``x ~ N(mean, Sigma)``, given the projections of the mean
-        ``mu = mean @ directions.T`` (S, classes), their standard deviations ``sd`` (S, classes)
-        and the bounds ``H`` (S, r)."""
-        S = H.shape[0]
-        ext = np.empty((S, H.shape[1] + 2))
-        np.multiply(H, self._inv_scale, out=ext[:, :-2])
-        ext[:, -2], ext[:, -1] = np.inf, -np.inf
-        hi = ext[:, self._up].min(axis=2)  # (S, classes)
-        lo = ext[:, self._lo].max(axis=2)
-        positive = sd > 0.0
-        safe = np.where(positive, sd, 1.0)
-        a, b = (lo - mu) / safe, (hi - mu) / safe
-        # Phi(b) - Phi(a) on the side where both tails are small (no cancellation)
-        flip = a > 0.0
-        p = special.ndtr(np.where(flip, -a, b)) - special.ndtr(np.where(flip, -b, a))
-        p = np.where(positive, p, (lo <= mu) & (mu <= hi))
-        p = np.where(lo <= hi, np.clip(p, 0.0, 1.0), 0.0)
-        q = p.prod(axis=1) if p.shape[1] != 1 else p[:, 0]
-        for j in self.zero_rows.tolist():
-            q = q * (H[:, j] >= 0.0)
-        return q
-
-
 # ---------------------------------------------------------------------------------- families
 def _hessian_stack(Lz: np.ndarray, source: np.ndarray, sources: int) -> sp.csr_matrix:
     """``S`` (d * d, sources) with ``2 Lz' diag(v[source]) Lz = (S @ v).reshape(d, d)``: each
@@ -386,6 +308,7 @@ class TreeFamily:
     chance_x: np.ndarray  # (M r, n)  chance rows' bounds: band - tightening + chance_x x
     chance_time: np.ndarray  # (M,) stage + 1 of each node (the band H_{k + stage + 1})
     h_fixed: np.ndarray  # (2 M m + M,) the bounds of the box and rho rows
+    idle_bound: np.ndarray  # (M r,) bounds that make a chance row slack for every z
     GA: np.ndarray  # (M, r, n)  G Atilde of each node's mode (the plan's constraint rows)
     GB: np.ndarray  # (M, r, m)
     engine: TreeQP
@@ -395,17 +318,33 @@ class TreeFamily:
         return self.tree.size
 
 
-def build_tree_family(ctrl: Any, mode: int, inside: bool, regions: RegionClasses) -> TreeFamily:
-    """The family ``(mode, inside)`` of a :class:`controllers.ScenarioTreeController`."""
+@dataclass(frozen=True, eq=False)
+class _NodeLaws:
+    """Each node's state law and its next state's, affine in ``(x_k, z)``, and the tightening."""
+
+    tree: Tree
+    P_row: np.ndarray
+    Mx: np.ndarray  # (M, n, n)  mean = Mx x + Mz z
+    Mz: np.ndarray  # (M, n, d)
+    cov: np.ndarray  # (M, n, n)
+    next_x: np.ndarray  # (M, n, n)
+    next_z: np.ndarray  # (M, n, d)
+    cov_next: np.ndarray  # (M, n, n)
+    tight: np.ndarray  # (M, r)
+    S: np.ndarray  # (M, m, d) selects nu_i
+
+
+def _node_laws(ctrl: Any, mode: int, inside: bool) -> _NodeLaws:
+    """The tree of the family ``(mode, inside)`` and its nodes' laws (small: ``M n (n + d)``)."""
     model = ctrl.model
-    N, n, m, r, p = model.N, model.n, model.m, model.r, model.p
+    n, m, r, p = model.n, model.m, model.r, model.p
     steps, branching = ctrl.steps, ctrl.branching
     P_row = (model.P_in if inside else model.P_out)[mode]  # eq. (eq:p_tran)
     support = (model.P_in + model.P_out) > 0.0
     tree = build_tree(P_row > 0.0, support, mode, steps, branching)
     M, modes, parent = tree.size, tree.mode, tree.parent
     d = M * (m + 1)
-    At, B, K = ctrl.A_tilde, model.B, ctrl.K
+    At, B = ctrl.A_tilde, model.B
     noise = model.noise_cov
     # node means (affine in x, z) and covariances, parents before children
     Mx = np.zeros((M, n, n))
@@ -438,10 +377,63 @@ def build_tree_family(ctrl: Any, mode: int, inside: bool, regions: RegionClasses
         if ctrl.constraint == "joint":  # at the root exactly controllers.chance.tightening
             root = np.einsum("jn,np,pq->jq", model.G, model.E[mode], model.W_sqrt)
             tight[0] = math.sqrt(stats.chi2.ppf(ctrl.xi, df=p)) * np.linalg.norm(root, axis=-1)
+    return _NodeLaws(tree, P_row, Mx, Mz, cov, next_x, next_z, cov_next, tight, S)
+
+
+def _weight_roots(ctrl: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(FQ, FR, FPsi)``: square roots ``F'F`` of the weights ``Q_i``, ``R_i``, ``Psi_i``."""
+    model = ctrl.model
+    FQ = np.array([_sqrt_psd(Qi) for Qi in model.Q])
+    FR = np.array([_sqrt_psd(Ri) for Ri in model.R])
+    FPsi = np.array([_sqrt_psd(Pi) for Pi in ctrl.Psi])
+    return FQ, FR, FPsi
+
+
+def family_magnitudes(ctrl: Any, mode: int, inside: bool) -> dict[str, float]:
+    """The largest magnitude of every matrix of the family ``(mode, inside)`` that
+    :class:`TreeFamily` holds as ``Lx``, ``Lz``, ``chance_x``, ``cov_next``, ``tightening`` and
+    ``term_trace`` (NaN or inf when they overflow), computed from the nodes' laws without
+    building the family's large matrices."""
+    model = ctrl.model
+    law = _node_laws(ctrl, mode, inside)
+    modes, last = law.tree.mode, law.tree.last
+    FQ, FR, FPsi = _weight_roots(ctrl)
+    K = ctrl.K
+    top = lambda a: float(np.max(np.abs(a))) if a.size else 0.0  # noqa: E731 (NaN propagates)
+    with np.errstate(over="ignore", invalid="ignore"):
+        FRK = FR[modes] @ K[modes]
+        lx = max(
+            top(FQ[modes] @ law.Mx),
+            top(FRK @ law.Mx),
+            top(np.einsum("jab,ibc->ijac", FPsi, law.next_x[last])),
+        )
+        lz = max(
+            top(FQ[modes] @ law.Mz),
+            top(FRK @ law.Mz + FR[modes] @ law.S),
+            top(np.einsum("jab,ibc->ijac", FPsi, law.next_z[last])),
+        )
+        chance_x = top(np.einsum("jn,ink->ijk", model.G, law.next_x))
+        term = top(np.einsum("jab,iba->ij", ctrl.Psi, law.cov_next[last]))
+    out = {"Lx": lx, "Lz": lz, "chance_x": chance_x, "cov_next": top(law.cov_next)}
+    out.update(tightening=top(law.tight), term_trace=term)
+    return {k: (v if math.isfinite(v) else math.inf) for k, v in out.items()}
+
+
+def build_tree_family(ctrl: Any, mode: int, inside: bool, regions: RegionClasses) -> TreeFamily:
+    """The family ``(mode, inside)`` of a :class:`controllers.ScenarioTreeController`."""
+    model = ctrl.model
+    N, n, m, r = model.N, model.n, model.m, model.r
+    law = _node_laws(ctrl, mode, inside)
+    tree, P_row = law.tree, law.P_row
+    M, modes = tree.size, tree.mode
+    d = M * (m + 1)
+    K = ctrl.K
+    Mx, Mz, cov, next_x, next_z, S = law.Mx, law.Mz, law.cov, law.next_x, law.next_z, law.S
+    cov_next, tight = law.cov_next, law.tight
+    At_n, B_n = ctrl.A_tilde[modes], model.B[modes]
+    with np.errstate(over="ignore", invalid="ignore"):  # magnitudes were checked by the caller
         # the weighted rows of the objective
-        FQ = np.array([_sqrt_psd(Qi) for Qi in model.Q])
-        FR = np.array([_sqrt_psd(Ri) for Ri in model.R])
-        FPsi = np.array([_sqrt_psd(Pi) for Pi in ctrl.Psi])
+        FQ, FR, FPsi = _weight_roots(ctrl)
         rows_x, rows_z, source = [], [], []
         for i in range(M):
             th = modes[i]
@@ -470,9 +462,20 @@ def build_tree_family(ctrl: Any, mode: int, inside: bool, regions: RegionClasses
     A[M * r + M * m + np.arange(M), M * m + np.arange(M)] = 1.0
     upper = np.concatenate([np.ones(M * r + M * m, bool), np.zeros(M, bool)])
     lower = np.concatenate([np.zeros(M * r, bool), np.ones(M * m + M, bool)])
-    engine = TreeQP(np.eye(d), A, lower, upper, ctrl.osqp_settings, enumerate_all=False)
+    engine = TreeQP(
+        np.eye(d),
+        A,
+        lower,
+        upper,
+        ctrl.osqp_settings,
+        use_daqp=True,
+        osqp_runs=2 if d <= OSQP_MAX_VARIABLES else 0,
+    )
     nb = ctrl.nu_bound
     h_fixed = np.concatenate([np.full(2 * M * m, nb), np.zeros(M)])
+    # a chance row of a node of path probability 0 is made slack for every z: its bound is at
+    # least its largest value over the box, |C_nu| nu_bound (its slack is then 0)
+    idle_bound = np.abs(chance[:, : M * m]).sum(axis=1) * nb + 1.0
     # the region probabilities of the nodes tree.sq
     sq = tree.sq
     dirs = regions.directions  # (classes, n)
@@ -507,7 +510,68 @@ def build_tree_family(ctrl: Any, mode: int, inside: bool, regions: RegionClasses
         chance_x=_frozen(chance_x),
         chance_time=_frozen(tree.stage.astype(np.float64) + 1.0),
         h_fixed=_frozen(h_fixed),
+        idle_bound=_frozen(idle_bound),
         GA=_frozen(GA),
         GB=_frozen(GB),
         engine=engine,
     )
+
+
+def _floats(fam: TreeFamily) -> int:
+    """Floats held by a family's arrays (sparse: their stored entries)."""
+    total = 0
+    for value in fam.__dict__.values():
+        if isinstance(value, np.ndarray):
+            total += value.size
+        elif sp.issparse(value):
+            total += value.data.size + value.indices.size
+    return total + fam.engine.A.size + fam.engine.C.size
+
+
+class FamilyCache:
+    """The families of one controller, built on first use (``cache[(mode, inside)]``) and kept
+    within :data:`FAMILY_BUDGET_FLOATS` floats, least recently used first out (the one in use
+    is always kept). Not thread-safe (the controller's lock covers it); pickles empty.
+
+    Attributes
+    ----------
+    built : int
+        How many families were built so far (a family dropped and needed again counts twice).
+    """
+
+    def __init__(self, build: Any, limit: int = FAMILY_BUDGET_FLOATS) -> None:
+        self._build = build
+        self.limit = limit
+        self._held: OrderedDict[tuple[int, bool], tuple[TreeFamily, int]] = OrderedDict()
+        self._total = 0
+        self.built = 0
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"_build": self._build, "limit": self.limit}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(state["_build"], state["limit"])
+
+    def __getitem__(self, key: tuple[int, bool]) -> TreeFamily:
+        held = self._held
+        if key in held:
+            held.move_to_end(key)
+            return held[key][0]
+        fam = self._build(*key)
+        size = _floats(fam)
+        self.built += 1
+        held[key] = (fam, size)
+        self._total += size
+        while self._total > self.limit and len(held) > 1:
+            _, (_, old) = held.popitem(last=False)
+            self._total -= old
+        return fam
+
+    def values(self) -> list[TreeFamily]:
+        """The families built and held now."""
+        return [fam for fam, _ in self._held.values()]
+
+    @property
+    def floats(self) -> int:
+        """Floats held by the built families."""
+        return self._total

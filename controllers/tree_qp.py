@@ -1,10 +1,14 @@
 """Solving the scenario tree's QP: the engine with per-instance exact solves, and cvxpy.
 
-:class:`TreeQP` is the :class:`controllers.qp.QPFamily` of a tree family (warm active set, OSQP,
-exact re-solve of the active set, verified by the KKT test). :func:`solve_tree_cvxpy` is the
-reference: the same tree written plainly in cvxpy, node by node from the model's matrices, and
-solved by Clarabel; :func:`solve_condensed_cvxpy` is the fallback of the fast path (its condensed
-QP in cvxpy).
+:class:`TreeQP` is the :class:`controllers.qp.QPFamily` of a tree family: the warm active set,
+then DAQP (:mod:`controllers.dual_qp`; warm-started from the last active set, then cold), then,
+for small trees only, OSQP; when the family's Hessian has not changed since its first value
+(``steps=1``, or jumps that do not depend on the state), the full enumeration of P3. Every
+answer is the exact re-solve of an active set, verified by the one KKT test of
+:mod:`controllers.kkt`. :func:`solve_tree_cvxpy` is the reference: the same tree written plainly
+in cvxpy, node by node from the model's matrices, and solved by Clarabel;
+:func:`solve_condensed_cvxpy` is the rescue of the fast path (its condensed QP in cvxpy). The
+answers of both are verified by the same test before they are called solved.
 """
 
 from __future__ import annotations
@@ -16,23 +20,30 @@ from typing import Any
 
 import numpy as np
 
+from .kkt import ActiveSetFactor, active_set_factor, check_active_set
 from .p3 import CLARABEL_SETTINGS
-from .qp import KKT_TOL, QPFamily
+from .qp import QPFamily, Solution
 
 __all__ = [
     "FACTOR_CACHE_FLOATS",
+    "OSQP_MAX_VARIABLES",
     "TREE_CLARABEL_SETTINGS",
     "TreeQP",
     "solve_condensed_cvxpy",
     "solve_tree_cvxpy",
 ]
 
-#: Rank and definiteness thresholds of the exact solve (those of :mod:`controllers.qp`).
-_RANK_TOL = 1e-11
-_PD_TOL = 1e-12
-
 #: Floats of the active-set factors one family keeps (least recently used dropped first; 32 MB).
 FACTOR_CACHE_FLOATS = 4_000_000
+
+#: Largest number of primal-dual active-set steps of :meth:`TreeQP.local` after its candidates
+#: fail.
+REPAIR_STEPS = 20
+
+#: OSQP runs (after DAQP) only for trees of at most this many QP variables. On larger trees its
+#: iterations cost more than the cvxpy rescue it would precede (a 111-node tree ran OSQP to its
+#: iteration limit twice, 7 s, before a 2 s cvxpy solve): DAQP failing there goes to cvxpy.
+OSQP_MAX_VARIABLES = 64
 
 #: Clarabel settings of the cvxpy reference: tighter than P3's, since the offsets of nodes of
 #: small path probability weigh little in the objective and are determined only to about
@@ -61,23 +72,32 @@ class TreeQP(QPFamily):
     search) is the engine's.
     """
 
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        #: whether P has been set (update_P) since construction; the enumeration is allowed
+        #: while P keeps its first value
+        self._has_P = False
+        self._may_enumerate = self.can_enumerate
+
     def _reset_state(self) -> None:
         super()._reset_state()
-        self._factors: OrderedDict[tuple[int, ...], tuple | None] = OrderedDict()
+        self._factors: OrderedDict[tuple[int, ...], ActiveSetFactor | None] = OrderedDict()
         self._factor_floats = 0
-        self._absP: np.ndarray | None = None
-        self._absC_sum = self.absC.sum(axis=1)
         self._osqp_P: np.ndarray | None = None  # the Hessian the OSQP object holds (None: P)
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
-        for key in ("_factors", "_factor_floats", "_absP", "_absC_sum", "_osqp_P"):
+        for key in ("_factors", "_factor_floats", "_osqp_P"):
             state.pop(key, None)
         return state
 
     def update_P(self, P: np.ndarray) -> None:
         """:meth:`QPFamily.update_P`, with the OSQP object brought up to date only when OSQP
-        runs next (most solves are answered by the warm active set without OSQP)."""
+        runs next (most solves are answered by the warm active set without OSQP). An unchanged
+        ``P`` changes nothing; the first ``P`` keeps the full enumeration allowed (the family's
+        constructor only had a placeholder)."""
+        if self._has_P and np.array_equal(P, self.P):
+            return
         if self._osqp is not None and self._osqp_P is None:
             self._osqp_P = self.P
         solver, self._osqp = self._osqp, None
@@ -85,7 +105,9 @@ class TreeQP(QPFamily):
             super().update_P(P)  # checks P, replaces it, clears the caches
         finally:
             self._osqp = solver
-        self._absP = None
+        if not self._has_P:
+            self._has_P = True
+            self.can_enumerate = self._may_enumerate
 
     def run_osqp(self, w: np.ndarray, retry: bool = False) -> tuple:
         if self._osqp is not None and self._osqp_P is not None:
@@ -94,100 +116,65 @@ class TreeQP(QPFamily):
         self._osqp_P = None
         return super().run_osqp(w, retry)
 
-    def _factor(self, rows: tuple[int, ...]) -> tuple | None:
-        """The active set's factors that do not depend on P (cached), or None when its rows are
-        linearly dependent."""
+    def _factor(self, rows: tuple[int, ...]) -> ActiveSetFactor | None:
+        """The active set's factor (:func:`controllers.kkt.active_set_factor`, independent of
+        ``P``; cached within :data:`FACTOR_CACHE_FLOATS`), or None when its rows are dependent."""
         cache = self._factors
         if rows in cache:
             cache.move_to_end(rows)
             return cache[rows]
-        d, s = self.d, len(rows)
-        out: tuple | None
-        if s:
-            idx = np.array(rows, dtype=np.int64)
-            CS = self.C[idx]
-            norms = np.sqrt(np.einsum("ij,ij->i", CS, CS))
-            out = None
-            if np.all(norms > 0.0):
-                Q, Rfull = np.linalg.qr((CS / norms[:, None]).T, mode="complete")
-                R1 = Rfull[:s, :s]
-                if np.all(np.abs(np.diag(R1)) > _RANK_TOL):  # rows normalized: scale-free
-                    Q1, Q2 = Q[:, :s], np.ascontiguousarray(Q[:, s:])
-                    R1T_inv = np.linalg.inv(R1.T)
-                    Zh = Q1 @ R1T_inv / norms  # z_p = Zh h_S
-                    Lmap = np.linalg.solve(R1, Q1.T)  # multipliers of the normalized rows
-                    out = (idx, Zh, np.abs(Zh), Q2, None, Lmap, np.abs(Lmap))
-        else:
-            out = (None, None, None, np.eye(d), None, None, None)
-        size = 0 if out is None else sum(a.size for a in out if a is not None)
+        out = active_set_factor(self.C, rows)
         cache[rows] = out
-        self._factor_floats += size
+        self._factor_floats += 0 if out is None else out.floats
         while self._factor_floats > FACTOR_CACHE_FLOATS and len(cache) > 1:
             _, old = cache.popitem(last=False)
             if old is not None:
-                self._factor_floats -= sum(a.size for a in old if a is not None)
+                self._factor_floats -= old.floats
         return out
 
-    def verify(self, rows: tuple[int, ...], w: np.ndarray) -> list[float] | None:
-        """``z`` if the active set ``rows`` gives the optimum of instance ``w``, else None.
+    def verify(
+        self, rows: tuple[int, ...], w: np.ndarray, report: dict | None = None
+    ) -> list[float] | None:
+        """``z`` if the active set ``rows`` gives the optimum of instance ``w``, else None: the
+        engine's one KKT test (:func:`controllers.kkt.check_active_set`, the numbers of
+        :meth:`controllers.kkt.ActiveSetMaps.check`) for the one instance. ``report``: see
+        :func:`controllers.kkt.check_active_set`."""
+        if report is not None:
+            report.update(add=[], drop=[])
+        if len(rows) > self.d:
+            return None
+        fac = self._factor(rows)
+        if fac is None:
+            return None
+        return check_active_set(fac, self.P, self.C, w, self.absC, report)
 
-        The same answer and the same test as :meth:`controllers.qp.ActiveSetMaps.check` of
-        :func:`controllers.qp.active_set_maps`, computed for the one instance: the solution's
-        linear map is formed only for the data this instance uses (``q`` and ``h_S``), which is
-        what the magnitudes of the terms need.
-        """
-        d = self.d
-        if len(rows) > d:
+    def local(self, z: np.ndarray, w: np.ndarray, y: np.ndarray | None = None) -> Solution | None:
+        """:meth:`QPFamily.local`, then up to :data:`REPAIR_STEPS` primal-dual active-set
+        steps from the rows the solver left nearly active: the rows whose multipliers are
+        negative leave the set and the violated rows join it (the most violated first, up to
+        ``d`` rows), and the new set is verified. A node of tiny path probability, or the
+        stages whose costs a huge state dwarfs, can need rows that the solver, blind to their
+        weight, left otherwise."""
+        sol = super().local(z, w, y)
+        if sol is not None:
+            return sol
+        rows = set(self.near_active(z, w, loose=True).tolist())
+        if len(rows) > self.d:
             return None
-        f = self._factor(rows)
-        if f is None:
-            return None
-        idx, Zh, absZh, Q2, absQ2, Lmap, absLmap = f
-        P = self.P
-        absP = self._absP
-        if absP is None:
-            absP = self._absP = np.abs(P)
-        q, h = w[:d], w[d:]
-        hS = h[idx] if idx is not None else None
-        # z = -Gq q + Zs h_S with Gq = Q2 (Q2'P Q2)^{-1} Q2' and Zs = (I - Gq P) Zh
-        if Q2.shape[1]:
-            M = Q2.T @ P @ Q2
-            vals, vecs = np.linalg.eigh(0.5 * (M + M.T))
-            if not (vals[-1] > 0.0 and vals[0] > _PD_TOL * vals[-1]):
+        report: dict = {}
+        seen: set[tuple[int, ...]] = set()
+        for _ in range(REPAIR_STEPS):
+            key = tuple(sorted(rows))
+            seen.add(key)
+            out = self.verify(key, w, report)
+            if out is not None:
+                return Solution(out, key, "")
+            kept = rows.difference(report["drop"])
+            room = self.d - len(kept)
+            rows = kept.union(report["add"][: max(room, 0)])
+            if not (report["add"] or report["drop"]) or tuple(sorted(rows)) in seen:
                 return None
-            V = Q2 @ vecs
-            Gq = (V / vals) @ V.T
-            absGq = np.abs(Gq)
-            z = -(Gq @ q)
-            z_max = absGq.max(axis=0) @ np.abs(q)  # the largest term of any component
-            z_terms = absGq @ np.abs(q)  # |Z| |w|, per component
-            if hS is not None:
-                Zs = Zh - Gq @ (P @ Zh)
-                absZs = np.abs(Zs)
-                z = z + Zs @ hS
-                z_max += absZs.max(axis=0) @ np.abs(hS)
-                z_terms = z_terms + absZs @ np.abs(hS)
-        else:  # a vertex: z does not depend on q
-            z = Zh @ hS
-            z_max = absZh.max(axis=0) @ np.abs(hS)
-            z_terms = absZh @ np.abs(hS)
-        if not np.all(np.isfinite(z)):
-            return None
-        # [C z - h; -lambda] and the magnitudes of their terms (see controllers.qp)
-        primal = self.C @ z - h
-        primal_t = self._absC_sum * float(z_max) + np.abs(h)
-        if idx is not None:
-            primal[idx] = 0.0  # the active rows hold with equality by construction
-            primal_t[idx] = 0.0
-            resid = np.concatenate([primal, Lmap @ (P @ z + q)])
-            terms = np.concatenate([primal_t, absLmap @ (absP @ z_terms + np.abs(q))])
-        else:
-            resid, terms = primal, primal_t
-        worst = float(resid.max(initial=-math.inf))
-        if not worst <= 0.0:
-            if not math.isfinite(worst) or not np.all(resid <= KKT_TOL * terms):
-                return None
-        return z.tolist()
+        return None
 
 
 def solve_condensed_cvxpy(

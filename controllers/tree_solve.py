@@ -1,0 +1,246 @@
+"""One QP of the scenario tree with fixed probabilities: its data, its solve, its answer.
+
+:class:`TreeSolver` is the part of :class:`controllers.ScenarioTreeController` that turns the
+tree's probabilities into the engine's QP (:meth:`TreeSolver._qp`), solves it by the chain of
+:mod:`controllers.tree_qp` (then continuation in the state, the approximate answer without the
+nodes of negligible probability, the cvxpy rescue, ``nu = 0``) and reads the verified answer
+(:meth:`TreeSolver._exact`). Every answer called solved passed the KKT test of
+:mod:`controllers.kkt`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .kkt import KKT_TOL
+from .tree_data import TreeFamily
+from .tree_qp import solve_condensed_cvxpy, solve_tree_cvxpy
+
+__all__ = ["CONTINUATION_FROM", "CONTINUATION_STEP", "TINY_PROBABILITY", "TreeSolver"]
+
+#: Nodes of positive path probability below this are weighted exactly; only when the exact
+#: answer cannot be verified (the KKT test cannot resolve multipliers this many times smaller
+#: than the root's) are they left out, and the answer is reported as "approximate" (ok False).
+TINY_PROBABILITY = 1e-12
+
+#: When the chain fails at a state larger than this, the QP is solved by continuation from the
+#: state scaled to this size, by factors of ``CONTINUATION_STEP`` (see ``_continuation``).
+CONTINUATION_FROM = 1e3
+CONTINUATION_STEP = 1e3
+
+_PATHS = {"warm": "active_set_warm", "osqp": "osqp", "osqp_retry": "osqp_retry"}
+
+
+@dataclass
+class _Probabilities:
+    """The probabilities one QP is built with."""
+
+    q: np.ndarray  # (S,) region probabilities of the nodes tree.sq
+    branch: np.ndarray  # (M, N)
+    path: np.ndarray  # (M,)
+    weight: np.ndarray  # (M,) the path probabilities that weight the objective (= path)
+    idle: np.ndarray  # (M,) bool: nodes of path probability 0 (left out of the QP)
+
+
+class TreeSolver:
+    """The QP methods of :class:`controllers.ScenarioTreeController` (a mixin: it reads the
+    controller's ``model``, ``alpha``, ``nu_bound``, ``solver``, ``cvxpy_fallback`` and
+    ``_warm_start``)."""
+
+    @staticmethod
+    def _row_weights(fam: TreeFamily, pr: _Probabilities) -> tuple[np.ndarray, np.ndarray]:
+        """``(v, wrow)``: the weight of each source (node, then last node and mode) and of
+        each row of the objective."""
+        last = fam.tree.last
+        v = np.concatenate([pr.weight, (pr.weight[last, None] * pr.branch[last]).ravel()])
+        return v, v[fam.row_source]
+
+    def _qp(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities):
+        """``(P, w)``: the Hessian and the instance ``[q; h]`` of the engine.
+
+        A node of path probability 0 (and its subtree) weighs nothing: its offset and slack
+        appear in no other node's cost or rows, so they are decoupled exactly, with unit
+        curvature, no linear cost and chance rows made slack for every ``z`` (their optimum is
+        then ``nu = rho = 0``; the plan reports their smallest feasible slacks)."""
+        M, m, r = fam.size, self.model.m, self.model.r
+        v, wrow = self._row_weights(fam, pr)
+        d = fam.engine.d
+        P = (fam.P_stack @ v).reshape(d, d)
+        lx = fam.Lx @ x
+        qlin = 2.0 * (fam.LzT @ (wrow * lx))
+        qlin[M * m :] += self.alpha * pr.weight
+        model = self.model
+        band = model.H0 + (k + fam.chance_time)[:, None] * model.H_rate  # H_{k + t + 1}
+        h_chance = (band - fam.tightening).ravel() + fam.chance_x @ x
+        if pr.idle.any():
+            nodes = np.flatnonzero(pr.idle)
+            idle = np.concatenate([(nodes[:, None] * m + np.arange(m)).ravel(), M * m + nodes])
+            P[idle, :] = 0.0
+            P[:, idle] = 0.0
+            P[idle, idle] = 1.0
+            qlin[idle] = 0.0
+            rows = np.repeat(pr.idle, r)
+            h_chance[rows] = np.maximum(h_chance[rows], fam.idle_bound[rows])
+        w = np.concatenate([qlin, h_chance, fam.h_fixed])
+        return P, w
+
+    def _objective(self, fam: TreeFamily, x, nu, rho, pr: _Probabilities) -> float:
+        """``J`` at ``(nu, rho)`` with every constant term (Lemma 1's traces included): a sum of
+        nonnegative terms, computed as such (no cancellation)."""
+        _, wrow = self._row_weights(fam, pr)
+        t = fam.Lx @ x + fam.Lz @ np.concatenate([nu.ravel(), rho])
+        last = fam.tree.last
+        return float(
+            wrow @ (t * t)
+            + pr.weight @ fam.stage_trace
+            + np.sum(pr.weight[last, None] * pr.branch[last] * fam.term_trace)
+            + self.alpha * (pr.weight @ rho)
+        )
+
+    def _excess(self, fam: TreeFamily, x: np.ndarray, k: int, nu: np.ndarray) -> np.ndarray:
+        """Smallest feasible ``rho`` (M,) for the offsets ``nu`` (M, m); an excess within
+        round-off of its row's terms is 0."""
+        M, n = fam.size, self.model.n
+        z = np.concatenate([nu.ravel(), np.zeros(M)])
+        mean = (fam.mean_x @ x + fam.mean_z @ z).reshape(M, n)
+        GAm = np.einsum("irn,in->ir", fam.GA, mean)
+        GBnu = np.einsum("irm,im->ir", fam.GB, nu)
+        model = self.model
+        hbar = model.H0 + (k + fam.chance_time)[:, None] * model.H_rate - fam.tightening
+        excess = GAm + GBnu - hbar
+        terms = (
+            np.einsum("irn,in->ir", np.abs(fam.GA), np.abs(mean))
+            + np.einsum("irm,im->ir", np.abs(fam.GB), np.abs(nu))
+            + np.abs(hbar)
+        )
+        excess = np.where(excess <= KKT_TOL * terms, 0.0, excess)
+        return np.maximum(excess.max(axis=1), 0.0)
+
+    def _solve(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities):
+        """One QP with fixed probabilities: ``(nu (M, m), rho (M,), cost, status, path)``;
+        ``cost`` is None unless a solver reported it (the caller computes the last one only).
+        Whatever path found the answer (the warm active set, DAQP, OSQP, cvxpy), it is called
+        solved only after the engine's KKT test (:mod:`controllers.kkt`)."""
+        M, m = fam.size, self.model.m
+        P, w = self._qp(fam, x, k, pr)
+        engine = fam.engine
+        engine.update_P(P)
+        notes: list[str] = []
+        if self.solver == "cvxpy":  # the plain reference, its active set verified
+            out = solve_tree_cvxpy(self, fam, x, k, pr)
+            if out is None:
+                return self._answer(fam, x, k, np.zeros((M, m)), "fallback_nu0: cvxpy failed",
+                                    "fallback")  # fmt: skip
+            return self._verified(fam, x, k, pr, w, out[0], None, notes, "cvxpy")
+        sol = engine.solve(w, warm=self._warm_start, notes=notes)
+        if sol is None:
+            sol = self._continuation(fam, x, k, pr, notes)
+        if sol is not None:
+            nu, rho = self._exact(fam, x, k, pr, sol)
+            status = "solved" if not notes else f"solved ({'; '.join(notes)})"
+            return nu, rho, None, status, _PATHS.get(sol.path, sol.path)
+        tiny = (pr.path > 0.0) & (pr.path < TINY_PROBABILITY)
+        if tiny.any():  # the test cannot resolve their weights: an answer without them
+            rough = _Probabilities(pr.q, pr.branch, pr.path, pr.weight, pr.idle | tiny)
+            P2, w2 = self._qp(fam, x, k, rough)
+            engine.update_P(P2)
+            sol = engine.solve(w2, warm=False, notes=[])
+            if sol is not None:
+                nu, rho = self._exact(fam, x, k, rough, sol)
+                notes.append(
+                    f"{int(tiny.sum())} nodes of path probability below {TINY_PROBABILITY:g} "
+                    "left out"
+                )
+                status = "approximate: " + "; ".join(notes)
+                return nu, rho, None, status, _PATHS.get(sol.path, sol.path)
+            engine.update_P(P)
+        if not self.cvxpy_fallback:
+            notes.append("cvxpy retry disabled")
+        else:
+            rescue = solve_condensed_cvxpy(P, w, engine)
+            if rescue is not None:
+                z, y = rescue
+                return self._verified(fam, x, k, pr, w, z[: M * m].reshape(M, m), y, notes,
+                                      "cvxpy")  # fmt: skip
+            notes.append("cvxpy failed")
+        return self._answer(fam, x, k, np.zeros((M, m)), "fallback_nu0: " + "; ".join(notes),
+                            "fallback")  # fmt: skip
+
+    def _continuation(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities, notes):
+        """The QP at a huge state by continuation in the state: its data are affine in ``x``
+        and its Hessian does not depend on ``x``, so the instances at ``t x`` for ``t`` growing
+        by :data:`CONTINUATION_STEP` from ``|t x| = CONTINUATION_FROM`` to ``t = 1`` are solved
+        in turn, each started from the last one's active set. A function of ``(x, k)`` and the
+        probabilities only: a state of size 1e30 makes the linear term 1e30 times the Hessian,
+        where the solvers fail from a cold start. None if a step fails (or ``x`` is small)."""
+        size = float(np.max(np.abs(x), initial=0.0))
+        if not size > CONTINUATION_FROM:
+            return None
+        engine = fam.engine
+        t, warm, sol = CONTINUATION_FROM / size, False, None
+        while True:
+            sol = engine.solve(self._qp(fam, t * x, k, pr)[1], warm=warm)
+            if sol is None:
+                return None
+            if t == 1.0:
+                notes.append(f"by continuation from {CONTINUATION_FROM:g} / |x| times the state")
+                return sol
+            t, warm = min(1.0, t * CONTINUATION_STEP), True
+
+    def _verified(self, fam, x, k, pr: _Probabilities, w, nu, y, notes: list[str], path: str):
+        """The answer of a solver outside the engine (offsets ``nu`` (M, m), multipliers ``y``
+        or None): its active set re-solved exactly and verified by the engine's KKT test
+        (then "solved", or "solved by cvxpy (...)" after failures), else "unverified" with its
+        offsets and their smallest feasible slacks."""
+        M, m = fam.size, self.model.m
+        nu = np.clip(np.asarray(nu, dtype=np.float64).reshape(M, m), -self.nu_bound, self.nu_bound)
+        nu[pr.idle] = 0.0
+        # the smallest feasible slacks for its offsets: a slack of small weight is left loose
+        # within the solver's tolerance, which hides the active set
+        rho = self._excess(fam, x, k, nu)
+        rho[pr.idle] = 0.0
+        engine = fam.engine
+        z = np.concatenate([nu.ravel(), rho])
+        sol = engine.local(z, w, y)
+        if sol is None:
+            # an offset of tiny path probability is determined by the objective only to about
+            # sqrt(tolerance / probability): complete the active set with DAQP, started from
+            # the rows the answer leaves nearly active, and verify again
+            near = tuple(engine.near_active(z, w, loose=True).tolist())
+            z2, y2, _ = engine.run_daqp(w, near)
+            sol = None if z2 is None else engine.local(z2, w, y2)
+            if sol is not None:
+                notes.append(f"the {path} answer's active set completed by daqp")
+        if sol is None:
+            notes.append(f"the {path} answer did not verify")
+            return self._answer(fam, x, k, nu, "unverified: " + "; ".join(notes), path)
+        nu, rho = self._exact(fam, x, k, pr, sol)
+        status = "solved" if not notes else f"solved by {path} ({'; '.join(notes)})"
+        return nu, rho, None, status, path
+
+    def _exact(self, fam: TreeFamily, x, k, pr: _Probabilities, sol) -> tuple:
+        """``(nu, rho)`` of a verified solution: ``rho = 0`` where the bound ``rho >= 0`` is
+        active (the node's rows then hold at the returned offsets to the KKT test's tolerance
+        of their own terms), else the exact solution's; the smallest feasible slacks at the
+        nodes of path probability 0 (left out of the QP)."""
+        M, m = fam.size, self.model.m
+        engine = fam.engine
+        z = np.asarray(sol.z)
+        nb = self.nu_bound
+        nu = np.clip(z[: M * m].reshape(M, m), -nb, nb)  # round-off outside U
+        rho = np.maximum(z[M * m :], 0.0)
+        active = np.zeros(engine.c, dtype=bool)
+        active[list(sol.rows)] = True
+        rho[active[engine.c - M :]] = 0.0
+        if pr.idle.any():  # decoupled: their exact optimum is nu = 0
+            nu[pr.idle] = 0.0
+            rho[pr.idle] = self._excess(fam, x, k, nu)[pr.idle]
+        return nu, rho
+
+    def _answer(self, fam, x, k, nu, status, path):
+        """An answer that is not an exact verified one: ``nu`` projected on ``U`` and the
+        smallest feasible slacks."""
+        nu = np.clip(np.asarray(nu, dtype=np.float64), -self.nu_bound, self.nu_bound)
+        return nu, self._excess(fam, x, k, nu), None, status, path
