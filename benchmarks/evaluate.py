@@ -54,8 +54,9 @@ from benchmarks.montecarlo import Rollouts, paper_rhc, rollout
 from benchmarks.policies import RawEnvPolicy, _check_policy, as_controller
 from benchmarks.stats import CurveGap, mean_ci, paired_curve_gap, wilson
 from sdjls_gym import SDJLSModel
-from sdjls_gym._validate import a_type, check_int, check_mapping, describe
 from sdjls_gym.env import SDJLSEnv
+from sdjls_gym.messages import a_type, describe
+from sdjls_gym.validation import check_int, check_mapping
 
 __all__ = [
     "REFERENCE_CONSTRAINT",

@@ -13,8 +13,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from sdjls_gym._validate import a_type, describe
-from sdjls_gym.env import SDJLSEnv, decode_observation, encode_observation
+from sdjls_gym.env import SDJLSEnv
+from sdjls_gym.messages import a_type, describe
+from sdjls_gym.observation import decode_observation, encode_observation
 from sdjls_gym.wrappers import ResidualAction, ScaleObservationReward, scale_observation
 
 __all__ = ["RawEnvPolicy", "as_controller"]

@@ -68,7 +68,8 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from sdjls_gym._validate import check_mapping, describe
+from sdjls_gym.messages import describe
+from sdjls_gym.validation import check_mapping
 
 __all__ = [
     "DEFAULT_OSQP_SETTINGS",
