@@ -37,7 +37,7 @@ An agent whose ``observation_space`` / ``action_space`` are not the scored envir
 refused (:func:`benchmarks.policies.check_spaces`). A ``predict`` with SB3's ``state`` and
 ``episode_start`` parameters (recurrent policies) gets its state back at each step, as SB3's
 ``evaluate_policy`` does. A policy's actions are read by ``env.step``'s rule
-(:func:`sdjls_gym._validate.check_numbers`). A diverged episode's state never reaches the policy.
+(:func:`sdjls_gym.validation.check_numbers`). A diverged episode's state never reaches the policy.
 
 Command line: ``python -m benchmarks.evaluate --policy PATH.zip --algo ppo`` (an SB3 model;
 ``--train-env package.module:attribute`` names its training environment, ``--vec-normalize
@@ -62,8 +62,9 @@ from benchmarks.montecarlo import Rollouts, paper_rhc, rollout
 from benchmarks.policies import RawEnvPolicy, _check_policy, as_controller
 from benchmarks.stats import CurveGap, mean_ci, paired_curve_gap, wilson
 from sdjls_gym import SDJLSModel
-from sdjls_gym._validate import a_type, check_int, check_mapping, describe
 from sdjls_gym.env import SDJLSEnv
+from sdjls_gym.messages import a_type, describe
+from sdjls_gym.validation import check_int, check_mapping
 
 __all__ = [
     "REFERENCE_CONSTRAINT",
@@ -355,7 +356,7 @@ def evaluate(
     TypeError, ValueError
         A bad argument (a class instead of an agent, an agent whose spaces are not the raw
         environment's, an unknown ``env_id``), before any episode is run.
-    sdjls_gym._validate.NotANumberError
+    sdjls_gym.errors.NotANumberError
         The policy returned what ``env.step`` refuses (``"1.0"``, ``True``, None).
     """
     episodes, seed = check_evaluation(episodes, seed)

@@ -31,8 +31,8 @@ from benchmarks.evaluate import resolve_env, statistics
 from benchmarks.files import write_atomic
 from benchmarks.montecarlo import rollout
 from benchmarks.policies import RawEnvPolicy
-from sdjls_gym._validate import check_choice, check_positive
 from sdjls_gym.systems.macro import PAPER_K
+from sdjls_gym.validation import check_choice, check_positive
 from sdjls_gym.wrappers import (
     FiniteHorizon,
     ResidualAction,

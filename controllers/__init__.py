@@ -1,6 +1,7 @@
 """Controllers for SDJLS models: LMI pre-stabilization, chance constraints, receding horizon.
 
-Controllers read an :class:`sdjls_gym.SDJLSModel`; they never simulate.
+Controllers read an :class:`sdjls_gym.SDJLSModel`; they never simulate. Their exceptions live
+in :mod:`sdjls_gym.errors` with the library's others; the LMI ones are exported here too.
 """
 
 from controllers.base import Controller
@@ -9,9 +10,6 @@ from controllers.chance import row_satisfaction_probability, tightened_set_empty
 from controllers.env_policy import ControllerPolicy, policy_for
 from controllers.lmi import (
     GainSynthesisResult,
-    LMIError,
-    LMIInfeasibleError,
-    LMISolverError,
     MeanSquareCertificate,
     check_proposition2,
     second_moment_spectral_radius,
@@ -20,6 +18,7 @@ from controllers.lmi import (
 )
 from controllers.rhc import RecedingHorizonController, UnconstrainedRecedingHorizonController
 from controllers.scenario_tree import ScenarioTreeController
+from sdjls_gym.errors import LMIError, LMIInfeasibleError, LMISolverError
 
 __all__: list[str] = []
 __all__ += [

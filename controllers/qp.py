@@ -60,7 +60,8 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from sdjls_gym._validate import check_mapping, describe
+from sdjls_gym.messages import describe
+from sdjls_gym.validation import check_mapping
 
 from .dual_qp import REGULARIZE, DaqpData, daqp_data, run_daqp
 from .kkt import KKT_TOL, ActiveSetMaps, active_set_maps

@@ -58,13 +58,14 @@ from typing import Any
 
 import numpy as np
 
-from sdjls_gym._validate import (
+from sdjls_gym.dynamics import max_last
+from sdjls_gym.model import SDJLSModel
+from sdjls_gym.validation import (
     MAX_INDEX,
     check_bool,
     check_choice,
     check_number,
 )
-from sdjls_gym.model import SDJLSModel, max_last
 
 from .base import MAX_STATE, Controller, check_gain, check_terminal_weights
 from .chance import CONSTRAINT_KINDS, check_xi, tightening

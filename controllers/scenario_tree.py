@@ -62,8 +62,8 @@ from typing import Any
 
 import numpy as np
 
-from sdjls_gym._validate import check_bool, check_choice, check_int
 from sdjls_gym.model import SDJLSModel
+from sdjls_gym.validation import check_bool, check_choice, check_int
 
 from .base import Controller, check_gain, check_terminal_weights
 from .chance import CONSTRAINT_KINDS, check_xi

@@ -81,3 +81,29 @@ def test_policy_for_refuses_what_it_cannot_undo():
         policy_for(3, base)
     with pytest.raises(TypeError, match="env = 'SDJLS-Macro-v0' is a str"):
         policy_for(ctrl, "SDJLS-Macro-v0")
+
+
+def test_pass_through_names_name_the_projects_wrappers():
+    """The controllers match this project's pass-through wrappers by module and class name (so
+    that they never import the environments): each name must be the class's own."""
+    import importlib
+
+    from controllers.env_policy import PASS_THROUGH_NAMES
+
+    ours = [path for path in PASS_THROUGH_NAMES if path.startswith("sdjls_gym.")]
+    assert len(ours) == 3
+    for path in ours:
+        module, _, name = path.rpartition(".")
+        cls = getattr(importlib.import_module(module), name)
+        assert f"{cls.__module__}.{cls.__qualname__}" == path
+
+
+def test_policy_for_recognizes_an_sdjls_env_by_its_model_and_horizon():
+    """An environment underneath without an ``SDJLSModel`` model and an int horizon is refused,
+    one with them (an ``SDJLSEnv``) is driven."""
+    ctrl = LinearFeedbackController(macro(), PAPER_K)
+    env = gym.make("SDJLS-Macro-v0")
+    assert policy_for(ctrl, env).horizon == 20
+    env.unwrapped.horizon = 20.0  # not an int: not an SDJLS environment any more
+    with pytest.raises(ValueError, match="SDJLSEnv underneath; expected an SDJLS environment"):
+        policy_for(ctrl, env)

@@ -15,7 +15,7 @@ from benchmarks import evaluate as evaluate_module
 from benchmarks.evaluate import MAX_EPISODES, RawEnvPolicy, evaluate, main
 from controllers import LinearFeedbackController
 from sdjls_gym import SDJLSModel
-from sdjls_gym._validate import NotANumberError
+from sdjls_gym.errors import NotANumberError
 from sdjls_gym.systems.macro import PAPER_K, macro
 
 E = 30  # episodes per evaluation in these tests

@@ -7,9 +7,6 @@ import pytest
 
 from controllers.lmi import (
     GainSynthesisResult,
-    LMIError,
-    LMIInfeasibleError,
-    LMISolverError,
     MeanSquareCertificate,
     check_proposition2,
     second_moment_spectral_radius,
@@ -17,6 +14,7 @@ from controllers.lmi import (
     verify_mean_square_bound,
 )
 from sdjls_gym import SDJLSModel
+from sdjls_gym.errors import LMIError, LMIInfeasibleError, LMISolverError
 from sdjls_gym.systems.macro import PAPER_K, PAPER_X, PAPER_Y, macro
 
 #: Half a unit in the 4th decimal: the rounding of the printed X and Y of section 6.
