@@ -379,17 +379,15 @@ def check_array(
         )
     if raw is not None and (raw.dtype.kind in "bcSUO" or raw.dtype == np.bool_):
         if raw.dtype.kind == "O":
-            bad = next(
-                (
-                    v
-                    for v in raw.ravel()
-                    if _is_bool(v) or not isinstance(v, (numbers.Real, np.integer, np.floating))
-                ),
-                None,
-            )
-            if bad is None and raw.size:
+            bad_entries = [
+                v
+                for v in raw.ravel()
+                if _is_bool(v) or not isinstance(v, (numbers.Real, np.integer, np.floating))
+            ]  # a list, not next(..., None): a None entry is itself what must be reported
+            if not bad_entries and raw.size:
                 value = raw = _objects_as_float(name, raw, suffix)
             else:
+                bad = bad_entries[0] if bad_entries else None
                 raise TypeError(
                     f"{name} has an entry {describe(bad)} of type {type_name(bad)}; expected an "
                     f"array of real numbers{suffix}"

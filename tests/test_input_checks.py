@@ -517,3 +517,21 @@ def test_a_json_model_file_with_a_key_twice_is_refused(tmp_path):
     raises(ValueError, r"^model file .*twice\.json' has the key 'x0' twice", lambda: load_model(
         path
     ))  # fmt: skip
+
+
+@pytest.mark.parametrize("action", [[None], [1.0, None], np.array([None], dtype=object)])
+def test_a_none_entry_in_an_action_is_not_a_number(action):
+    """A None entry is named as such, as the README says, not read as NaN ('non-finite')."""
+    from sdjls_gym.errors import NotANumberError
+
+    env = gym.make("SDJLS-Macro-v0")
+    env.reset(seed=0)
+    width = len(action)
+    if width > 1:  # a two-entry action for a one-input system: the type error comes first
+        action = action[1:]
+    with pytest.raises(NotANumberError, match="None"):
+        env.step(action)
+    venv = gym.make_vec("SDJLS-Macro-v0", num_envs=1, vectorization_mode="vector_entry_point")
+    venv.reset(seed=0)
+    with pytest.raises(NotANumberError, match="None"):
+        venv.step(np.array([action], dtype=object))
