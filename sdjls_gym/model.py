@@ -76,10 +76,6 @@ class SDJLSModel:
     state_names : list or tuple of n str, optional
         Human-readable names of the states ``x(1) .. x(n)``; None (the default) when not given.
 
-    Symmetry, positive (semi)definiteness and the row sums are checked with tolerances
-    relative to each matrix's largest entry, so scaling a weight by any positive factor does
-    not change the verdict.
-
     Raises
     ------
     InvalidModelError
@@ -87,6 +83,12 @@ class SDJLSModel:
     InvalidModelTypeError
         (an :class:`InvalidModelError` and a :class:`TypeError`) when a field has the wrong type,
         e.g. a string or None where numbers belong, or names given as a generator.
+
+    Notes
+    -----
+    Symmetry, positive (semi)definiteness and the row sums are checked with tolerances
+    relative to each matrix's largest entry, so scaling a weight by any positive factor does
+    not change the verdict.
 
     Examples
     --------
