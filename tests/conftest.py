@@ -1,4 +1,13 @@
-"""Shared fixtures for the model, env, vector env and wrapper tests.
+"""Shared fixtures and helpers of the tests.
+
+* the paper's example (``paper``, ``paper_kwargs``, ``quiet_paper_model``, ``paper_policy``),
+  another model (``other_model``) and small hand-made models (``noiseless_model``,
+  ``doubling_model``);
+* ``raises_naming``: the one way the tests check an error (its type, the argument's name and
+  the offending value, never the whole sentence), and ``no_solver`` / ``raised_by_library``
+  for the error catalogues (``test_errors_*.py``).
+
+Test modules import the plain functions (``from conftest import raises_naming``).
 
 The numbers of the macroeconomic example are typed in from section 6 of the paper
 (``/work/shared/paper/sdjls-rhc-paper.tex``), never imported from ``sdjls_gym``, so that a
@@ -8,7 +17,13 @@ wrong number in the preset makes a test fail. Modes are 0-based here (the paper'
 
 from __future__ import annotations
 
+import contextlib
+import re
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -123,6 +138,142 @@ def _other_model() -> SDJLSModel:
 def other_model() -> SDJLSModel:
     """A second, structurally different model (every optional field set)."""
     return _other_model()
+
+
+def noiseless_model(
+    A,
+    *,
+    B=((0.0,), (1.0,)),
+    G=((0.0, 1.0),),
+    H0=None,
+    Q=None,
+    x0=(1e6, 1e6),
+) -> SDJLSModel:
+    """One mode, ``n = 2``, ``W = 0``: ``x_{k+1} = A x_k + B u_k`` exactly (no noise).
+
+    The model of the overflow tests (entries near 1e303 in ``A`` or ``Q``). ``H0`` is 1e9 per
+    row of ``G`` unless given: far from the states of the tests.
+    """
+    G = [list(row) for row in G]
+    return SDJLSModel(
+        A=[A], B=[list(row) for row in B], P_in=[[1.0]], P_out=[[1.0]], G=G,
+        H0=[1e9] * len(G) if H0 is None else H0, Q=np.eye(2) if Q is None else Q, R=[[1.0]],
+        x0=list(x0), W=np.zeros((2, 2)),
+    )  # fmt: skip
+
+
+def doubling_model() -> SDJLSModel:
+    """``x_{k+1} = 2 x_k + u_k`` from ``x_0 = 1``, one mode, ``n = m = 1``, no noise, band
+    ``x <= 100``: 2, 4, 8, 16 under ``u = 0``."""
+    return SDJLSModel(
+        A=[[[2.0]]], B=[[1.0]], P_in=[[1.0]], P_out=[[1.0]], G=[[1.0]], H0=[100.0],
+        Q=[[1.0]], R=[[1.0]], x0=[1.0], W=[[0.0]],
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------------ errors
+class _Unshown:
+    def __repr__(self) -> str:
+        return "UNSHOWN"
+
+
+UNSHOWN: Any = _Unshown()
+"""``raises_naming(..., value=UNSHOWN)``: the message does not show the offending value (a
+known gap of that message, listed where it is used); only the type and the name are checked."""
+
+_LONG = 60  # a value written with more characters is shown shortened: its start must appear
+
+
+def shown_as(value: Any) -> list[str]:
+    """The ways a message may write ``value``: its ``repr`` or ``str`` (a ``str`` value as it
+    is or quoted), an array as numpy writes it with ``", "`` between entries (4 to 8 digits) or
+    as a list; runs of white space count as one space."""
+    if isinstance(value, str):
+        texts = [value, repr(value)]
+    elif isinstance(value, np.ndarray):
+        texts = [np.array2string(value, separator=", ", precision=p) for p in range(4, 9)]
+        texts += [repr(value.tolist()), repr(value)]
+    else:
+        texts = [repr(value), str(value)]
+    return [" ".join(text.split()) for text in texts]
+
+
+def _appears(text: str, message: str) -> bool:
+    """``text`` is in ``message`` as a whole token: ``1`` is not found in ``-1``, ``1.5``,
+    ``10`` or ``x1``, ``k`` not in ``rank``. A long text needs only its start (values are
+    shown shortened)."""
+    if len(text) > _LONG:
+        text = text[:40]
+        end = ""
+    else:
+        end = r"(?![\w]|\.\d)" if text[-1:].isalnum() or text.endswith("_") else ""
+    start = r"(?<![\w.+-])" if text[:1].isalnum() or text.startswith("_") else ""
+    return re.search(start + re.escape(text) + end, message) is not None
+
+
+@contextlib.contextmanager
+def raises_naming(
+    exc_type: type[BaseException] | tuple[type[BaseException], ...],
+    name: str | tuple[str, ...],
+    value: Any,
+) -> Iterator[pytest.ExceptionInfo]:
+    """The block raises ``exc_type`` (or a subclass) whose message names the argument ``name``
+    (each of several names) and shows the offending ``value`` (see :func:`shown_as`).
+
+    The project's rule for errors (STYLE.md): a test asserts the type, the name and the value,
+    not the sentence around them, so messages may be reworded without touching the tests.
+    """
+    with pytest.raises(exc_type) as excinfo:
+        yield excinfo
+    message = " ".join(str(excinfo.value).split())
+    kind = type(excinfo.value).__name__
+    for each in (name,) if isinstance(name, str) else name:
+        assert _appears(each, message), f"{kind} does not name {each!r}: {message!r}"
+    if value is not UNSHOWN:
+        texts = shown_as(value)
+        assert any(_appears(text, message) for text in texts), (
+            f"{kind} does not show the value ({' or '.join(texts)}): {message!r}"
+        )
+
+
+class SolverCalled(BaseException):
+    """Raised by the trap of ``no_solver``; a BaseException, which no ``except Exception`` in
+    the library can hide."""
+
+
+@pytest.fixture
+def no_solver(monkeypatch):
+    """Every solver (OSQP, cvxpy) replaced by a trap: bad input must be refused before any."""
+    import cvxpy as cp
+    import osqp
+
+    def trap(*args, **kwargs):
+        raise SolverCalled("a solver was started before the bad input was rejected")
+
+    monkeypatch.setattr(osqp.OSQP, "solve", trap)
+    monkeypatch.setattr(cp.Problem, "solve", trap)
+
+
+def raised_by_library(excinfo: pytest.ExceptionInfo, dirs=("sdjls_gym", "controllers")) -> None:
+    """The innermost frame of the traceback is in the project's own code (one of ``dirs``):
+    a check of this project refused the input, not numpy, scipy or cvxpy deep inside."""
+    innermost = excinfo.traceback[-1]
+    parts = Path(str(innermost.path)).parts
+    assert "site-packages" not in parts and any(d in parts for d in dirs), (
+        f"{type(excinfo.value).__name__} raised from {innermost.path}:{innermost.lineno + 1}, "
+        f"not from a check in {' or '.join(d + '/' for d in dirs)}"
+    )
+
+
+def refused(error, name, value, call, dirs=("sdjls_gym", "controllers")) -> pytest.ExceptionInfo:
+    """``call()`` raises ``error`` naming ``name`` and showing ``value`` (:func:`raises_naming`),
+    with no warning on the way, from a check in the project's own code (``dirs``)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no warning on the way to the error either
+        with raises_naming(error, name, value) as excinfo:
+            call()
+    raised_by_library(excinfo, dirs)
+    return excinfo
 
 
 # Hypothesis (6.1xx) also seeds its examples with constants mined from the project's own modules
