@@ -31,8 +31,10 @@ import pytest
 from sdjls_gym import SDJLSModel
 
 
-def _paper_numbers() -> SimpleNamespace:
-    """Section 6: A_1..A_3, B, lambda, mu, G, H_k, x_0, Q_i, R_i, K_i, horizon."""
+def paper_numbers() -> SimpleNamespace:
+    """The numbers of the paper's example (``paper`` fixture; importable for module constants).
+
+    Section 6: A_1..A_3, B, lambda, mu, G, H_k, x_0, Q_i, R_i, K_i, horizon."""
     return SimpleNamespace(
         A=np.array(
             [
@@ -59,11 +61,11 @@ def _paper_numbers() -> SimpleNamespace:
 @pytest.fixture
 def paper() -> SimpleNamespace:
     """The numbers of section 6 of the paper (a fresh copy per test)."""
-    return _paper_numbers()
+    return paper_numbers()
 
 
 def _paper_kwargs() -> dict:
-    p = _paper_numbers()
+    p = paper_numbers()
     return {
         "A": p.A,
         "B": p.B,
@@ -101,7 +103,7 @@ def paper_policy():
     ``A_i + B K_i = [[0, 1], [0, 0]]`` in every mode, so the income is ``x_{k+1}(2) = nu_k +
     w_k(2)``, half a unit under the middle of the band. Works on one state or on a batch.
     """
-    K = _paper_numbers().K
+    K = paper_numbers().K
 
     def policy(state, mode, k):
         state = np.asarray(state, dtype=np.float64)
@@ -109,6 +111,52 @@ def paper_policy():
         return np.einsum("...ij,...j->...i", K[np.asarray(mode)], state) + nu[..., None]
 
     return policy
+
+
+@pytest.fixture
+def info_policy(paper_policy):
+    """The paper's feedback, as a function of the info of the current state."""
+
+    def policy(info):
+        return paper_policy(info["state"], info["mode"], info["k"]).astype(np.float32)
+
+    return policy
+
+
+def run_episode(env, policy, seed=None, steps=None) -> dict:
+    """Run ``policy(info)`` from a reset; lists of observations, rewards, flags and infos."""
+    obs, info = env.reset(seed=seed)
+    out = {"obs": [obs], "reward": [], "flags": [], "info": [info]}
+    k = 0
+    while steps is None or k < steps:
+        obs, reward, terminated, truncated, info = env.step(policy(info))
+        out["obs"].append(obs)
+        out["reward"].append(reward)
+        out["flags"].append((terminated, truncated))
+        out["info"].append(info)
+        k += 1
+        if terminated or truncated:
+            break
+    return out
+
+
+def assert_same_info(a: dict, b: dict) -> None:
+    """The same keys, values and value types."""
+    assert a.keys() == b.keys()
+    for key in a:
+        assert np.array_equal(a[key], b[key]), key
+        assert type(a[key]) is type(b[key]), key
+
+
+def assert_same_episode(a: dict, b: dict) -> None:
+    """Two ``run_episode`` results are bit-identical."""
+    assert len(a["obs"]) == len(b["obs"])
+    for x, y in zip(a["obs"], b["obs"], strict=True):
+        assert x.dtype == y.dtype and np.array_equal(x, y)  # bit-identical
+    assert a["reward"] == b["reward"]
+    assert a["flags"] == b["flags"]
+    for x, y in zip(a["info"], b["info"], strict=True):
+        assert_same_info(x, y)
 
 
 def _other_model() -> SDJLSModel:
@@ -195,6 +243,8 @@ def shown_as(value: Any) -> list[str]:
         texts += [repr(value.tolist()), repr(value)]
     else:
         texts = [repr(value), str(value)]
+        if isinstance(value, float | np.floating) and "e" in format(value, "g"):
+            texts.append(format(value, "g"))  # 2e+06 for 2000000.0
     return [" ".join(text.split()) for text in texts]
 
 
