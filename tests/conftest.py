@@ -253,7 +253,7 @@ def _appears(text: str, message: str) -> bool:
     ``10`` or ``x1``, ``k`` not in ``rank``. A long text needs only its start (values are
     shown shortened)."""
     if len(text) > _LONG:
-        text = text[:40]
+        text = text[:20]
         end = ""
     else:
         end = r"(?![\w]|\.\d)" if text[-1:].isalnum() or text.endswith("_") else ""
