@@ -16,7 +16,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import assert_same_episode, assert_same_info, run_episode
+from conftest import assert_same_episode, assert_same_info, raises_naming, run_episode
 from gymnasium.utils.env_checker import check_env as gymnasium_check_env
 from gymnasium.wrappers import RescaleAction
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
@@ -369,7 +369,7 @@ def test_render_rgb_array(info_policy):
 
 @pytest.mark.parametrize("render_mode", ["human", "ansi", "rgb"])
 def test_invalid_render_mode_raises(render_mode):
-    with pytest.raises(ValueError, match="render_mode"):
+    with raises_naming(ValueError, "render_mode", render_mode):
         SDJLSEnv("macro", render_mode=render_mode)
 
 

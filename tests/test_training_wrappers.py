@@ -52,7 +52,7 @@ def test_scale_observation_reward_rejects_bad_arguments(kwargs, error):
 
 def test_training_wrappers_need_an_sdjls_env():
     for wrapper in (W.ScaleObservationReward, W.TerminateOutside):
-        with pytest.raises(TypeError, match="needs an SDJLSEnv"):
+        with raises_naming(TypeError, (wrapper.__name__, "SDJLSEnv"), "PendulumEnv"):
             wrapper(gym.make("Pendulum-v1"))
     with raises_naming(ValueError, "bound", -1.0):
         W.TerminateOutside(gym.make("SDJLS-Macro-v0"), -1.0)
