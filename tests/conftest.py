@@ -248,17 +248,35 @@ def shown_as(value: Any) -> list[str]:
     return [" ".join(text.split()) for text in texts]
 
 
-def _appears(text: str, message: str) -> bool:
-    """``text`` is in ``message`` as a whole token: ``1`` is not found in ``-1``, ``1.5``,
-    ``10`` or ``x1``, ``k`` not in ``rank``. A long text needs only its start (values are
-    shown shortened)."""
+_NEAR = 160  # the value starts at most this many characters after the name
+
+
+def _token(text: str) -> re.Pattern[str]:
+    """``text`` as a whole token: ``1`` is not found in ``-1``, ``1.5``, ``10`` or ``x1``, ``k``
+    not in ``rank``. A long text needs only its start (values are shown shortened)."""
     if len(text) > _LONG:
-        text = text[:20]
-        end = ""
+        text, end = text[:20], ""
     else:
         end = r"(?![\w]|\.\d)" if text[-1:].isalnum() or text.endswith("_") else ""
     start = r"(?<![\w.+-])" if text[:1].isalnum() or text.startswith("_") else ""
-    return re.search(start + re.escape(text) + end, message) is not None
+    return re.compile(start + re.escape(text) + end)
+
+
+def _appears(text: str, message: str) -> bool:
+    return _token(text).search(message) is not None
+
+
+def _shown_after(names: tuple[str, ...], texts: list[str], message: str) -> bool:
+    """One of ``texts`` follows one of the ``names`` within ``_NEAR`` characters: the value
+    belongs to the argument (``xi = 1.5``, ``K has shape (3, 2)``), not to the explanation
+    further on (``... xi = 1 cannot be met``) or to another argument."""
+    for name in names:
+        for found in _token(name).finditer(message):
+            for text in texts:
+                shown = _token(text).search(message, found.end())
+                if shown and shown.start() - found.end() <= _NEAR:
+                    return True
+    return False
 
 
 @contextlib.contextmanager
@@ -268,7 +286,7 @@ def raises_naming(
     value: Any,
 ) -> Iterator[pytest.ExceptionInfo]:
     """The block raises ``exc_type`` (or a subclass) whose message names the argument ``name``
-    (each of several names) and shows the offending ``value`` (see :func:`shown_as`).
+    (each of several names) and shows the offending ``value`` after it (see :func:`shown_as`).
 
     The project's rule for errors (STYLE.md): a test asserts the type, the name and the value,
     not the sentence around them, so messages may be reworded without touching the tests.
@@ -277,12 +295,14 @@ def raises_naming(
         yield excinfo
     message = " ".join(str(excinfo.value).split())
     kind = type(excinfo.value).__name__
-    for each in (name,) if isinstance(name, str) else name:
+    names = (name,) if isinstance(name, str) else name
+    for each in names:
         assert _appears(each, message), f"{kind} does not name {each!r}: {message!r}"
     if value is not UNSHOWN:
         texts = shown_as(value)
-        assert any(_appears(text, message) for text in texts), (
-            f"{kind} does not show the value ({' or '.join(texts)}): {message!r}"
+        assert _shown_after(names, texts, message), (
+            f"{kind} does not show the value ({' or '.join(texts)}) after "
+            f"{' or '.join(map(repr, names))}: {message!r}"
         )
 
 
