@@ -15,6 +15,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import pytest
+from conftest import noiseless_model
 
 from sdjls_gym import SDJLSEnv, SDJLSModel, SDJLSVectorEnv, functional
 from sdjls_gym.functional import EnvParams, Restart, may_overflow
@@ -55,19 +56,11 @@ def random_model(seed: int, scale: float = 1.0) -> SDJLSModel:
     )
 
 
-def blowup_model(A, Q=None, x0=(1e6, 1e6)) -> SDJLSModel:
-    """One mode, W = 0: x_1 = A x_0 exactly, entries near 1e303 (as in tests/test_env.py)."""
-    return SDJLSModel(
-        A=[A], B=[[0.0], [1.0]], P_in=[[1.0]], P_out=[[1.0]], G=[[0.0, 1.0]], H0=[1e9],
-        Q=np.eye(2) if Q is None else Q, R=[[1.0]], x0=list(x0), W=np.zeros((2, 2)),
-    )  # fmt: skip
-
-
 BLOWUPS = [
-    blowup_model([[1e303, -2e303], [1e303, -2e303]]),  # A x_0 is NaN in float64
-    blowup_model([[1e303, 0.0], [0.0, 1e303]]),  # A x_0 is inf
-    blowup_model(np.zeros((2, 2)), Q=1e300 * np.eye(2)),  # the stage cost overflows
-    blowup_model(np.zeros((2, 2)), Q=1e300 * np.ones((2, 2)), x0=(0.0, 1e10)),  # cost NaN
+    noiseless_model([[1e303, -2e303], [1e303, -2e303]]),  # A x_0 is NaN in float64
+    noiseless_model([[1e303, 0.0], [0.0, 1e303]]),  # A x_0 is inf
+    noiseless_model(np.zeros((2, 2)), Q=1e300 * np.eye(2)),  # the stage cost overflows
+    noiseless_model(np.zeros((2, 2)), Q=1e300 * np.ones((2, 2)), x0=(0.0, 1e10)),  # cost NaN
 ]
 
 

@@ -28,7 +28,7 @@ OUT = Path(__file__).with_name("env_episodes.json")
 
 
 def blowup_model(A: Any, Q: Any = None, x0: Any = (1e6, 1e6)) -> dict[str, Any]:
-    """One mode, W = 0: x_1 = A x_0 exactly, entries near 1e303 (as in tests/test_env.py)."""
+    """One mode, W = 0: x_1 = A x_0 exactly, entries near 1e303 (tests/conftest.py's noiseless_model)."""
     return SDJLSModel(
         A=[A], B=[[0.0], [1.0]], P_in=[[1.0]], P_out=[[1.0]], G=[[0.0, 1.0]], H0=[1e9],
         Q=np.eye(2) if Q is None else Q, R=[[1.0]], x0=list(x0), W=np.zeros((2, 2)),
