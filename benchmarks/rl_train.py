@@ -372,10 +372,16 @@ class LearningCurve(BaseCallback):
     """Evaluate the deterministic policy before training and at ``spec.curve_points`` marks."""
 
     def __init__(
-        self, spec: RunSpec, log: TrainingLog, evaluator: _Evaluator, report: Callable | None
+        self,
+        spec: RunSpec,
+        log: TrainingLog,
+        evaluator: _Evaluator,
+        report: Callable | None,
+        on_point: Callable[[CurvePoint], None] | None = None,
     ) -> None:
         super().__init__()
         self.spec, self.log, self.evaluator, self.report = spec, log, evaluator, report
+        self.on_point = on_point
         points = max(1, spec.curve_points)
         self.marks = [int(round(spec.timesteps * (i + 1) / points)) for i in range(points)]
         self.next = 0
@@ -395,6 +401,8 @@ class LearningCurve(BaseCallback):
         )
         if self.report is not None:
             self.report(self.spec.label, int(self.num_timesteps))
+        if self.on_point is not None:
+            self.on_point(self.log.curve[-1])
 
     def _on_training_start(self) -> None:
         self._record()  # the untrained policy
@@ -474,13 +482,15 @@ def train_run(
     spec: RunSpec,
     report: Callable[[str, int], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
+    on_curve_point: Callable[[CurvePoint], None] | None = None,
 ) -> tuple[RunRecord, bytes]:
     """Train one agent: its record and its policy's state dict (``torch.save`` bytes).
 
     One torch thread; everything is rebuilt from ``spec``, so the result does not depend on
-    the process or machine it runs in. ``report(name, timesteps)`` is called at each
-    learning-curve point; ``should_stop()``, if given, can end the training
-    (:class:`TrainingStopped`).
+    the process or machine it runs in. ``report(label, timesteps)`` is called at each
+    learning-curve point, and ``on_curve_point(point)`` with the point (an exception it raises,
+    e.g. a tuner's pruning, ends the training and propagates); ``should_stop()``, if given, can
+    end the training (:class:`TrainingStopped`).
     """
     import torch
     from stable_baselines3.common.monitor import Monitor
@@ -490,7 +500,7 @@ def train_run(
     _, beta0, lagrangian = variant_setup(spec.variant, task_settings(spec.task))
     log = TrainingLog(beta=beta0)
     evaluator = _Evaluator(_train_env(spec), log, spec.task)
-    callbacks: list[BaseCallback] = [LearningCurve(spec, log, evaluator, report)]
+    callbacks: list[BaseCallback] = [LearningCurve(spec, log, evaluator, report, on_curve_point)]
     if lagrangian:
         callbacks.insert(0, DualAscent(spec, log, evaluator))
     if should_stop is not None:
