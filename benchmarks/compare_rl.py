@@ -284,6 +284,15 @@ class Options:
             "it to score the kept runs)"
         },
     )
+    tuned: list[Path] | None = field(
+        default=None,
+        metadata={
+            "help": "summaries of benchmarks.tune studies (<out>/<study>.json): their best "
+            "hyperparameters replace the defaults of that task's configuration (seeds from 0: "
+            "never the tuning's)",
+            "nargs": "+",
+        },
+    )
     retrain: bool = field(
         default=False, metadata={"help": "train again even when runs/ has the trained run"}
     )
@@ -304,6 +313,9 @@ def parse_args(argv: list[str] | None = None) -> Options:
         flag, meta = "--" + f.name.replace("_", "-"), f.metadata
         if f.type in ("bool", bool):
             parser.add_argument(flag, action="store_true", help=meta["help"])
+        elif f.name == "tuned":
+            parser.add_argument(flag, nargs="+", type=Path, default=None, metavar="STUDY.json",
+                                help=meta["help"])  # fmt: skip
         elif "nargs" in meta:
             parser.add_argument(flag, nargs="+", choices=meta["choices"], default=None,
                                 metavar=f.name.upper()[:-1],
@@ -342,6 +354,10 @@ def parse_args(argv: list[str] | None = None) -> Options:
         parser.error(f"--timesteps = {opts.timesteps}; expected a positive integer")
     if opts.address is not None and opts.backend != "ray":
         parser.error(f"--address = {opts.address!r} needs --backend ray")
+    try:
+        tuned_overrides(opts.tuned)
+    except ValueError as exc:
+        parser.error(str(exc))
     if opts.out is None:
         opts.out = QUICK_OUT if opts.quick else preset["out"]
     elif opts.quick and _holds_a_full_comparison(opts.out):
@@ -353,10 +369,29 @@ def parse_args(argv: list[str] | None = None) -> Options:
     return opts
 
 
+def tuned_overrides(paths: list[Path] | None) -> dict[tuple[str, str, str], tuple]:
+    """``(task, algo, variant) -> overrides`` of the best trial of each ``benchmarks.tune``
+    summary in ``paths``."""
+    out: dict[tuple[str, str, str], tuple] = {}
+    for path in paths or []:
+        try:
+            data = json.loads(Path(path).read_text())
+            settings, best = data["settings"], data["best"]
+            key = (settings["task"], settings["algo"], settings["variant"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise ValueError(f"--tuned {path}: not a benchmarks.tune summary ({exc!r})") from None
+        if best is None:
+            raise ValueError(f"--tuned {path}: the study has no complete trial")
+        if key in out:
+            raise ValueError(f"--tuned {path}: a second study of {key}")
+        out[key] = tuple(sorted((k, v) for k, v in best["overrides"].items()))
+    return out
+
+
 def specs_of(opts: Options) -> list[Any]:
     """The runs of ``opts`` (:func:`benchmarks.rl_train.run_specs`)."""
     return run_specs(opts.config_pairs(), opts.seeds, opts.timesteps, opts.quick, opts.tasks,
-                     PRESETS[opts.preset]["budgets"])  # fmt: skip
+                     PRESETS[opts.preset]["budgets"], tuned_overrides(opts.tuned))  # fmt: skip
 
 
 def _holds_a_full_comparison(out: Path) -> bool:

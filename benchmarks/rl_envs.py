@@ -38,6 +38,7 @@ __all__ = [
     "TaskSettings",
     "VARIANTS",
     "derive_scales",
+    "env_from_config",
     "raw_scales",
     "get_task",
     "make_train_env",
@@ -336,4 +337,35 @@ def make_train_env(
     return wrap_train_env(
         t.env_id, kind, beta, settings.env_hp(), t.K if kind == "residual" else None,
         settings.nu_bound, settings.u_bound if kind == "u" else None, t.env_kwargs,
+    )  # fmt: skip
+
+
+def env_from_config(config: dict[str, Any], variant: str) -> gym.Env:
+    """The training environment a run's recorded ``config`` describes (:meth:`RunSpec.config`;
+    a run kept before the suite has no task in it: the macro task).
+
+    Raises
+    ------
+    ValueError
+        The task's data (model, gains, ``xi``) changed since the run was trained.
+    """
+    task = get_task(config.get("task", MACRO), config.get("env_kwargs"))
+    digest = config.get("task_digest")
+    if digest is not None and digest != task_digest(task):
+        raise ValueError(
+            f"task {task.env_id!r} is not the one this run was trained on (task_digest "
+            f"{digest} recorded, {task_digest(task)} now): its model, gains or xi changed"
+        )
+    kind, _, _ = variant_setup(variant)
+    if variant == "reward":
+        beta = None
+    elif variant == "residual":
+        beta = config["residual_beta"]
+    elif variant == "lagrangian":
+        beta = config["lagrangian"]["beta0"]
+    else:
+        beta = config["betas"][list(HP.BETAS).index(float(variant[4:]))]
+    return wrap_train_env(
+        task.env_id, kind, beta, config["env"], task.K if kind == "residual" else None,
+        config["residual_nu_bound"], config.get("u_bound"), task.env_kwargs,
     )  # fmt: skip

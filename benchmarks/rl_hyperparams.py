@@ -9,6 +9,11 @@ phase per episode. Observations and rewards are scaled by fixed functions
 (:data:`ENV`, :class:`sdjls_gym.wrappers.ScaleObservationReward`) rather than ``VecNormalize``,
 whose running statistics never forget the first, diverging episodes. What was tried and what it
 gave is in ``results/rl/HISTORY.md``.
+
+The suite comparison (issue 31) uses the same hyperparameters on every task, with the scalings
+of each task (:data:`TASK_SCALES`), the penalties in units of its reward scale, its own
+configurations, seeds and budgets (:data:`SUITE_CONFIGS`, :data:`SUITE_SEEDS`,
+:data:`SUITE_TIMESTEPS`); their history is ``results/rl_suite/HISTORY.md``.
 """
 
 from __future__ import annotations

@@ -1,12 +1,15 @@
 """Training one stable-baselines3 agent of the RL comparison, and the files a run is kept in.
 
-A run is described by a :class:`RunSpec` (algorithm, variant, seed, budget, learning-curve
-settings). :func:`train_run` trains it and returns its :class:`RunRecord` (learning curve, dual
-ascent, training time) and its policy's state dict (tens of KB); :func:`save_run` writes both
-under ``runs/<name>-<fingerprint>.json`` and ``.pt``, named by the run's whole configuration
-hashed into :meth:`RunSpec.fingerprint`, so that a run of another configuration never replaces a
-kept one; :func:`load_run` reads the kept run of a spec back. Training runs in a
-worker (a process or a Ray task); the files are written by the main process.
+A run is described by a :class:`RunSpec` (task, algorithm, variant, seed, budget, learning-curve
+settings, hyperparameter overrides). :func:`train_run` trains it on the task's training
+environment (:func:`benchmarks.rl_envs.make_train_env`'s recipe, rebuilt from the run's
+configuration by :func:`env_from_config`) and returns its :class:`RunRecord` (learning curve,
+dual ascent, training and CPU time) and its policy's state dict (tens of KB); :func:`save_run`
+writes both under ``runs/<task>/<name>-<fingerprint>.json`` and ``.pt``, named by the run's whole
+configuration hashed into :meth:`RunSpec.fingerprint`, so that a run of another configuration
+never replaces a kept one; :func:`load_run` reads the kept run of a spec back (also the macro
+comparison's runs kept before the suite, :meth:`RunSpec.legacy_fingerprint`). Training runs in
+a worker (a process or a Ray task); the files are written by the main process.
 """
 
 from __future__ import annotations
@@ -34,12 +37,12 @@ from benchmarks.rl_envs import (
     ACTION_KINDS,
     MACRO,
     VARIANTS,
+    env_from_config,
     get_task,
     make_train_env,
     task_digest,
     task_settings,
     variant_setup,
-    wrap_train_env,
 )
 
 __all__ = [
@@ -245,13 +248,16 @@ def run_specs(
     quick: bool,
     tasks: list[str] | tuple[str, ...] = (MACRO,),
     budgets: str = "suite",
+    tuned: dict[tuple[str, str, str], tuple[tuple[str, Any], ...]] | None = None,
 ) -> list[RunSpec]:
     """Every (task, algorithm, variant, seed) run, task by task.
 
     ``budgets``: ``"suite"`` (:func:`HP.suite_timesteps`) or ``"macro"`` (:func:`HP.timesteps`,
     the budgets of ``results/rl``); ``timesteps`` replaces every default budget, ``quick`` makes
     them :data:`HP.QUICK_TIMESTEPS`. ``seeds``: a count (seeds 0 .. seeds - 1) or a list.
+    ``tuned``: hyperparameter overrides (:attr:`RunSpec.overrides`) by ``(task, algo, variant)``.
     """
+    tuned = tuned or {}
     if budgets not in ("suite", "macro"):
         raise ValueError(f"budgets = {budgets!r}; expected 'suite' or 'macro'")
     lc = HP.LEARNING_CURVE
@@ -276,6 +282,7 @@ def run_specs(
             curve_episodes=20 if quick else lc["episodes"],
             curve_seed=lc["seed"],
             task=task,
+            overrides=tuned.get((task, algo, variant), ()),
         )
         for task in tasks
         for algo, variant in configs
@@ -284,37 +291,6 @@ def run_specs(
 
 
 # ----------------------------------------------------------------------------- environments
-def env_from_config(config: dict[str, Any], variant: str) -> gym.Env:
-    """The training environment a run's recorded ``config`` describes (:meth:`RunSpec.config`;
-    a run kept before the suite has no task in it: the macro task).
-
-    Raises
-    ------
-    ValueError
-        The task's data (model, gains, ``xi``) changed since the run was trained.
-    """
-    task = get_task(config.get("task", MACRO), config.get("env_kwargs"))
-    digest = config.get("task_digest")
-    if digest is not None and digest != task_digest(task):
-        raise ValueError(
-            f"task {task.env_id!r} is not the one this run was trained on (task_digest "
-            f"{digest} recorded, {task_digest(task)} now): its model, gains or xi changed"
-        )
-    kind, _, _ = variant_setup(variant)
-    if variant == "reward":
-        beta = None
-    elif variant == "residual":
-        beta = config["residual_beta"]
-    elif variant == "lagrangian":
-        beta = config["lagrangian"]["beta0"]
-    else:
-        beta = config["betas"][list(HP.BETAS).index(float(variant[4:]))]
-    return wrap_train_env(
-        task.env_id, kind, beta, config["env"], task.K if kind == "residual" else None,
-        config["residual_nu_bound"], config.get("u_bound"), task.env_kwargs,
-    )  # fmt: skip
-
-
 def _train_env(spec: RunSpec) -> gym.Env:
     return env_from_config(spec.config(), spec.variant)
 

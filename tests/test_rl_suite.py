@@ -320,3 +320,31 @@ def test_load_agent_refuses_what_is_not_a_kept_run(tmp_path):
     (tmp_path / "x.pt").write_bytes(b"")
     with pytest.raises(ValueError, match="is not a run record"):
         runs.load_agent(tmp_path / "x")
+
+
+def test_tuned_hyperparameters_reach_only_their_configuration(tmp_path, capsys):
+    """``--tuned STUDY.json`` gives the best trial's overrides to that task's configuration, on
+    the comparison's seeds (0..), as runs of their own fingerprint; a file that is not a study
+    summary is a parser error naming it."""
+    summary = {
+        "settings": {"task": "SDJLS-Macro-v0", "algo": "ppo", "variant": "residual"},
+        "best": {"number": 3, "value": -0.01, "params": {},
+                 "overrides": {"learning_rate": 1e-4, "net_arch": [128, 128]}},
+    }  # fmt: skip
+    path = tmp_path / "study.json"
+    path.write_text(json.dumps(summary))
+    args = ["--tasks", "SDJLS-Macro-v0", "SDJLS-Solar-v0", "--configs", "ppo_residual",
+            "ppo_reward", "--seeds", "2"]  # fmt: skip
+    default = {s.label: s for s in compare_rl.specs_of(compare_rl.parse_args(args))}
+    tuned = compare_rl.specs_of(compare_rl.parse_args([*args, "--tuned", str(path)]))
+    for s in tuned:
+        if (s.task, s.algo, s.variant) == ("SDJLS-Macro-v0", "ppo", "residual"):
+            assert dict(s.overrides) == summary["best"]["overrides"] and s.seed in (0, 1)
+            assert s.hyperparams()["policy_kwargs"]["net_arch"] == [128, 128]
+            assert s.fingerprint() != default[s.label].fingerprint()
+        else:
+            assert s == default[s.label]
+    (tmp_path / "bad.json").write_text("{}")
+    with pytest.raises(SystemExit) as exc:
+        compare_rl.parse_args([*args, "--tuned", str(tmp_path / "bad.json")])
+    assert exc.value.code == 2 and "bad.json" in capsys.readouterr().err
