@@ -21,6 +21,7 @@ run resumes.
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -39,16 +40,22 @@ RAY_MAX_RETRIES = 2
 # ---------------------------------------------------------------------------- process backend
 _QUEUE: Any = None  # in a worker: where progress goes
 _STOP: Any = None  # in a worker: set by the main process to stop every training
+_PARENT_PID: int | None = None  # in a worker: the main process's pid
 
 
 def _init_worker(queue: Any, stop: Any) -> None:
-    global _QUEUE, _STOP
-    _QUEUE, _STOP = queue, stop
+    global _QUEUE, _STOP, _PARENT_PID
+    _QUEUE, _STOP, _PARENT_PID = queue, stop, os.getppid()
 
 
 def _should_stop() -> bool:
+    """Asked, the main process ended, or the worker was handed to another parent: a main
+    process killed by a signal (``kill PID``) left its workers training on, their parent
+    sentinel never reporting it (measured here), so the parent's pid is compared too."""
+    if _STOP.is_set() or (_PARENT_PID is not None and os.getppid() != _PARENT_PID):
+        return True
     parent = mp.parent_process()
-    return _STOP.is_set() or (parent is not None and not parent.is_alive())
+    return parent is not None and not parent.is_alive()
 
 
 def _report(name: str, steps: int) -> None:

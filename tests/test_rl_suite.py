@@ -348,3 +348,21 @@ def test_tuned_hyperparameters_reach_only_their_configuration(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         compare_rl.parse_args([*args, "--tuned", str(tmp_path / "bad.json")])
     assert exc.value.code == 2 and "bad.json" in capsys.readouterr().err
+
+
+def test_a_worker_whose_main_process_died_stops(monkeypatch):
+    """A worker of the process backend stops when its main process is gone: after ``kill PID``
+    of the main process, the orphaned workers went on training (their parent's sentinel did not
+    report it), so the worker also compares its parent's pid."""
+    import multiprocessing as mp
+    import threading
+
+    stop = threading.Event()
+    backends._init_worker(None, stop)
+    monkeypatch.setattr(mp, "parent_process", lambda: None)
+    assert backends._should_stop() is False
+    monkeypatch.setattr(backends.os, "getppid", lambda: backends._PARENT_PID + 1)  # reparented
+    assert backends._should_stop() is True
+    monkeypatch.undo()
+    stop.set()
+    assert backends._should_stop() is True
