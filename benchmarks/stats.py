@@ -109,6 +109,12 @@ class CurveGap:
     xi : float or None
         The curve's parameter interpolated at ``violation`` (the level ``xi`` of a receding-
         horizon controller that would violate as often), or None without the points' ``xis``.
+    relative : float or None
+        ``mean`` in percent of ``curve_cost`` (negative: cheaper than the curve); None where
+        the curve's cost is not positive.
+    relative_ci95 : (float, float) or None
+        95% percentile-bootstrap interval of ``relative`` (the ratio recomputed on each
+        resample, on the same resamples as ``ci95``).
     """
 
     mean: float
@@ -116,6 +122,8 @@ class CurveGap:
     curve_cost: float
     violation: float
     xi: float | None = None
+    relative: float | None = None
+    relative_ci95: tuple[float, float] | None = None
 
 
 def paired_curve_gap(
@@ -206,9 +214,16 @@ def paired_curve_gap(
         xis = np.asarray(curve_xis, dtype=np.float64)[order]
         xi = float(w * xis[j] + (1 - w) * xis[j + 1])
     rng = np.random.default_rng(seed)
-    boot = gaps(rng.multinomial(E, np.full(E, 1.0 / E), size=resamples) / E)[0]
+    boot, boot_ref = gaps(rng.multinomial(E, np.full(E, 1.0 / E), size=resamples) / E)[:2]
     lo, hi = np.percentile(boot, [2.5, 97.5])
-    return CurveGap(float(gap), (float(lo), float(hi)), float(ref), float(v), xi)
+    relative = relative_ci = None
+    if ref > 0 and np.all(boot_ref > 0):  # costs are >= 0: only an all-zero curve fails this
+        relative = float(100.0 * gap / ref)
+        rlo, rhi = np.percentile(100.0 * boot / boot_ref, [2.5, 97.5])
+        relative_ci = (float(rlo), float(rhi))
+    return CurveGap(
+        float(gap), (float(lo), float(hi)), float(ref), float(v), xi, relative, relative_ci
+    )
 
 
 def paired_difference(
