@@ -71,9 +71,9 @@ class SuiteAggregate:
     iqm_gap_ci95: tuple[float, float]
     probability_of_improvement: float
     probability_of_improvement_ci95: tuple[float, float]
-    profile_taus: np.ndarray = field(repr=False)
-    profile: np.ndarray = field(repr=False)
-    profile_ci95: np.ndarray = field(repr=False)
+    profile_taus: np.ndarray = field(repr=False, compare=False)
+    profile: np.ndarray = field(repr=False, compare=False)
+    profile_ci95: np.ndarray = field(repr=False, compare=False)
     resamples: int = AGGREGATE_RESAMPLES
     seed: int = AGGREGATE_SEED
 

@@ -113,8 +113,9 @@ class CurveGap:
         ``mean`` in percent of ``curve_cost`` (negative: cheaper than the curve); None where
         the curve's cost is not positive.
     relative_ci95 : (float, float) or None
-        95% percentile-bootstrap interval of ``relative`` (the ratio recomputed on each
-        resample, on the same resamples as ``ci95``).
+        ``ci95`` in percent of ``curve_cost`` (the curve's cost at the point estimate: a
+        resample's own curve cost can be extrapolated to zero or below where its frequency
+        leaves the curve's range, so the ratio is not resampled).
     """
 
     mean: float
@@ -214,13 +215,12 @@ def paired_curve_gap(
         xis = np.asarray(curve_xis, dtype=np.float64)[order]
         xi = float(w * xis[j] + (1 - w) * xis[j + 1])
     rng = np.random.default_rng(seed)
-    boot, boot_ref = gaps(rng.multinomial(E, np.full(E, 1.0 / E), size=resamples) / E)[:2]
+    boot = gaps(rng.multinomial(E, np.full(E, 1.0 / E), size=resamples) / E)[0]
     lo, hi = np.percentile(boot, [2.5, 97.5])
     relative = relative_ci = None
-    if ref > 0 and np.all(boot_ref > 0):  # costs are >= 0: only an all-zero curve fails this
+    if ref > 0:  # costs are >= 0: only an all-zero curve fails this
         relative = float(100.0 * gap / ref)
-        rlo, rhi = np.percentile(100.0 * boot / boot_ref, [2.5, 97.5])
-        relative_ci = (float(rlo), float(rhi))
+        relative_ci = (float(100.0 * lo / ref), float(100.0 * hi / ref))
     return CurveGap(
         float(gap), (float(lo), float(hi)), float(ref), float(v), xi, relative, relative_ci
     )

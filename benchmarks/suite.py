@@ -138,7 +138,7 @@ class SuiteScore:
     seed: int
     runs: int
     results: tuple[TaskResult, ...]
-    gap_table: np.ndarray | None = field(repr=False)
+    gap_table: np.ndarray | None = field(repr=False, compare=False)
     aggregate: SuiteAggregate | None
     missing: tuple[str, ...]
 

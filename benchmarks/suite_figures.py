@@ -18,7 +18,7 @@ MARKERS = {"Linear feedback": "s", "MJLS LQ": "D"}
 def _errbars(ax: Any, p: Any, **kw: Any) -> None:
     """A point with its violation (x, 95% Wilson) and cost (y, 95% t) intervals."""
     v, (vlo, vhi), c, (clo, chi) = p.violation, p.violation_wilson95, p.cost_mean, p.cost_ci95
-    ax.errorbar(v, c, xerr=[[v - vlo], [vhi - v]],
+    ax.errorbar(v, c, xerr=[[max(v - vlo, 0.0)], [max(vhi - v, 0.0)]],
                 yerr=[[max(c - clo, 0.0)], [max(chi - c, 0.0)]], capsize=2, **kw)  # fmt: skip
 
 
@@ -79,7 +79,8 @@ def make_figures(out: Path, refs: list[Any], aggs: dict[str, Any]) -> list[str]:
             if p.gap is None:
                 continue
             lo, hi = p.gap.relative_ci95
-            ax.errorbar(p.gap.relative, yi, xerr=[[p.gap.relative - lo], [hi - p.gap.relative]],
+            g = p.gap.relative  # a percentile interval need not contain the point (e.g. 0)
+            ax.errorbar(g, yi, xerr=[[max(g - lo, 0.0)], [max(hi - g, 0.0)]],
                         fmt=MARKERS.get(family, "o"), color=COLORS[family], ms=5, capsize=2,
                         label=label)  # fmt: skip
             label = None

@@ -200,7 +200,11 @@ def aggregates(refs: list[TaskReferences]) -> dict[str, SuiteAggregate | list[st
 # ----------------------------------------------------------------------------- files
 def _gap_text(p: Point) -> str:
     if p.gap is None:
-        return "-" if p.reason is None else "outside" if "range" in p.reason else "diverged"
+        if p.reason is None:
+            return "-"
+        return (
+            "outside" if "range" in p.reason else "diverged" if "diverged" in p.reason else "none"
+        )
     lo, hi = p.gap.relative_ci95
     return f"{p.gap.relative:+.1f} ({lo:+.1f} to {hi:+.1f})"
 
@@ -348,7 +352,6 @@ def run_references(opts: Any, argv: list[str]) -> dict[str, Any]:
             for t, _, e, txs in plan
         ),  # fmt: skip
     }
-    figures = make_figures(out, refs, aggs)
     summary = {
         "command": meta["command"],
         "options": {
@@ -366,10 +369,12 @@ def run_references(opts: Any, argv: list[str]) -> dict[str, Any]:
             f: a.to_dict() if isinstance(a, SuiteAggregate) else {"missing": a}
             for f, a in aggs.items()
         },
-        "figures": figures,
+        "figures": [f"fig_{t.env_id}.png" for t in refs] + ["fig_aggregate.png"],
     }
+    # the numbers first: a failing figure must not lose a long computation
     write_atomic(out / "summary.json", json.dumps(stable_floats(summary), indent=1) + "\n")
     write_csv(out, refs)
+    figures = make_figures(out, refs, aggs)
     write_report(out, refs, aggs, meta, figures)
     print(f"wrote {out}/REPORT.md ({wall / 60:.1f} min)", file=sys.stderr)
     return summary

@@ -67,7 +67,9 @@ def test_every_task_has_a_reference_curve_in_evaluate():
     # relative is the gap in % of the curve's cost
     lf = evaluate(LinearFeedbackController(task.model, task.K), episodes=E, seed=2,
                   env_id=task.env_id)  # fmt: skip
-    assert lf.curve_gap.relative == pytest.approx(100 * lf.curve_gap.mean / lf.curve_gap.curve_cost)
+    g = lf.curve_gap
+    assert g.relative == pytest.approx(100 * g.mean / g.curve_cost)
+    assert g.relative_ci95 == pytest.approx(tuple(100 * c / g.curve_cost for c in g.ci95))
 
 
 # --------------------------------------------------------------------------- evaluate_suite
@@ -109,20 +111,24 @@ def test_evaluate_suite_on_two_controllers_and_a_callable():
         assert r.gaps[0] == r.scores[0].curve_gap
 
 
+@pytest.mark.slow
 def test_evaluate_suite_with_runs_and_a_task_record():
+    """Three runs per task (rliable resamples them) and a task given as a record (a random
+    system other than the registered one); the fast variant is the test above."""
     task = random_task(n=2, m=1, N=2, r=2, seed=5)
     suite = evaluate_suite(
-        lambda t: [one_step_rhc(t, 0.5), one_step_rhc(t, 0.9), LinearFeedbackController(t.model, t.K)],
+        lambda t: [one_step_rhc(t, 0.5, "joint"), one_step_rhc(t, 0.9, "joint"),
+                   LinearFeedbackController(t.model, t.K)],
         (task, "SDJLS-Degradation-v0"), episodes=20, resamples=RESAMPLES,
     )  # fmt: skip
     assert suite.runs == 3 and suite.tasks == ("SDJLS-Random-v0", "SDJLS-Degradation-v0")
-    defined = [g is not None for r in suite.results for g in r.gaps]
-    if all(defined):
-        assert suite.gap_table.shape == (3, 2)
-        flat = np.sort(suite.gap_table.ravel())
-        assert suite.aggregate.iqm_gap == pytest.approx(flat[1:-1].mean())  # 6 values: cut 1+1
-    else:
-        assert suite.aggregate is None and suite.missing
+    assert suite.missing == () and suite.gap_table.shape == (3, 2)
+    table = np.array([[r.gaps[i].relative for r in suite.results] for i in range(3)])
+    np.testing.assert_array_equal(suite.gap_table, table)
+    flat = np.sort(table.ravel())
+    assert suite.aggregate.iqm_gap == pytest.approx(flat[1:-1].mean())  # 6 values: cut 1 + 1
+    lo, hi = suite.aggregate.iqm_gap_ci95
+    assert lo < suite.aggregate.iqm_gap < hi  # three runs: a real interval
     with pytest.raises(ValueError, match=r"make_policy\('SDJLS-Degradation-v0'\) returned 1"):
         evaluate_suite(lambda t: [LinearFeedbackController(t.model, t.K)] * (
             2 if t.env_id == "SDJLS-Solar-v0" else 1), TWO, episodes=5)  # fmt: skip
