@@ -280,3 +280,24 @@ def test_cli_references_quick_on_one_task(tmp_path):
     assert {p["episodes"] for p in tree} == {3} and {p["xi"] for p in tree} == {0.5, 0.9}
     rows = (out / "summary.csv").read_text().splitlines()
     assert len(rows) == 1 + len(task["points"])
+
+
+def test_readme_suite_tables_are_copied_from_the_committed_report():
+    """The README's model-based results of the suite are rows of results/suite/REPORT.md."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text(encoding="utf-8")
+    readme = readme[readme.index("### The suite") :]
+    readme = readme[: readme.index("\n## ")]  # the subsection
+    report = set((root / "results/suite/REPORT.md").read_text(encoding="utf-8").splitlines())
+    families = ("| RHC joint |", "| RHC 3-step |", "| Linear feedback |", "| MJLS LQ |")
+    rows = [
+        line
+        for line in readme.splitlines()
+        if (line.startswith("| `SDJLS-") and " / " in line) or line.startswith(families)
+    ]
+    assert len(rows) >= 10, rows
+    missing = [row for row in rows if row not in report]
+    assert not missing, f"README rows not in results/suite/REPORT.md: {missing[:2]}"
+    assert "python -m benchmarks.suite" in readme
