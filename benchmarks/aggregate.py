@@ -4,6 +4,13 @@ The score of a run on a task, as rliable expects it (higher is better), is the *
 over the one-step RHC* in percent, ``-gap`` (:mod:`benchmarks.suite`); the results are stated
 back in gaps (lower is better) where that reads more directly (the IQM).
 
+Reproducibility: rliable 1.2 draws the resampled runs from numpy's legacy global generator
+(``np.random.choice`` in ``StratifiedBootstrap.update_indices``; its ``random_state`` is not used
+there), which this project's code never touches. With one run every resample is the table
+itself and the result is exact; with several runs the intervals carry the Monte Carlo error of
+:data:`AGGREGATE_RESAMPLES` resamples, and a caller who wants them identical between calls seeds
+that generator (``np.random.seed``) before.
+
 >>> import numpy as np
 >>> a = aggregate_gaps(np.array([[-4.0, 1.0, 2.0, 30.0]]), resamples=200)
 >>> a.iqm_gap, a.iqm_gap_ci95, a.probability_of_improvement
@@ -12,9 +19,7 @@ back in gaps (lower is better) where that reads more directly (the IQM).
 
 from __future__ import annotations
 
-import contextlib
 import json
-from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -24,15 +29,13 @@ from sdjls_gym._validate import describe
 
 __all__ = [
     "AGGREGATE_RESAMPLES",
-    "AGGREGATE_SEED",
     "PROFILE_TAUS",
     "SuiteAggregate",
     "aggregate_gaps",
 ]
 
-#: Stratified-bootstrap resamples of rliable's intervals, and the seed that draws them.
+#: Stratified-bootstrap resamples of rliable's intervals.
 AGGREGATE_RESAMPLES = 2000
-AGGREGATE_SEED = 0
 #: Resamples drawn when the table has one run (see :func:`aggregate_gaps`).
 ONE_RUN_RESAMPLES = 10
 #: Thresholds (improvement over the one-step RHC, %) of the performance profile.
@@ -61,8 +64,8 @@ class SuiteAggregate:
         Thresholds of the improvement ``-gap`` (%).
     profile, profile_ci95 : (T,) and (2, T) arrays
         Share of runs x tasks whose improvement exceeds each threshold, with its interval.
-    resamples, seed : int
-        Bootstrap resamples drawn (:data:`ONE_RUN_RESAMPLES` with one run) and their seed.
+    resamples : int
+        Bootstrap resamples drawn (:data:`ONE_RUN_RESAMPLES` with one run).
     """
 
     runs: int
@@ -75,7 +78,6 @@ class SuiteAggregate:
     profile: np.ndarray = field(repr=False, compare=False)
     profile_ci95: np.ndarray = field(repr=False, compare=False)
     resamples: int = AGGREGATE_RESAMPLES
-    seed: int = AGGREGATE_SEED
 
     def to_dict(self) -> dict[str, Any]:
         out = asdict(self)
@@ -85,18 +87,6 @@ class SuiteAggregate:
 
 
 # ----------------------------------------------------------------------------- aggregate
-@contextlib.contextmanager
-def _legacy_seed(seed: int) -> Iterator[None]:
-    """Seed numpy's global generator for the duration, then restore it: rliable's stratified
-    bootstrap draws its indices with ``np.random.choice`` (not from its ``random_state``)."""
-    state = np.random.get_state()  # noqa: NPY002 - the generator rliable draws from
-    np.random.seed(seed)  # noqa: NPY002
-    try:
-        yield
-    finally:
-        np.random.set_state(state)  # noqa: NPY002
-
-
 def _rliable() -> tuple[Any, Any]:
     try:
         from rliable import library, metrics
@@ -107,9 +97,7 @@ def _rliable() -> tuple[Any, Any]:
     return library, metrics
 
 
-def aggregate_gaps(
-    gaps: np.ndarray, resamples: int = AGGREGATE_RESAMPLES, seed: int = AGGREGATE_SEED
-) -> SuiteAggregate:
+def aggregate_gaps(gaps: np.ndarray, resamples: int = AGGREGATE_RESAMPLES) -> SuiteAggregate:
     """rliable's IQM, probability of improvement and performance profile of a table of
     normalized gaps ``(runs, tasks)`` in percent (lower is better; rliable is given ``-gaps``).
 
@@ -131,19 +119,18 @@ def aggregate_gaps(
     # any number of resamples; a few stand for them (the Mann-Whitney test per task and
     # resample of the probability of improvement costs about 1 ms)
     resamples = resamples if runs > 1 else ONE_RUN_RESAMPLES
-    with _legacy_seed(seed):
-        iqm, iqm_ci = rly.get_interval_estimates(
-            {"policy": scores}, lambda s: np.array([metrics.aggregate_iqm(s)]), reps=resamples
-        )
-        # the one-step RHC's improvement over itself is 0 on every task (one run)
-        poi, poi_ci = rly.get_interval_estimates(
-            {"policy": [scores, np.zeros((1, tasks))]},
-            lambda x, y: np.array([metrics.probability_of_improvement(x, y)]),
-            reps=resamples,
-        )
-        profile, profile_ci = rly.create_performance_profile(
-            {"policy": scores}, PROFILE_TAUS, reps=resamples
-        )
+    iqm, iqm_ci = rly.get_interval_estimates(
+        {"policy": scores}, lambda s: np.array([metrics.aggregate_iqm(s)]), reps=resamples
+    )
+    # the one-step RHC's improvement over itself is 0 on every task (one run)
+    poi, poi_ci = rly.get_interval_estimates(
+        {"policy": [scores, np.zeros((1, tasks))]},
+        lambda x, y: np.array([metrics.probability_of_improvement(x, y)]),
+        reps=resamples,
+    )
+    profile, profile_ci = rly.create_performance_profile(
+        {"policy": scores}, PROFILE_TAUS, reps=resamples
+    )
     lo, hi = iqm_ci["policy"][:, 0]
     return SuiteAggregate(
         runs=runs,
@@ -156,5 +143,4 @@ def aggregate_gaps(
         profile=np.asarray(profile["policy"], dtype=np.float64),
         profile_ci95=np.asarray(profile_ci["policy"], dtype=np.float64),
         resamples=resamples,
-        seed=seed,
     )

@@ -50,7 +50,6 @@ import numpy as np
 
 from benchmarks.aggregate import (
     AGGREGATE_RESAMPLES,
-    AGGREGATE_SEED,
     PROFILE_TAUS,
     SuiteAggregate,
     _rliable,
@@ -65,7 +64,6 @@ from sdjls_gym.systems import TASKS, Task
 
 __all__ = [
     "AGGREGATE_RESAMPLES",
-    "AGGREGATE_SEED",
     "PROFILE_TAUS",
     "SuiteAggregate",
     "SuiteScore",
