@@ -8,14 +8,16 @@ exits (``--help``: 0, a bad option: 2) pass through.
 * ``sdjls-reproduce-paper``: ``python -m benchmarks.reproduce_paper``;
 * ``sdjls-compare-rl``: ``python -m benchmarks.compare_rl``;
 * ``sdjls-evaluate``: ``python -m benchmarks.evaluate``;
-* ``sdjls-speed``: ``python -m benchmarks.speed``.
+* ``sdjls-speed``: ``python -m benchmarks.speed``;
+* ``sdjls-suite``: ``python -m benchmarks.suite``;
+* ``sdjls-tune``: ``python -m benchmarks.tune``.
 """
 
 from __future__ import annotations
 
 import importlib
 
-__all__ = ["compare_rl", "evaluate", "reproduce_paper", "speed"]
+__all__ = ["compare_rl", "evaluate", "reproduce_paper", "speed", "suite", "tune"]
 
 
 def _run(module: str) -> int:
@@ -41,3 +43,13 @@ def evaluate() -> int:
 def speed() -> int:
     """``sdjls-speed``: :func:`benchmarks.speed.main`."""
     return _run("speed")
+
+
+def suite() -> int:
+    """``sdjls-suite``: :func:`benchmarks.suite.main`."""
+    return _run("suite")
+
+
+def tune() -> int:
+    """``sdjls-tune``: :func:`benchmarks.tune.main`."""
+    return _run("tune")

@@ -315,6 +315,8 @@ COMMANDS = {
     "sdjls-compare-rl": "compare_rl",
     "sdjls-evaluate": "evaluate",
     "sdjls-speed": "speed",
+    "sdjls-suite": "suite",
+    "sdjls-tune": "tune",
 }
 
 
