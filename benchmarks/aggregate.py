@@ -6,10 +6,11 @@ back in gaps (lower is better) where that reads more directly (the IQM).
 
 Reproducibility: rliable 1.2 draws the resampled runs from numpy's legacy global generator
 (``np.random.choice`` in ``StratifiedBootstrap.update_indices``; its ``random_state`` is not used
-there), which this project's code never touches. With one run every resample is the table
-itself and the result is exact; with several runs the intervals carry the Monte Carlo error of
-:data:`AGGREGATE_RESAMPLES` resamples, and a caller who wants them identical between calls seeds
-that generator (``np.random.seed``) before.
+there). :func:`aggregate_gaps` therefore seeds that generator with ``seed`` for the duration of
+the call and restores the caller's state afterwards (:func:`seeded_legacy_generator`), so the
+intervals are the same at every call and the caller's global stream is untouched. This swap of
+a process-wide state is not thread-safe: do not call it from several threads at once. With one
+run every resample is the table itself and the result is exact.
 
 >>> import numpy as np
 >>> a = aggregate_gaps(np.array([[-4.0, 1.0, 2.0, 30.0]]), resamples=200)
@@ -19,19 +20,24 @@ that generator (``np.random.seed``) before.
 
 from __future__ import annotations
 
+import contextlib
 import json
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 
+from benchmarks.stats import BOOTSTRAP_SEED
 from sdjls_gym.messages import describe
+from sdjls_gym.validation import check_int
 
 __all__ = [
     "AGGREGATE_RESAMPLES",
     "PROFILE_TAUS",
     "SuiteAggregate",
     "aggregate_gaps",
+    "seeded_legacy_generator",
 ]
 
 #: Stratified-bootstrap resamples of rliable's intervals.
@@ -97,15 +103,33 @@ def _rliable() -> tuple[Any, Any]:
     return library, metrics
 
 
-def aggregate_gaps(gaps: np.ndarray, resamples: int = AGGREGATE_RESAMPLES) -> SuiteAggregate:
+@contextlib.contextmanager
+def seeded_legacy_generator(seed: int) -> Iterator[None]:
+    """Seed numpy's legacy global generator for the ``with`` block, then restore the caller's
+    state: the one place this project touches it, because rliable 1.2 draws from it and ignores
+    its ``random_state`` (see the module docstring). Not thread-safe."""
+    saved = np.random.get_state()  # noqa: NPY002
+    np.random.seed(seed)  # noqa: NPY002
+    try:
+        yield
+    finally:
+        np.random.set_state(saved)  # noqa: NPY002
+
+
+def aggregate_gaps(
+    gaps: np.ndarray, resamples: int = AGGREGATE_RESAMPLES, seed: int = BOOTSTRAP_SEED
+) -> SuiteAggregate:
     """rliable's IQM, probability of improvement and performance profile of a table of
-    normalized gaps ``(runs, tasks)`` in percent (lower is better; rliable is given ``-gaps``).
+    normalized gaps ``(runs, tasks)`` in percent (lower is better; rliable is given ``-gaps``),
+    with stratified-bootstrap 95% intervals drawn from ``seed`` (identical at every call).
 
     Raises
     ------
     ValueError
         ``gaps`` is not a finite 2-d array with at least one run and one task.
     """
+    resamples = check_int("resamples", resamples, low=1)
+    seed = check_int("seed", seed, low=0, high=2**32 - 1)  # the legacy generator's seeds
     gaps = np.asarray(gaps, dtype=np.float64)
     if gaps.ndim != 2 or gaps.size == 0 or not np.all(np.isfinite(gaps)):
         raise ValueError(
@@ -119,18 +143,19 @@ def aggregate_gaps(gaps: np.ndarray, resamples: int = AGGREGATE_RESAMPLES) -> Su
     # any number of resamples; a few stand for them (the Mann-Whitney test per task and
     # resample of the probability of improvement costs about 1 ms)
     resamples = resamples if runs > 1 else ONE_RUN_RESAMPLES
-    iqm, iqm_ci = rly.get_interval_estimates(
-        {"policy": scores}, lambda s: np.array([metrics.aggregate_iqm(s)]), reps=resamples
-    )
-    # the one-step RHC's improvement over itself is 0 on every task (one run)
-    poi, poi_ci = rly.get_interval_estimates(
-        {"policy": [scores, np.zeros((1, tasks))]},
-        lambda x, y: np.array([metrics.probability_of_improvement(x, y)]),
-        reps=resamples,
-    )
-    profile, profile_ci = rly.create_performance_profile(
-        {"policy": scores}, PROFILE_TAUS, reps=resamples
-    )
+    with seeded_legacy_generator(seed):
+        iqm, iqm_ci = rly.get_interval_estimates(
+            {"policy": scores}, lambda s: np.array([metrics.aggregate_iqm(s)]), reps=resamples
+        )
+        # the one-step RHC's improvement over itself is 0 on every task (one run)
+        poi, poi_ci = rly.get_interval_estimates(
+            {"policy": [scores, np.zeros((1, tasks))]},
+            lambda x, y: np.array([metrics.probability_of_improvement(x, y)]),
+            reps=resamples,
+        )
+        profile, profile_ci = rly.create_performance_profile(
+            {"policy": scores}, PROFILE_TAUS, reps=resamples
+        )
     lo, hi = iqm_ci["policy"][:, 0]
     return SuiteAggregate(
         runs=runs,

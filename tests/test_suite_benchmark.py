@@ -116,7 +116,6 @@ def test_evaluate_suite_with_runs_and_a_task_record():
     """Three runs per task (rliable resamples them) and a task given as a record (a random
     system other than the registered one); the fast variant is the test above."""
     task = random_task(n=2, m=1, N=2, r=2, seed=5)
-    np.random.seed(5)  # noqa: NPY002 - the generator rliable's bootstrap draws from
     suite = evaluate_suite(
         lambda t: [one_step_rhc(t, 0.5, "joint"), one_step_rhc(t, 0.9, "joint"),
                    LinearFeedbackController(t.model, t.K)],
@@ -175,7 +174,6 @@ def test_aggregate_matches_a_hand_computation():
     computed here with numpy and scipy.stats.trim_mean."""
     rng = np.random.default_rng(11)
     gaps = rng.normal(0.0, 20.0, size=(3, 5))
-    np.random.seed(5)  # noqa: NPY002 - the generator rliable's bootstrap draws from
     gaps[1, 2] = 0.0  # a tie with the curve counts one half
     a = aggregate_gaps(gaps, resamples=RESAMPLES)
     flat = np.sort(gaps.ravel())
@@ -190,6 +188,25 @@ def test_aggregate_matches_a_hand_computation():
     assert lo < a.iqm_gap < hi  # three runs: runs are resampled within each task
     assert np.all(a.profile_ci95[0] <= a.profile + 1e-12)
     assert np.all(a.profile <= a.profile_ci95[1] + 1e-12)
+
+
+def test_aggregate_intervals_are_seeded_and_leave_the_global_generator_alone():
+    """rliable draws from numpy's legacy global generator: aggregate_gaps seeds it for the call
+    (the same intervals at every call, other ones for another seed) and restores the caller's
+    state (three runs, so the intervals are a real bootstrap)."""
+    gaps = np.random.default_rng(3).normal(0.0, 20.0, size=(3, 5))
+    before = np.random.get_state()  # noqa: NPY002 - what the call must give back
+    first = aggregate_gaps(gaps, resamples=RESAMPLES).to_dict()
+    after = np.random.get_state()  # noqa: NPY002
+    assert after[0] == before[0] and np.array_equal(after[1], before[1])
+    assert after[2:] == before[2:]
+    assert aggregate_gaps(gaps, resamples=RESAMPLES).to_dict() == first
+    other = aggregate_gaps(gaps, resamples=RESAMPLES, seed=1).to_dict()
+    assert other["iqm_gap"] == first["iqm_gap"]  # the point does not depend on the seed
+    assert other["iqm_gap_ci95"] != first["iqm_gap_ci95"]
+    for name, bad in (("seed", -1), ("seed", 2**32), ("resamples", 0)):
+        with pytest.raises(ValueError, match=name):
+            aggregate_gaps(gaps, **{name: bad})
 
 
 def test_aggregate_with_one_run_is_exact_and_its_interval_is_the_point():
