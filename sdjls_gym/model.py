@@ -30,7 +30,13 @@ from typing import Any, overload
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sdjls_gym.dynamics import Dynamics, Transition, draw_categorical
+from sdjls_gym.dynamics import (
+    BatchTransition,
+    Dynamics,
+    OneTransition,
+    Transition,
+    draw_categorical,
+)
 from sdjls_gym.errors import InvalidModelError, InvalidModelTypeError
 from sdjls_gym.model_checks import validate_fields
 
@@ -374,14 +380,36 @@ class SDJLSModel:
         """``x' Q_theta x + u' R_theta u``; shape ``(...)``."""
         return self.dynamics.stage_cost(x, mode, u)
 
+    @overload
     def transition(
         self,
         x: np.ndarray,
-        mode: int | np.ndarray,
+        mode: int,
+        u: np.ndarray,
+        k: int,
+        w: np.ndarray,
+        uniform: float,
+        inside: bool | None = None,
+    ) -> OneTransition: ...
+    @overload
+    def transition(
+        self,
+        x: np.ndarray,
+        mode: np.ndarray | np.integer[Any],
         u: np.ndarray,
         k: int | np.ndarray,
         w: np.ndarray,
-        uniform: np.ndarray | float,
+        uniform: float | np.ndarray,
+        inside: np.ndarray | None = None,
+    ) -> BatchTransition: ...
+    def transition(
+        self,
+        x: np.ndarray,
+        mode: Any,
+        u: np.ndarray,
+        k: Any,
+        w: np.ndarray,
+        uniform: Any,
         inside: Any = None,
     ) -> Transition:
         """The whole step with given randomness: :meth:`step`, the :meth:`stage_cost` of
