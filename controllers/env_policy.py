@@ -14,10 +14,11 @@ spaces), not its class: the controllers depend on the model, never on the enviro
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
+from gymnasium import spaces
 from gymnasium import wrappers as gw
 
 from sdjls_gym.messages import a_type, describe
@@ -54,12 +55,13 @@ PASS_THROUGH_NAMES = (
 )
 
 
-def _layers(env: gym.Env) -> list[gym.Env]:
-    """The wrappers of ``env`` from the outermost inwards, then the unwrapped env."""
-    out = [env]
-    while isinstance(out[-1], gym.Wrapper):
-        out.append(out[-1].env)
-    return out
+def _layers(env: gym.Env) -> tuple[list[gym.Wrapper], gym.Env]:
+    """The wrappers of ``env`` from the outermost inwards, and the unwrapped env."""
+    wrappers = []
+    while isinstance(env, gym.Wrapper):
+        wrappers.append(env)
+        env = env.env
+    return wrappers, env
 
 
 class ControllerPolicy:
@@ -163,21 +165,19 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
         )
     if not isinstance(env, gym.Env):
         raise TypeError(f"env = {describe(env)} is {a_type(env)}; expected a gymnasium.Env")
-    layers = _layers(env)
-    base = layers[-1]
-    if not isinstance(getattr(base, "model", None), SDJLSModel) or not isinstance(
-        getattr(base, "horizon", None), int
-    ):
+    wrappers, base = _layers(env)
+    model, horizon = getattr(base, "model", None), getattr(base, "horizon", None)
+    if not isinstance(model, SDJLSModel) or not isinstance(horizon, int):
         raise ValueError(
             f"env is a {type(base).__name__} underneath; expected an SDJLS environment "
             '(gym.make("SDJLS-v0", ...) or "SDJLS-Macro-v0")'
         )
-    if base.model != controller.model:
+    if model != controller.model:
         raise ValueError(
-            f"env's model {base.model!r} is not the controller's model {controller.model!r}"
+            f"env's model {model!r} is not the controller's model {controller.model!r}"
         )
     rescales = []
-    for layer in layers[:-1]:
+    for layer in wrappers:
         kind = type(layer)
         name = kind.__name__
         if kind in PASS_THROUGH_WRAPPERS or f"{kind.__module__}.{kind.__qualname__}" in (
@@ -185,13 +185,15 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
         ):
             continue
         if kind is gw.RescaleAction:
-            inner = layer.env.action_space
+            # RescaleAction accepts Box action spaces only
+            inner = cast(spaces.Box, layer.env.action_space)
+            outer = cast(spaces.Box, layer.action_space)
             rescales.append(
                 (
                     inner.low.astype(np.float64),
                     inner.high.astype(np.float64),
-                    layer.action_space.low.astype(np.float64),
-                    layer.action_space.high.astype(np.float64),
+                    outer.low.astype(np.float64),
+                    outer.high.astype(np.float64),
                 )
             )
         elif kind is gw.ClipAction:
@@ -217,4 +219,4 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
                 f"acts through {known}, undoes RescaleAction and ClipAction, and "
                 "refuses every other wrapper (act on env.unwrapped instead)"
             )
-    return ControllerPolicy(controller, base.horizon, rescales)
+    return ControllerPolicy(controller, horizon, rescales)

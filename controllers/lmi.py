@@ -345,6 +345,7 @@ def synthesize_gains(
     Y = [cp.Variable((m, n), name=f"Y_{i}") for i in range(N)]
     size = (N + 1) * n
     constraints = []
+    bound: float | cp.Variable  # -bound I bounds the blocks: eps, or the margin t
     if objective == "feasibility":
         margin_var = None
         bound = eps

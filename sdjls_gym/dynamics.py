@@ -26,16 +26,19 @@ from __future__ import annotations
 import bisect
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sdjls_gym import exact
 from sdjls_gym.messages import describe
 from sdjls_gym.validation import MAX_INDEX, check_int, check_int_array
 
 __all__ = [
+    "BatchTransition",
     "Dynamics",
+    "OneTransition",
     "Transition",
     "check_time",
     "draw_categorical",
@@ -121,6 +124,12 @@ def check_time(k: Any) -> Any:
 #: mode and a float cost. A plain tuple: on the single environment's hot path a named tuple
 #: costs a measurable share of a step.
 Transition = tuple[np.ndarray, Any, Any, np.ndarray]
+#: :data:`Transition` of one state: ``x`` (n,), an int mode, a float cost, values (r,).
+OneTransition = tuple[NDArray[np.float64], int, float, NDArray[np.float64]]
+#: :data:`Transition` of a batch: ``x`` (..., n), modes (...), costs (...), values (..., r).
+BatchTransition = tuple[
+    NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -349,7 +358,29 @@ class Dynamics:
             inside = self.in_region(x, k)
         return self.next_state(x, mode, u, w), self.draw_next_mode(inside, mode, uniform)
 
+    @overload
     def transition(
+        self,
+        x: np.ndarray,
+        mode: int,
+        u: np.ndarray,
+        k: int,
+        w: np.ndarray,
+        uniform: float,
+        inside: bool | None = None,
+    ) -> OneTransition: ...
+    @overload
+    def transition(
+        self,
+        x: np.ndarray,
+        mode: np.ndarray | np.integer[Any],
+        u: np.ndarray,
+        k: int | np.ndarray,
+        w: np.ndarray,
+        uniform: float | np.ndarray,
+        inside: np.ndarray | None = None,
+    ) -> BatchTransition: ...
+    def transition(  # the arguments of either overload; dispatched on type(mode)
         self,
         x: np.ndarray,
         mode: Any,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -26,6 +26,9 @@ from sdjls_gym.validation import (
     check_number,
     check_numbers,
 )
+
+if TYPE_CHECKING:  # for the annotation only: render() imports it on first use
+    from sdjls_gym.render import EpisodeRenderer
 
 __all__ = [
     "SDJLSEnv",
@@ -337,7 +340,7 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         self._inside = True  # the region test of the current state, reused by step()
         self._ended: str | None = None  # why the episode ended, until the next reset()
         self._history: list[tuple[np.ndarray, int]] = []
-        self._renderer: Any = None  # the figure of render(), built on first use
+        self._renderer: EpisodeRenderer | None = None  # render()'s figure, built on first use
 
     # ------------------------------------------------------------------ spec
     @property
@@ -439,7 +442,7 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         obs = encode_observation(model, x, mode, k, self.horizon, self.divergence_bound)
         return obs, -cost, diverged, truncated, info
 
-    def _get_renderer(self) -> Any:
+    def _get_renderer(self) -> EpisodeRenderer:
         if self._renderer is None:
             from sdjls_gym.render import EpisodeRenderer
 

@@ -64,11 +64,17 @@ def exact_transition(
         ``G x_next - H_{k+1}``, from the exact ``x_next``.
     """
     z = [Fraction(v) for v in np.concatenate((x, u, w)).tolist()]
-    x_next = [sum(map(_times, row, z)) for row in ABE.tolist()]
+    x_next = [sum(map(_times, row, z), Fraction(0)) for row in ABE.tolist()]
     zxu = z[: QR.shape[0]]
-    cost = sum(a * sum(map(_times, row, zxu)) for a, row in zip(zxu, QR.tolist(), strict=True))
+    cost = sum(
+        (
+            a * sum(map(_times, row, zxu), Fraction(0))
+            for a, row in zip(zxu, QR.tolist(), strict=True)
+        ),
+        Fraction(0),
+    )
     values = [
-        sum(map(_times, row, x_next)) - Fraction(h)
+        sum(map(_times, row, x_next), Fraction(0)) - Fraction(h)
         for row, h in zip(G.tolist(), H_next.tolist(), strict=True)
     ]
     return (

@@ -19,9 +19,10 @@ from __future__ import annotations
 import math
 import sys
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, overload
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sdjls_gym.dynamics import max_last
 from sdjls_gym.model import SDJLSModel
@@ -29,7 +30,9 @@ from sdjls_gym.model import SDJLSModel
 __all__ = [
     "MAX_DIVERGENCE_BOUND",
     "MAX_STAGE_COST",
+    "BatchStep",
     "EnvParams",
+    "OneStep",
     "Restart",
     "Step",
     "may_overflow",
@@ -115,9 +118,46 @@ class Restart(NamedTuple):
 #: int, int, float and bool; for a batch, arrays with a leading batch axis. A plain tuple, as
 #: :data:`~sdjls_gym.dynamics.Transition`.
 Step = tuple[np.ndarray, Any, Any, Any, np.ndarray, Any]
+#: :data:`Step` of one state: ``x`` (n,), int mode, int k, float cost, values (r,), bool.
+OneStep = tuple[NDArray[np.float64], int, int, float, NDArray[np.float64], bool]
+#: :data:`Step` of a batch of B states, each entry with the leading batch axis.
+BatchStep = tuple[
+    NDArray[np.float64],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.bool_],
+]
 
 
+@overload
 def step(
+    params: EnvParams,
+    x: np.ndarray,
+    mode: int,
+    k: int,
+    u: np.ndarray,
+    w: np.ndarray,
+    uniform: float,
+    inside: bool,
+    restart: None = None,
+) -> OneStep: ...
+@overload
+def step(
+    params: EnvParams,
+    x: np.ndarray,
+    mode: np.ndarray,
+    k: np.ndarray,
+    u: np.ndarray,
+    w: np.ndarray,
+    uniform: np.ndarray,
+    inside: np.ndarray,
+    restart: Restart | None = None,
+) -> BatchStep: ...
+
+
+def step(  # the arguments of either overload; dispatched on type(mode)
     params: EnvParams,
     x: np.ndarray,
     mode: Any,
@@ -205,7 +245,27 @@ def step(
     return x1, mode1, k1, cost, values, diverged
 
 
+@overload
 def step_info(
+    model: SDJLSModel,
+    x: np.ndarray,
+    mode: int,
+    k: int,
+    stage_cost: float,
+    diverged: bool,
+    values: np.ndarray | None = None,
+) -> dict[str, Any]: ...
+@overload
+def step_info(
+    model: SDJLSModel,
+    x: np.ndarray,
+    mode: np.ndarray,
+    k: np.ndarray,
+    stage_cost: np.ndarray,
+    diverged: np.ndarray,
+    values: np.ndarray | None = None,
+) -> dict[str, Any]: ...
+def step_info(  # the arguments of either overload; dispatched on type(mode)
     model: SDJLSModel,
     x: np.ndarray,
     mode: Any,

@@ -21,13 +21,22 @@ broadcastable against the batch.
 
 from __future__ import annotations
 
-from dataclasses import MISSING, dataclass, field, fields
+import inspect
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
 from functools import cached_property
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
-from sdjls_gym.dynamics import Dynamics, Transition, draw_categorical
+from sdjls_gym.dynamics import (
+    BatchTransition,
+    Dynamics,
+    OneTransition,
+    Transition,
+    draw_categorical,
+)
 from sdjls_gym.errors import InvalidModelError, InvalidModelTypeError
 from sdjls_gym.model_checks import validate_fields
 
@@ -100,25 +109,50 @@ class SDJLSModel:
     (2, 1, 1, 1, 1)
     """
 
-    A: np.ndarray
-    B: np.ndarray
-    P_in: np.ndarray
-    P_out: np.ndarray
-    G: np.ndarray
-    H0: np.ndarray
-    Q: np.ndarray
-    R: np.ndarray
-    x0: np.ndarray
-    E: np.ndarray | None = None
-    W: np.ndarray | None = None
-    H_rate: np.ndarray | None = None
-    mode0: int | np.ndarray = 0
-    mode_names: tuple[str, ...] | None = field(default=None)
-    state_names: tuple[str, ...] | None = field(default=None)
+    # The validated fields (what validate_fields returns); the constructor's arguments are the
+    # raw, array-like ones of __init__.
+    A: NDArray[np.float64]
+    B: NDArray[np.float64]
+    P_in: NDArray[np.float64]
+    P_out: NDArray[np.float64]
+    G: NDArray[np.float64]
+    H0: NDArray[np.float64]
+    Q: NDArray[np.float64]
+    R: NDArray[np.float64]
+    x0: NDArray[np.float64]
+    E: NDArray[np.float64]
+    W: NDArray[np.float64]
+    H_rate: NDArray[np.float64]
+    mode0: int | NDArray[np.float64]
+    mode_names: tuple[str, ...]
+    state_names: tuple[str, ...] | None
 
     # ------------------------------------------------------------------ validation
-    def __post_init__(self) -> None:
-        raw = {f.name: getattr(self, f.name) for f in fields(self)}
+    def __init__(
+        self,
+        A: ArrayLike,
+        B: ArrayLike,
+        P_in: ArrayLike,
+        P_out: ArrayLike,
+        G: ArrayLike,
+        H0: ArrayLike,
+        Q: ArrayLike,
+        R: ArrayLike,
+        x0: ArrayLike,
+        E: ArrayLike | None = None,
+        W: ArrayLike | None = None,
+        H_rate: ArrayLike | None = None,
+        mode0: int | ArrayLike = 0,
+        mode_names: Sequence[str] | None = None,
+        state_names: Sequence[str] | None = None,
+    ) -> None:
+        # written by hand (the dataclass keeps it) so that the arguments are array-likes while
+        # the fields are the validated float64 arrays; dataclasses.replace still works
+        raw = {
+            "A": A, "B": B, "P_in": P_in, "P_out": P_out, "G": G, "H0": H0, "Q": Q, "R": R,
+            "x0": x0, "E": E, "W": W, "H_rate": H_rate, "mode0": mode0,
+            "mode_names": mode_names, "state_names": state_names,
+        }  # fmt: skip
         for name, value in validate_fields(raw).items():
             if isinstance(value, np.ndarray):
                 value.setflags(write=False)
@@ -302,7 +336,13 @@ class SDJLSModel:
         """Draw ``w ~ N(0, W)`` of shape ``(*batch_shape, p)`` from ``rng``."""
         return self.dynamics.sample_noise(rng, batch_shape)
 
-    def sample_mode0(self, rng: np.random.Generator, size: int | None = None) -> int | np.ndarray:
+    @overload
+    def sample_mode0(self, rng: np.random.Generator, size: None = None) -> int: ...
+    @overload
+    def sample_mode0(self, rng: np.random.Generator, size: int) -> NDArray[np.int64]: ...
+    def sample_mode0(
+        self, rng: np.random.Generator, size: int | None = None
+    ) -> int | NDArray[np.int64]:
         """The initial mode: ``mode0`` itself, or a draw from the probability vector ``mode0``.
 
         With ``size``, an int64 array of ``size`` initial modes.
@@ -340,14 +380,36 @@ class SDJLSModel:
         """``x' Q_theta x + u' R_theta u``; shape ``(...)``."""
         return self.dynamics.stage_cost(x, mode, u)
 
+    @overload
     def transition(
         self,
         x: np.ndarray,
-        mode: int | np.ndarray,
+        mode: int,
+        u: np.ndarray,
+        k: int,
+        w: np.ndarray,
+        uniform: float,
+        inside: bool | None = None,
+    ) -> OneTransition: ...
+    @overload
+    def transition(
+        self,
+        x: np.ndarray,
+        mode: np.ndarray | np.integer[Any],
         u: np.ndarray,
         k: int | np.ndarray,
         w: np.ndarray,
-        uniform: np.ndarray | float,
+        uniform: float | np.ndarray,
+        inside: np.ndarray | None = None,
+    ) -> BatchTransition: ...
+    def transition(
+        self,
+        x: np.ndarray,
+        mode: Any,
+        u: np.ndarray,
+        k: Any,
+        w: np.ndarray,
+        uniform: Any,
         inside: Any = None,
     ) -> Transition:
         """The whole step with given randomness: :meth:`step`, the :meth:`stage_cost` of
@@ -406,7 +468,8 @@ class SDJLSModel:
         unknown = sorted(set(data) - set(names))
         if unknown:
             raise InvalidModelError(f"unknown model field(s) {unknown}; known fields are {names}")
-        required = [f.name for f in fields(cls) if f.default is MISSING]
+        parameters = inspect.signature(cls).parameters.values()
+        required = [p.name for p in parameters if p.default is inspect.Parameter.empty]
         missing = [name for name in required if name not in data]
         if missing:
             raise InvalidModelError(

@@ -17,8 +17,6 @@ The observation is float32; the exact float64 state is the environments' ``info[
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from gymnasium import spaces
 
@@ -41,8 +39,8 @@ def observation_space(model: SDJLSModel, divergence_bound: float) -> spaces.Box:
 def encode_observation(
     model: SDJLSModel,
     x: np.ndarray,
-    mode: Any,
-    k: Any,
+    mode: int | np.ndarray,
+    k: int | np.ndarray,
     horizon: int,
     divergence_bound: float,
 ) -> np.ndarray:

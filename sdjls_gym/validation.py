@@ -43,9 +43,10 @@ import math
 import numbers
 import sys
 from collections.abc import Iterable, Mapping
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sdjls_gym.errors import NotAnIntError, NotANumberError
 from sdjls_gym.messages import a_type, describe, type_name
@@ -111,7 +112,7 @@ def _as_real(name: str, value: Any, expected: str) -> float:
     try:
         return float(value)
     except OverflowError:  # an int beyond float64
-        return math.inf if value > 0 else -math.inf
+        return -math.inf if value < 0 else math.inf
 
 
 def check_number(
@@ -387,15 +388,15 @@ def check_array(
             if not bad_entries and raw.size:
                 value = raw = _objects_as_float(name, raw, suffix)
             else:
-                bad = bad_entries[0] if bad_entries else None
+                bad_entry = bad_entries[0] if bad_entries else None
                 raise TypeError(
-                    f"{name} has an entry {describe(bad)} of type {type_name(bad)}; expected an "
-                    f"array of real numbers{suffix}"
+                    f"{name} has an entry {describe(bad_entry)} of type {type_name(bad_entry)}; "
+                    f"expected an array of real numbers{suffix}"
                 )
         else:
-            kind = {"b": "bool", "c": "complex", "S": "bytes", "U": "str"}.get(raw.dtype.kind)
+            entry_kind = {"b": "bool", "c": "complex", "S": "bytes", "U": "str"}[raw.dtype.kind]
             raise TypeError(
-                f"{name} = {describe(value)} has {kind} entries; expected an array of real "
+                f"{name} = {describe(value)} has {entry_kind} entries; expected an array of real "
                 f"numbers{suffix}"
             )
     try:
@@ -509,9 +510,15 @@ def check_int_array(
     return arr if arr.dtype == np.int64 else arr.astype(np.int64)
 
 
+@overload
+def check_float32_bound(name: str, value: Any, size: None = None, what: str = "") -> float: ...
+@overload
+def check_float32_bound(
+    name: str, value: Any, size: int, what: str = ""
+) -> NDArray[np.float64]: ...
 def check_float32_bound(
     name: str, value: Any, size: int | None = None, what: str = ""
-) -> float | np.ndarray:
+) -> float | NDArray[np.float64]:
     """A positive bound that a float32 ``Box`` holds exactly enough: a normal float32 number.
 
     Parameters

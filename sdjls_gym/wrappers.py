@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, SupportsFloat, cast
 
 import gymnasium as gym
 import numpy as np
@@ -126,6 +126,7 @@ class ResidualAction(gym.ActionWrapper):
                 "of u; put ResidualAction on the raw env and rescale on top of it, e.g. "
                 "RescaleAction(ResidualAction(env, K), -1.0, 1.0)"
             )
+        self._base = base  # typed: the SDJLSEnv whose state and mode feed u = K x + nu
         model = base.model
         self.K = check_array(
             "K", K, shape=(model.N, model.m, model.n), what="the gains K_i, one m x n per mode"
@@ -138,7 +139,7 @@ class ResidualAction(gym.ActionWrapper):
         nu = np.asarray(action, dtype=np.float64).reshape(-1)
         if nu.shape != (self.K.shape[1],) or not np.all(np.isfinite(nu)):
             raise ValueError(f"action (nu) = {action!r}; expected {self.K.shape[1]} finite numbers")
-        base = self.env.unwrapped
+        base = self._base
         return self.K[base.mode] @ base.state + nu
 
 
@@ -218,8 +219,9 @@ class ScaleObservationReward(gym.Wrapper):
         self.reward_transform = check_choice(
             "reward_transform", reward_transform, ("log", "linear")
         )
-        low = self.observation(env.observation_space.low)
-        high = self.observation(env.observation_space.high)
+        raw_space = cast(spaces.Box, env.observation_space)  # the SDJLS env's Box
+        low = self.observation(raw_space.low)
+        high = self.observation(raw_space.high)
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
 
     def observation(self, obs: np.ndarray) -> np.ndarray:
@@ -260,10 +262,10 @@ class TerminateOutside(gym.Wrapper):
         self.horizon = int(_sdjls_base(env, "TerminateOutside").horizon)
         self.bound = check_positive("bound", bound)
 
-    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+    def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
         if not (terminated or truncated) and np.max(np.abs(info["state"])) > self.bound:
-            reward = reward * (1 + self.horizon - int(info["k"]))
+            reward = float(reward) * (1 + self.horizon - int(info["k"]))
             terminated = True
         return obs, reward, terminated, truncated, info
 
@@ -275,6 +277,6 @@ class FiniteHorizon(gym.Wrapper):
     nothing should be bootstrapped past ``x_T`` (stable-baselines3 bootstraps on truncation).
     """
 
-    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+    def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
         return obs, reward, bool(terminated or truncated), False, info
