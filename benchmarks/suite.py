@@ -4,8 +4,8 @@
 >>> from controllers import LinearFeedbackController
 >>> suite = evaluate_suite(lambda task: LinearFeedbackController(task.model, task.K),
 ...                        tasks=("SDJLS-Solar-v0", "SDJLS-Degradation-v0"), episodes=20)
->>> [round(r.scores[0].violation, 2) for r in suite.results]
-[0.04, 0.33]
+>>> tuple(round(r.scores[0].violation, 2) for r in suite.results)
+(0.04, 0.33)
 
 The protocol: on each task, ``make_policy(task)``'s policy is scored by
 :func:`benchmarks.evaluate.evaluate` on ``episodes`` episodes of the raw environment from noise
