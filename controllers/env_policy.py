@@ -165,9 +165,15 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
         raise TypeError(f"env = {describe(env)} is {a_type(env)}; expected a gymnasium.Env")
     layers = _layers(env)
     base = layers[-1]
-    if not isinstance(getattr(base, "model", None), SDJLSModel) or not isinstance(
-        getattr(base, "horizon", None), int
+    horizon = getattr(base, "horizon", None)
+    if isinstance(getattr(base, "model", None), SDJLSModel) and not (
+        isinstance(horizon, int) and not isinstance(horizon, bool)
     ):
+        raise TypeError(
+            f"env's horizon = {describe(horizon)} is {a_type(horizon)} ({type(base).__name__} "
+            "underneath); expected an int, the number of steps of an episode"
+        )
+    if not isinstance(getattr(base, "model", None), SDJLSModel):
         raise ValueError(
             f"env is a {type(base).__name__} underneath; expected an SDJLS environment "
             '(gym.make("SDJLS-v0", ...) or "SDJLS-Macro-v0")'
