@@ -37,6 +37,7 @@ __all__ = [
     "PROFILE_TAUS",
     "SuiteAggregate",
     "aggregate_gaps",
+    "rliable_modules",
     "seeded_legacy_generator",
 ]
 
@@ -93,7 +94,9 @@ class SuiteAggregate:
 
 
 # ----------------------------------------------------------------------------- aggregate
-def _rliable() -> tuple[Any, Any]:
+def rliable_modules() -> tuple[Any, Any]:
+    """rliable's ``library`` and ``metrics`` modules; an ImportError naming the extra without
+    it."""
     try:
         from rliable import library, metrics
     except ImportError as exc:
@@ -136,7 +139,7 @@ def aggregate_gaps(
             f"gaps = {describe(gaps)} (shape {gaps.shape}); expected a finite (runs, tasks) "
             "array with at least one run and one task"
         )
-    rly, metrics = _rliable()
+    rly, metrics = rliable_modules()
     scores = -gaps  # improvement over the one-step RHC: higher is better
     runs, tasks = scores.shape
     # one run: every stratified resample is the table itself, and the interval the point for

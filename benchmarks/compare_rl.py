@@ -39,7 +39,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +48,7 @@ from tqdm import tqdm
 
 from benchmarks import rl_hyperparams as HP
 from benchmarks.backends import BACKENDS, train_all
+from benchmarks.cli_options import one_of, options_parser, parse_options
 from benchmarks.evaluate import REFERENCE_XIS, check_evaluation, evaluate
 from benchmarks.files import stable_floats, write_atomic
 from benchmarks.montecarlo import multistep_rhc, paper_rhc, rollout
@@ -201,32 +202,32 @@ class Options:
     )
     tasks: list[str] | None = field(
         default=None,
-        metadata={
-            "help": "suite env ids to train on (default: the preset's)",
-            "nargs": "+",
-            "choices": SUITE,
-        },  # fmt: skip
+        metadata=one_of(
+            "suite env ids to train on (default: the preset's)",
+            SUITE,
+            "TASK",
+        ),
     )
     configs: list[str] | None = field(
         default=None,
-        metadata={
-            "help": "configurations <algo>_<variant> (default: the preset's)",
-            "nargs": "+",
-            "choices": CONFIGS,
-        },  # fmt: skip
+        metadata=one_of(
+            "configurations <algo>_<variant> (default: the preset's)",
+            CONFIGS,
+            "CONFIG",
+        ),
     )
     algos: list[str] | None = field(
         default=None,
-        metadata={
-            "help": "with --variants: train every algorithm in every variant (instead of "
+        metadata=one_of(
+            "with --variants: train every algorithm in every variant (instead of "
             "--configs); one alone combines with all variants / all algorithms",
-            "nargs": "+",
-            "choices": ALGOS,
-        },
+            ALGOS,
+            "ALGO",
+        ),
     )
     variants: list[str] | None = field(
         default=None,
-        metadata={"help": "training variants (see --algos)", "nargs": "+", "choices": VARIANTS},
+        metadata=one_of("training variants (see --algos)", VARIANTS, "VARIANT"),
     )
     timesteps: int | None = field(
         default=None,
@@ -290,7 +291,7 @@ class Options:
             "help": "summaries of benchmarks.tune studies (<out>/<study>.json): their best "
             "hyperparameters replace the defaults of that task's configuration (seeds from 0: "
             "never the tuning's)",
-            "nargs": "+",
+            "metavar": "STUDY.json",
         },
     )
     retrain: bool = field(
@@ -304,29 +305,14 @@ class Options:
 
 
 def parse_args(argv: list[str] | None = None) -> Options:
-    parser = argparse.ArgumentParser(
+    parser = options_parser(
+        Options,
         prog="python -m benchmarks.compare_rl",
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    for f in fields(Options):
-        flag, meta = "--" + f.name.replace("_", "-"), f.metadata
-        if f.type in ("bool", bool):
-            parser.add_argument(flag, action="store_true", help=meta["help"])
-        elif f.name == "tuned":
-            parser.add_argument(flag, nargs="+", type=Path, default=None, metavar="STUDY.json",
-                                help=meta["help"])  # fmt: skip
-        elif "nargs" in meta:
-            parser.add_argument(flag, nargs="+", choices=meta["choices"], default=None,
-                                metavar=f.name.upper()[:-1],
-                                help=f"{meta['help']}; one of: {', '.join(meta['choices'])}")  # fmt: skip
-        elif "choices" in meta:
-            parser.add_argument(flag, choices=meta["choices"], default=f.default, help=meta["help"])
-        else:
-            conv = {"out": Path, "address": str}.get(f.name, int)
-            parser.add_argument(flag, type=conv, default=f.default, help=meta["help"])
     given = {a.split("=")[0] for a in (sys.argv[1:] if argv is None else argv)}
-    opts = Options(**vars(parser.parse_args(argv)))
+    opts = parse_options(parser, Options, argv)
     preset = PRESETS[opts.preset]
     if opts.quick and "--eval-episodes" not in given:
         opts.eval_episodes = 200

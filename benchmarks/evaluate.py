@@ -58,9 +58,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from benchmarks.cli_options import SB3_ALGOS, CliError, load_cli_policy
 from benchmarks.files import write_atomic
 from benchmarks.montecarlo import Rollouts, rollout
-from benchmarks.policies import RawEnvPolicy, _check_policy, as_controller
+from benchmarks.policies import RawEnvPolicy, as_controller, check_policy
 from benchmarks.reference import (
     REFERENCE_CONSTRAINT,
     REFERENCE_XIS,
@@ -68,6 +69,7 @@ from benchmarks.reference import (
     reference_curve,
     task_of,
 )
+from benchmarks.score_table import TABLE_HEADER, table_row
 from benchmarks.stats import CurveGap, mean_ci, wilson
 from sdjls_gym import SDJLSModel
 from sdjls_gym.env import SDJLSEnv
@@ -156,7 +158,7 @@ class Score:
 
 # ----------------------------------------------------------------------------- environments
 @dataclass(frozen=True)
-class EnvSpec:
+class TaskEnv:
     """What the rollouts need to know of ``gym.make(env_id, **env_kwargs)``."""
 
     model: SDJLSModel
@@ -174,7 +176,7 @@ def _key(model: SDJLSModel) -> str:
     return json.dumps(model.to_dict(), sort_keys=True)
 
 
-def resolve_env(env_id: str, env_kwargs: dict[str, Any]) -> EnvSpec:
+def resolve_env(env_id: str, env_kwargs: dict[str, Any]) -> TaskEnv:
     """Make the environment once and read its model, horizon and bounds."""
     from sdjls_gym.systems.macro import macro
 
@@ -204,7 +206,7 @@ def resolve_env(env_id: str, env_kwargs: dict[str, Any]) -> EnvSpec:
                 f"{advice}"
             )
         bound = np.asarray(base.action_space.high, dtype=np.float64)
-        return EnvSpec(
+        return TaskEnv(
             model=base.model,
             horizon=int(base.horizon),
             action_bound=float(bound[0]) if np.all(bound == bound[0]) else bound,
@@ -220,8 +222,12 @@ def resolve_env(env_id: str, env_kwargs: dict[str, Any]) -> EnvSpec:
 
 
 # ----------------------------------------------------------------------------- the protocol
-def statistics(ro: Rollouts, divergence_bound: float) -> dict[str, Any]:
-    """Cost, violation and divergence statistics of rollouts (the fields of :class:`Score`)."""
+def rollout_statistics(ro: Rollouts, divergence_bound: float) -> dict[str, Any]:
+    """Cost, violation and divergence statistics of rollouts (the fields of :class:`Score`);
+    the intervals are over the episodes, which must be at least 2."""
+    check_int(
+        "episodes", ro.runs, low=2, what="the rollouts' episodes; the intervals are over them"
+    )
     costs = ro.episode_cost
     violations = ro.any_violation
     total, count = violations.size, int(violations.sum())
@@ -274,14 +280,14 @@ def decision_time(
 
 
 def evaluate_rollouts(
-    controller: Any, spec: EnvSpec, episodes: int, seed: int, env_id: str = "SDJLS-Macro-v0"
+    controller: Any, spec: TaskEnv, episodes: int, seed: int, env_id: str = "SDJLS-Macro-v0"
 ) -> tuple[Score, Rollouts]:
     """The protocol on a controller with ``act_batch``: its :class:`Score` and its rollouts."""
     ro = rollout(
         spec.model, controller, episodes, spec.horizon, seed, spec.action_bound, None,
         spec.divergence_bound,
     )  # fmt: skip
-    stats = statistics(ro, spec.divergence_bound)
+    stats = rollout_statistics(ro, spec.divergence_bound)
     states = decision_states(ro, min(TIMING_STATES, ro.runs * spec.horizon))
     batched, single = decision_time(controller, *states)
     gap = None
@@ -353,128 +359,15 @@ def evaluate(
     if not isinstance(env_id, str):
         raise TypeError(f"env_id = {describe(env_id)} is {a_type(env_id)}; expected a str")
     env_kwargs = check_mapping("env_kwargs", env_kwargs)
-    _check_policy(policy)
+    check_policy(policy)
     spec = resolve_env(env_id, env_kwargs)
     return evaluate_rollouts(as_controller(policy, spec), spec, episodes, seed, env_id)[0]
 
 
 # ----------------------------------------------------------------------------- command line
-SB3_ALGOS = ("a2c", "ddpg", "ppo", "sac", "td3")
-#: The policy module a saved SB3 agent names, and the ``--algo`` values that can load it.
-_SAVED_POLICIES = {
-    "stable_baselines3.common.policies": ("a2c", "ppo"),
-    "stable_baselines3.sac.policies": ("sac",),
-    "stable_baselines3.td3.policies": ("ddpg", "td3"),
-}
-
-
-class CliError(Exception):
-    """A bad command-line input, reported by the parser (exit status 2)."""
-
-
-def _import_attribute(text: str, option: str) -> Any:
-    """``package.module:attribute`` -> the attribute (dots in it follow attributes)."""
-    import importlib
-
-    module, sep, attribute = text.partition(":")
-    if not sep or not module or not attribute:
-        raise CliError(f"{option} = {text!r}; expected package.module:attribute or a .zip file")
-    try:
-        obj: Any = importlib.import_module(module)
-    except ImportError as exc:
-        raise CliError(f"{option} {text}: module {module!r} cannot be imported ({exc})") from None
-    for part in attribute.split("."):
-        try:
-            obj = getattr(obj, part)
-        except AttributeError:
-            raise CliError(
-                f"{option} {text}: module {module!r} has no attribute {attribute!r}"
-            ) from None
-    return obj
-
-
-def _saved_algorithms(path: str) -> tuple[str, ...] | None:
-    """The ``--algo`` values that can load the SB3 file ``path`` (from the policy class it
-    names), or None if the file does not say."""
-    import zipfile
-
-    try:
-        with zipfile.ZipFile(path) as archive:
-            data = json.loads(archive.read("data"))
-        return _SAVED_POLICIES.get(data["policy_class"]["__module__"])
-    except Exception:  # noqa: BLE001 - not a readable SB3 file: the load reports it
-        return None
-
-
-def load_cli_policy(
-    policy: str, algo: str | None, train_env: str | None, vec_normalize: str | None = None
-) -> Any:
-    """The policy named on the command line (see :func:`main`); :class:`CliError` for a file,
-    module or attribute that does not load."""
-    from pathlib import Path
-
-    if not policy.endswith(".zip"):
-        if algo is not None or train_env is not None or vec_normalize is not None:
-            raise CliError(
-                "--algo, --train-env and --vec-normalize apply to a stable-baselines3 .zip "
-                "file only"
-            )
-        return _import_attribute(policy, "--policy")
-    if algo is None:
-        raise CliError(f"--policy {policy} is a stable-baselines3 file: give --algo {SB3_ALGOS}")
-    if not Path(policy).is_file():
-        raise CliError(f"--policy {policy}: no such file")
-    if vec_normalize is not None and not Path(vec_normalize).is_file():
-        raise CliError(f"--vec-normalize {vec_normalize}: no such file")
-    if vec_normalize is not None and train_env is None:
-        raise CliError("--vec-normalize needs --train-env (the environment it normalized)")
-    env = None
-    if train_env is not None:  # before the agent: a bad name fails fast
-        env = _import_attribute(train_env, "--train-env")
-        env = env() if callable(env) and not isinstance(env, gym.Env) else env
-    try:
-        import stable_baselines3
-    except ImportError:
-        raise CliError(
-            f'--policy {policy} needs stable-baselines3: pip install -e ".[rl]"'
-        ) from None
-    saved = _saved_algorithms(policy)
-    if saved is not None and algo not in saved:
-        raise CliError(
-            f"--policy {policy} holds a {'/'.join(a.upper() for a in saved)} agent, not "
-            f"--algo {algo}; give --algo {saved[-1]}"
-        )
-    try:
-        agent = getattr(stable_baselines3, algo.upper()).load(policy, device="cpu")
-    except Exception as exc:  # noqa: BLE001 - a corrupt or foreign file: name it
-        raise CliError(
-            f"--policy {policy} cannot be loaded as a stable-baselines3 {algo.upper()} agent "
-            f"({type(exc).__name__}: {exc})"
-        ) from None
-    if env is None:
-        return agent
-    norm = None
-    if vec_normalize is not None:
-        from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
-
-        try:
-            norm = VecNormalize.load(vec_normalize, DummyVecEnv([lambda: env]))
-        except Exception as exc:  # noqa: BLE001 - a corrupt or foreign file: name it
-            raise CliError(
-                f"--vec-normalize {vec_normalize} cannot be loaded as a VecNormalize "
-                f"({type(exc).__name__}: {exc})"
-            ) from None
-    try:
-        return RawEnvPolicy(agent, env, vec_normalize=norm)
-    except (TypeError, ValueError) as exc:
-        raise CliError(f"--train-env {train_env}: {exc}") from None
-
-
 def describe_score(name: str, score: Score) -> list[str]:
     """The table row of ``score`` (the RL comparison's columns) and where it sits on the curve."""
     from types import SimpleNamespace
-
-    from benchmarks.rl_report import TABLE_HEADER, table_row
 
     lines = [*TABLE_HEADER, table_row(SimpleNamespace(name=name, score=score))]
     g = score.curve_gap

@@ -8,7 +8,9 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-__all__ = ["STABLE_DIGITS", "stable_floats", "write_atomic"]
+import numpy as np
+
+__all__ = ["STABLE_DIGITS", "jsonable", "stable_floats", "write_atomic"]
 
 #: Significant digits a float keeps in a committed JSON file. A statistic summed over thousands
 #: of values differs between machines (BLAS, SIMD widths) in its last two or three of float64's
@@ -26,6 +28,21 @@ def stable_floats(data: Any, digits: int = STABLE_DIGITS) -> Any:
     if isinstance(data, float) and math.isfinite(data):
         return float(f"{data:.{digits}g}")
     return data
+
+
+def jsonable(value: Any) -> Any:
+    """``value`` with numpy out of it, for ``json.dumps``: dicts (keys as ``str``), lists and
+    tuples (as lists), arrays (as nested lists), numpy scalars (as Python's); other values
+    unchanged. The one converter of the benchmarks: the runs' fingerprints hash its output."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
 
 
 def write_atomic(path: str | Path, data: str | bytes) -> Path:

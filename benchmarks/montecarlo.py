@@ -103,8 +103,8 @@ def decide_batch(controller: Any, x: np.ndarray, mode: np.ndarray, k: np.ndarray
         ok = np.asarray(info.get("ok", np.ones(B, dtype=bool)), dtype=bool)
         return u, rho, np.asarray(info["cost"], dtype=np.float64), ok
     us, rhos, Js, oks = [], [], [], []
-    for xi, mi, ki in zip(x, mode, k, strict=True):
-        u, info = controller.act(xi, int(mi), int(ki))
+    for x_row, mode_row, k_row in zip(x, mode, k, strict=True):
+        u, info = controller.act(x_row, int(mode_row), int(k_row))
         us.append(u)
         rhos.append(float(info.get("rho", 0.0)))
         Js.append(float(info["cost"]))

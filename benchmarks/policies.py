@@ -21,7 +21,7 @@ from sdjls_gym.observation import decode_observation, encode_observation
 from sdjls_gym.validation import check_numbers
 from sdjls_gym.wrappers import ResidualAction, ScaleObservationReward, scale_observation
 
-__all__ = ["RawEnvPolicy", "as_controller", "check_spaces"]
+__all__ = ["RawEnvPolicy", "as_controller", "check_policy", "check_spaces"]
 
 #: How a scored agent that acts in other units should be wrapped (the errors' advice).
 _ADVICE = (
@@ -196,7 +196,9 @@ def _refuse_class(name: str, value: Any) -> None:
         )
 
 
-def _check_policy(policy: Any) -> None:
+def check_policy(policy: Any) -> None:
+    """Refuse (``TypeError``) what cannot be scored: a class instead of an agent, or an object
+    with neither ``act_batch``, ``predict`` nor ``__call__``."""
     _refuse_class("policy", policy)
     if not (
         callable(getattr(policy, "act_batch", None))
@@ -216,7 +218,7 @@ def as_controller(policy: Any, spec: Any) -> Any:
     An agent with SB3's ``observation_space`` and ``action_space`` must act on the raw
     environment's (``spec.observation_space``, ``spec.action_space``): see :func:`check_spaces`.
     """
-    _check_policy(policy)
+    check_policy(policy)
     if callable(getattr(policy, "act_batch", None)) and callable(getattr(policy, "act", None)):
         return policy
     where = f"the raw environment it is scored on ({spec.env_id})"

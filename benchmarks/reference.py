@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.files import jsonable
 from benchmarks.montecarlo import rollout
 from benchmarks.stats import CurveGap, mean_ci, paired_curve_gap, wilson
 from sdjls_gym.model import SDJLSModel
@@ -40,6 +41,7 @@ __all__ = [
     "SUITE_XIS",
     "ReferenceCurve",
     "curve_xis",
+    "gap_reason",
     "one_step_rhc",
     "reference_curve",
     "task_of",
@@ -62,15 +64,11 @@ def _model_key(model: SDJLSModel) -> str:
     return json.dumps(model.to_dict(), sort_keys=True)
 
 
-def _plain(value: Any) -> Any:
-    return value.tolist() if isinstance(value, np.ndarray) else value
-
-
 def _task_key(task: Task) -> str:
     """Everything of ``task`` that its controllers depend on, as one string."""
-    rhc = {key: _plain(value) for key, value in task.rhc.items()}
     return json.dumps(
-        {"model": task.model.to_dict(), "K": task.K.tolist(), "rhc": rhc}, sort_keys=True
+        jsonable({"model": task.model.to_dict(), "K": task.K, "rhc": dict(task.rhc)}),
+        sort_keys=True,
     )
 
 
@@ -224,3 +222,23 @@ def reference_curve(
     while len(_CACHE) > CURVE_CACHE_SIZE:
         _CACHE.popitem(last=False)
     return curve
+
+
+def gap_reason(
+    violation: float, diverged: int, gap: CurveGap | None, curve_violations: np.ndarray
+) -> str | None:
+    """Why a controller with this violation frequency and these diverged episodes has no
+    normalized gap ``gap`` to a curve whose points' shares of violated steps are
+    ``curve_violations`` (P, E); None if it has one."""
+    if diverged:
+        return f"{diverged} episode(s) diverged"
+    lo, hi = (float(f(np.asarray(curve_violations).mean(axis=1))) for f in (np.min, np.max))
+    if gap is None and violation > hi:
+        return (f"violation frequency {violation:.3f} is above the curve's range "
+                f"{lo:.3f}..{hi:.3f} (more than the RHC at its loosest level)")  # fmt: skip
+    if gap is None:
+        return (f"violation frequency {violation:.3f} is below the curve's range "
+                f"{lo:.3f}..{hi:.3f} (less than the RHC at its strictest level)")  # fmt: skip
+    if gap.relative is None:
+        return "the curve's cost is not positive"
+    return None

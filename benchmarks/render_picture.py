@@ -26,7 +26,6 @@ same command can time an older checkout of ``sdjls_gym``::
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import platform
@@ -35,7 +34,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +42,7 @@ import gymnasium as gym
 import numpy as np
 
 import sdjls_gym  # noqa: F401  (registers the ids)
+from benchmarks.cli_options import options_parser, parse_options
 from sdjls_gym.systems.macro import HORIZON, PAPER_K, PAPER_RHC, macro
 
 TARGET_FPS = 30.0  # a 20-step episode recorded as video at >= 30 frames per second
@@ -50,20 +50,29 @@ TARGET_FPS = 30.0  # a 20-step episode recorded as video at >= 30 frames per sec
 
 @dataclass
 class Options:
-    out: Path = Path("results/render")  # where the pictures, render.json and RENDER.md go
-    seed: int = 0  # seed of the pictured episodes; timed episodes use seed + 1, seed + 2, ...
-    episodes: int = 10  # timed episodes (each 20 steps, 21 frames)
-    fps_only: bool = False  # time env.render() only (works on older checkouts of sdjls_gym)
-    before: Path | None = None  # render.json of an --fps-only run on the code before the change
-
-
-HELP = {
-    "out": "directory for the pictures, render.json and RENDER.md",
-    "seed": "seed of the pictured episodes; the timed ones use seed + 1, seed + 2, ...",
-    "episodes": "number of timed 20-step episodes",
-    "fps_only": "time env.render() only (no pictures, no reference; works on older code)",
-    "before": "render.json of an --fps-only run on the code before the change, for RENDER.md",
-}
+    out: Path = field(
+        default=Path("results/render"),
+        metadata={"help": "directory for the pictures, render.json and RENDER.md"},
+    )
+    seed: int = field(
+        default=0,
+        metadata={
+            "help": "seed of the pictured episodes; the timed ones use seed + 1, seed + 2, ..."
+        },
+    )
+    episodes: int = field(default=10, metadata={"help": "number of timed 20-step episodes"})
+    fps_only: bool = field(
+        default=False,
+        metadata={
+            "help": "time env.render() only (no pictures, no reference; works on older code)"
+        },
+    )
+    before: Path | None = field(
+        default=None,
+        metadata={
+            "help": "render.json of an --fps-only run on the code before the change, for RENDER.md"
+        },
+    )
 
 
 def paper_controller():
@@ -252,15 +261,8 @@ def write_report(opts: Options, result: dict[str, Any], before: dict[str, Any] |
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    for f in fields(Options):
-        flag = "--" + f.name.replace("_", "-")
-        if f.type in ("bool", bool):
-            parser.add_argument(flag, action="store_true", help=HELP[f.name])
-        else:
-            kind = {"int": int, "Path": Path, "Path | None": Path}[str(f.type)]
-            parser.add_argument(flag, type=kind, default=f.default, help=HELP[f.name])
-    opts = Options(**vars(parser.parse_args(argv)))
+    parser = options_parser(Options, description=__doc__.split("\n\n")[0])
+    opts = parse_options(parser, Options, argv)
     if opts.episodes < 1:
         parser.error(f"--episodes = {opts.episodes}; expected an int >= 1")
     opts.out.mkdir(parents=True, exist_ok=True)

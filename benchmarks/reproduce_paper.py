@@ -21,13 +21,14 @@ import csv
 import json
 import re
 import sys
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
+from benchmarks.cli_options import options_parser, parse_options
 from benchmarks.files import stable_floats, write_atomic
 from benchmarks.montecarlo import Rollouts, paper_rhc, rollout
 from benchmarks.paper_figures import KINDS, make_figures, row_labels
@@ -63,22 +64,13 @@ class Options:
 
 
 def parse_args(argv: list[str] | None = None) -> Options:
-    parser = argparse.ArgumentParser(
+    parser = options_parser(
+        Options,
         prog="python -m benchmarks.reproduce_paper",
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    for f in fields(Options):
-        flag = "--" + f.name.replace("_", "-")
-        if f.type in ("bool", bool):
-            parser.add_argument(flag, action="store_true", help=f.metadata["help"])
-        else:
-            conv = {"int": int, "Path": Path}[
-                f.type if isinstance(f.type, str) else f.type.__name__
-            ]
-            parser.add_argument(flag, type=conv, default=f.default, help=f.metadata["help"])
-    ns = parser.parse_args(argv)
-    opts = Options(**vars(ns))
+    opts = parse_options(parser, Options, argv)
     if opts.runs < 1:
         parser.error(f"--runs = {opts.runs}; expected a positive integer")
     if opts.stat_runs < 2:

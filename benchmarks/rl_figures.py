@@ -7,8 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.rl_report import Aggregate, ControllerResult, RunResult, fmt_steps
+from benchmarks.rl_report import Aggregate, ControllerResult, RunResult
 from benchmarks.rl_train import VARIANTS
+from benchmarks.score_table import fmt_steps
 from benchmarks.stats import CurveStatus
 
 ALGO_COLORS = {"ppo": "C0", "sac": "C1", "td3": "C2"}

@@ -17,8 +17,9 @@ import numpy as np
 
 from benchmarks import rl_hyperparams as HP
 from benchmarks.evaluate import Score
-from benchmarks.files import write_atomic
-from benchmarks.rl_train import RunRecord
+from benchmarks.files import jsonable, write_atomic
+from benchmarks.rl_records import RunRecord
+from benchmarks.score_table import fmt_steps, row_fields, table
 from benchmarks.stats import (
     FLAT_TOL,
     CurveStatus,
@@ -272,53 +273,7 @@ def against_curve(
     return out
 
 
-# ----------------------------------------------------------------------------- formatting
-def fmt_steps(n: int) -> str:
-    """Three significant digits: 2500608 -> '2.5M', 60006 -> '60k', 1056 -> '1.06k'."""
-    if n >= 1_000_000:
-        return f"{n / 1e6:.3g}M"
-    if n >= 1000:
-        return f"{n / 1e3:.3g}k"
-    return str(n)
-
-
-def fmt_time(seconds: float) -> str:
-    """Microseconds with one decimal, or seconds from 1 s on."""
-    return f"{seconds * 1e6:.1f}" if seconds < 1 else f"{seconds:.3g} s"
-
-
-def _line(r: Any) -> list[Any]:
-    """The common columns of a row: a controller, a trained seed or an aggregate."""
-    s = r.score if hasattr(r, "score") else r
-    steps = r.run.timesteps if isinstance(r, RunResult) else getattr(r, "timesteps", 0)
-    train = r.run.train_time_s if isinstance(r, RunResult) else getattr(r, "train_time_s", 0.0)
-    return [r.name, s.episodes, s.cost_mean, s.cost_ci95, s.cost_median, s.violation,
-            s.violation_wilson95, s.diverged, steps, train, s.decision_time_batched_s,
-            s.decision_time_single_s]  # fmt: skip
-
-
-TABLE_HEADER = [
-    "| controller | episodes | mean episode cost (95% CI) | median cost | violation frequency "
-    "(95% Wilson) | diverged | training steps | training time (s) | decision time per state, "
-    "batched / single (us) |",
-    "|---|---|---|---|---|---|---|---|---|",
-]
-
-
-def table_row(r: Any) -> str:
-    """One line of the results table (:data:`TABLE_HEADER`)."""
-    name, eps, mean, (lo, hi), median, v, (vlo, vhi), div, steps, train, dtb, dts = _line(r)
-    return (
-        f"| {name} | {eps} | {mean:.4g} ({lo:.4g} to {hi:.4g}) | {median:.4g} | {v:.3f} "
-        f"({vlo:.3f}-{vhi:.3f}) | {div} | {fmt_steps(steps) if steps else '-'} | {train:.0f} | "
-        f"{fmt_time(dtb)} / {fmt_time(dts)} |"
-    )
-
-
-def table(rows: list[Any]) -> list[str]:
-    return [*TABLE_HEADER, *(table_row(r) for r in rows)]
-
-
+# ----------------------------------------------------------------------------- csv
 CSV_HEADER = [
     "name", "kind", "algo", "variant", "seed", "xi", "episodes", "episode_cost_mean",
     "episode_cost_lo", "episode_cost_hi", "episode_cost_median", "violation", "violation_lo",
@@ -329,7 +284,7 @@ CSV_HEADER = [
 
 
 def csv_row(r: Any) -> list[Any]:
-    name, eps, mean, (lo, hi), median, v, (vlo, vhi), div, steps, train, dtb, dts = _line(r)
+    name, eps, mean, (lo, hi), median, v, (vlo, vhi), div, steps, train, dtb, dts = row_fields(r)
     run = r.run if isinstance(r, RunResult) else r
     score = getattr(r, "score", None)
     gap = None if score is None else score.curve_gap
@@ -572,9 +527,7 @@ def write_report(summary: Summary, xi: float, reference: str) -> str:
 
 def hyperparams_record(algos: list[str], variants: list[str]) -> dict[str, Any]:
     """The hyperparameters a summary records."""
-    from benchmarks.rl_train import _jsonable
-
-    return _jsonable(
+    return jsonable(
         {
             "algorithms": {a: HP.HYPERPARAMS[a] for a in algos},
             "variant_changes": {

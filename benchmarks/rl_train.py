@@ -20,7 +20,7 @@ import io
 import json
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -29,8 +29,8 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from benchmarks import rl_hyperparams as HP
-from benchmarks.evaluate import resolve_env, statistics
-from benchmarks.files import write_atomic
+from benchmarks.evaluate import resolve_env, rollout_statistics
+from benchmarks.files import jsonable, write_atomic
 from benchmarks.montecarlo import rollout
 from benchmarks.policies import RawEnvPolicy
 from benchmarks.rl_envs import (
@@ -44,6 +44,7 @@ from benchmarks.rl_envs import (
     task_settings,
     variant_setup,
 )
+from benchmarks.rl_records import CurvePoint, DualPoint, RunRecord
 
 __all__ = [
     "ACTION_KINDS",
@@ -70,78 +71,6 @@ ALGOS = ("ppo", "sac", "td3")
 #: How the evaluations made during training (learning curve, dual ascent) treat a diverged
 #: episode; part of a run's fingerprint, so that runs scored by another rule are trained again.
 CURVE_SCORING = "a diverged episode holds its state; its later steps count as violated"
-
-
-# ----------------------------------------------------------------------------- records
-@dataclass(frozen=True)
-class CurvePoint:
-    """One learning-curve evaluation: the deterministic policy on the fixed curve episodes."""
-
-    timesteps: int
-    wall_s: float
-    episode_cost_mean: float
-    episode_cost_median: float
-    violation: float
-    diverged: int
-    beta: float | None
-
-
-@dataclass(frozen=True)
-class DualPoint:
-    """One dual-ascent update: the deterministic policy's frequency, the exploring policy's
-    (``train_freq``, logged only) and the new ``beta``."""
-
-    timesteps: int
-    freq: float
-    train_freq: float
-    beta: float
-
-
-@dataclass
-class RunRecord:
-    """What ``runs/<name>.json`` holds: one training, without its evaluation."""
-
-    name: str
-    algo: str
-    variant: str
-    seed: int
-    fingerprint: str
-    config: dict[str, Any]
-    timesteps: int
-    train_time_s: float  # the whole agent.learn, with the evaluations made during training
-    wall_time_s: float
-    final_beta: float | None
-    learning_curve: list[CurvePoint]
-    dual_ascent: list[DualPoint]
-    cpu_time_s: float | None = None  # below the wall time when the training shared its core
-    eval_time_s: float | None = None  # the learning curve's and the dual ascent's share
-    kind: str = "rl-seed"
-    task: str = MACRO  # the env id (runs kept before the suite are all on the macro task)
-
-    @property
-    def curve_episodes(self) -> int:
-        return int(self.config["curve_episodes"])
-
-    def to_json(self) -> dict[str, Any]:
-        return _jsonable(asdict(self))
-
-    @classmethod
-    def from_json(cls, data: dict[str, Any]) -> RunRecord:
-        known = {f.name for f in fields(cls)}
-        data = {k: v for k, v in data.items() if k in known}
-        data["learning_curve"] = [CurvePoint(**p) for p in data["learning_curve"]]
-        data["dual_ascent"] = [DualPoint(**p) for p in data["dual_ascent"]]
-        return cls(**data)
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
-    return value
 
 
 # ----------------------------------------------------------------------------- run specs
@@ -197,10 +126,10 @@ class RunSpec:
         config = {
             **fields_,
             "curve_scoring": CURVE_SCORING,
-            "hyperparams": _jsonable(self.hyperparams()),
+            "hyperparams": jsonable(self.hyperparams()),
             "env": s.env_hp(),
             "betas": s.betas(),
-            "lagrangian": _jsonable(self.lagrangian()),
+            "lagrangian": jsonable(self.lagrangian()),
             "residual_nu_bound": s.nu_bound,
             "residual_beta": s.residual_beta(),
         }
@@ -224,7 +153,7 @@ class RunSpec:
             "task_digest": task_digest(task),
         }
         if self.overrides:
-            config["overrides"] = _jsonable(dict(self.overrides))
+            config["overrides"] = jsonable(dict(self.overrides))
         return config
 
     def fingerprint(self) -> str:
@@ -341,7 +270,7 @@ class _Evaluator:
             None, s.divergence_bound,
         )  # fmt: skip
         self.log.eval_time += time.perf_counter() - t0
-        return statistics(ro, s.divergence_bound)
+        return rollout_statistics(ro, s.divergence_bound)
 
 
 class LearningCurve(BaseCallback):

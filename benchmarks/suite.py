@@ -52,11 +52,11 @@ from benchmarks.aggregate import (
     AGGREGATE_RESAMPLES,
     PROFILE_TAUS,
     SuiteAggregate,
-    _rliable,
     aggregate_gaps,
+    rliable_modules,
 )
 from benchmarks.evaluate import Score, check_evaluation, evaluate, resolve_env
-from benchmarks.reference import curve_xis, reference_curve
+from benchmarks.reference import curve_xis, gap_reason, reference_curve
 from benchmarks.stats import CurveGap
 from sdjls_gym import SUITE
 from sdjls_gym.messages import a_type, describe
@@ -185,26 +185,6 @@ def check_tasks(tasks: Any) -> tuple[Task, ...]:
     return tuple(out)
 
 
-def gap_reason(
-    violation: float, diverged: int, gap: CurveGap | None, curve_violations: np.ndarray
-) -> str | None:
-    """Why a controller with this violation frequency and these diverged episodes has no
-    normalized gap ``gap`` to a curve whose points' shares of violated steps are
-    ``curve_violations`` (P, E); None if it has one."""
-    if diverged:
-        return f"{diverged} episode(s) diverged"
-    lo, hi = (float(f(np.asarray(curve_violations).mean(axis=1))) for f in (np.min, np.max))
-    if gap is None and violation > hi:
-        return (f"violation frequency {violation:.3f} is above the curve's range "
-                f"{lo:.3f}..{hi:.3f} (more than the RHC at its loosest level)")  # fmt: skip
-    if gap is None:
-        return (f"violation frequency {violation:.3f} is below the curve's range "
-                f"{lo:.3f}..{hi:.3f} (less than the RHC at its strictest level)")  # fmt: skip
-    if gap.relative is None:
-        return "the curve's cost is not positive"
-    return None
-
-
 def _policies(make_policy: Callable[[Task], Any], task: Task) -> list[Any]:
     made = make_policy(task)
     runs = list(made) if isinstance(made, (list, tuple)) else [made]
@@ -258,7 +238,7 @@ def evaluate_suite(
     episodes, seed = check_evaluation(episodes, seed)
     resamples = check_int("resamples", resamples, low=100)
     checked = check_tasks(tasks)
-    _rliable()  # the aggregate's dependency, before hours of scoring
+    rliable_modules()  # the aggregate's dependency, before hours of scoring
     from tqdm import tqdm
 
     results: list[TaskResult] = []
@@ -351,7 +331,7 @@ class Options:
     )  # fmt: skip
     tasks: list[str] = field(
         default_factory=lambda: list(SUITE),
-        metadata={"help": "tasks of the suite", "nargs": "+", "choices": SUITE},
+        metadata={"help": "tasks of the suite", "choices": SUITE},
     )
     episodes: int | None = field(
         default=None,
@@ -380,45 +360,28 @@ class Options:
     no_progress: bool = field(default=False, metadata={"help": "do not show the progress bar"})
 
 
-def _file_option_error(name: str, path: Any) -> str | None:
-    from pathlib import Path
-
-    path = Path(path)
-    if path.is_dir():
-        return f"{name} {path}: is a folder; expected a file path in an existing folder"
-    if not path.parent.is_dir():
-        return f"{name} {path}: the folder {path.parent} does not exist"
-    return None
-
-
 def parse_args(argv: list[str] | None = None) -> tuple[Options, Any]:
     """The options, each checked before any work (a bad one: exit status 2, naming it); with
     ``--policy``, also the factory it names."""
     import argparse
-    import sys
-    from dataclasses import fields
     from pathlib import Path
 
-    from benchmarks.evaluate import CliError, _import_attribute
+    from benchmarks.cli_options import (
+        CliError,
+        file_option_error,
+        import_attribute,
+        options_parser,
+        parse_options,
+    )
 
-    parser = argparse.ArgumentParser(
+    parser = options_parser(
+        Options,
         prog="python -m benchmarks.suite",
         description="Score a policy on every task of the suite, or compute the model-based "
         "references (without --policy).",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    for f in fields(Options):
-        flag, meta = "--" + f.name.replace("_", "-"), f.metadata
-        if f.type in ("bool", bool):
-            parser.add_argument(flag, action="store_true", help=meta["help"])
-        elif "nargs" in meta:
-            parser.add_argument(flag, nargs="+", choices=meta["choices"],
-                                default=f.default_factory(), help=meta["help"])  # fmt: skip
-        else:
-            conv = int if f.name in ("episodes", "seed", "tree_episodes") else str
-            parser.add_argument(flag, type=conv, default=f.default, help=meta["help"])
-    argv = sys.argv[1:] if argv is None else list(argv)
-    opts = Options(**vars(parser.parse_args(argv)))
+    opts = parse_options(parser, Options, argv)
     opts.tasks = list(dict.fromkeys(opts.tasks))
     if opts.episodes is None:
         opts.episodes = 50 if opts.quick else 1000
@@ -439,10 +402,10 @@ def parse_args(argv: list[str] | None = None) -> tuple[Options, Any]:
                  if getattr(opts, n) not in (None, False)]  # fmt: skip
         if given:
             parser.error(f"{', '.join(given)}: apply to the references (without --policy) only")
-        if opts.json is not None and (error := _file_option_error("--json", opts.json)):
+        if opts.json is not None and (error := file_option_error("--json", opts.json)):
             parser.error(error)
         try:
-            factory = _import_attribute(opts.policy, "--policy")
+            factory = import_attribute(opts.policy, "--policy")
         except CliError as exc:
             parser.error(str(exc))
         if not callable(factory):

@@ -29,7 +29,7 @@ def make_figures(out: Path, refs: list[Any], aggs: dict[str, Any]) -> list[str]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from benchmarks.suite import SuiteAggregate
+    from benchmarks.aggregate import SuiteAggregate
 
     names: list[str] = []
 

@@ -37,12 +37,12 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.evaluate import evaluate, resolve_env, statistics
+from benchmarks.aggregate import SuiteAggregate, aggregate_gaps, rliable_modules
+from benchmarks.evaluate import evaluate, resolve_env, rollout_statistics
 from benchmarks.files import stable_floats, write_atomic
 from benchmarks.montecarlo import rollout
-from benchmarks.reference import curve_xis, reference_curve, tree_rhc
+from benchmarks.reference import curve_xis, gap_reason, reference_curve, tree_rhc
 from benchmarks.stats import CurveGap
-from benchmarks.suite import SuiteAggregate, aggregate_gaps, gap_reason
 from sdjls_gym.systems import TASKS, Task
 
 __all__ = [
@@ -165,7 +165,7 @@ def task_references(
         ctrl = tree_rhc(task, xi, TREE_STEPS, horizon=spec.horizon)
         ro = rollout(task.model, ctrl, tree_episodes, spec.horizon, seed, spec.action_bound, bar,
                      spec.divergence_bound)  # fmt: skip
-        stats = statistics(ro, spec.divergence_bound)
+        stats = rollout_statistics(ro, spec.divergence_bound)
         gap = _against(ind_tree, stats["episode_costs"], stats["episode_violations"],
                        stats["violation"], stats["diverged"])  # fmt: skip
         points.append(_point("RHC 3-step", xi, tree_episodes, stats, *gap))
@@ -312,11 +312,10 @@ def run_references(opts: Any, argv: list[str]) -> dict[str, Any]:
     """Compute and write the references for the parsed options of :mod:`benchmarks.suite`."""
     from tqdm import tqdm
 
-    from benchmarks.aggregate import _rliable
     from benchmarks.suite_figures import make_figures
     from benchmarks.versions import CORE_PACKAGES, package_versions
 
-    _rliable()  # the aggregate's dependency, before the long computation
+    rliable_modules()  # the aggregate's dependency, before the long computation
     start = time.perf_counter()
     out = Path(opts.out)
     out.mkdir(parents=True, exist_ok=True)

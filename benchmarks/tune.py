@@ -33,13 +33,14 @@ import json
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from benchmarks import rl_hyperparams as HP
+from benchmarks.cli_options import options_parser, parse_options
 from benchmarks.files import stable_floats, write_atomic
 from benchmarks.rl_envs import get_task, task_settings
 from benchmarks.rl_train import ALGOS, VARIANTS, CurvePoint, RunSpec, save_run, train_run
@@ -160,7 +161,7 @@ def reference_curve(task: str, episodes: int, seed: int) -> tuple[np.ndarray, np
     """The task's receding-horizon controller over ``benchmarks.evaluate.REFERENCE_XIS`` on
     ``episodes`` episodes from noise seed ``seed``: ``(violations (P,), mean costs (P,),
     cost at the task's xi)``, sorted by violation frequency."""
-    from benchmarks.evaluate import REFERENCE_XIS, resolve_env, statistics
+    from benchmarks.evaluate import REFERENCE_XIS, resolve_env, rollout_statistics
     from benchmarks.montecarlo import rollout
     from controllers import RecedingHorizonController
 
@@ -171,7 +172,7 @@ def reference_curve(task: str, episodes: int, seed: int) -> tuple[np.ndarray, np
         ctrl = RecedingHorizonController(t.model, t.K, horizon=t.horizon, **{**t.rhc, "xi": xi})
         ro = rollout(t.model, ctrl, episodes, t.horizon, seed, env.action_bound, None,
                      env.divergence_bound)  # fmt: skip
-        s = statistics(ro, env.divergence_bound)
+        s = rollout_statistics(ro, env.divergence_bound)
         points.append((s["violation"], s["cost_mean"], xi))
     ref = next(c for v, c, xi in points if xi == float(t.rhc["xi"]))
     points.sort()
@@ -275,21 +276,13 @@ class Options:
 
 
 def parse_args(argv: list[str] | None = None) -> Options:
-    parser = argparse.ArgumentParser(
+    parser = options_parser(
+        Options,
         prog="python -m benchmarks.tune",
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    for f in fields(Options):
-        flag, meta = "--" + f.name.replace("_", "-"), f.metadata
-        if f.type in ("bool", bool):
-            parser.add_argument(flag, action="store_true", help=meta["help"])
-        elif "choices" in meta:
-            parser.add_argument(flag, choices=meta["choices"], default=f.default, help=meta["help"])
-        else:
-            conv = {"out": Path, "storage": str, "study_name": str, "address": str}.get(f.name, int)
-            parser.add_argument(flag, type=conv, default=f.default, help=meta["help"])
-    opts = Options(**vars(parser.parse_args(argv)))
+    opts = parse_options(parser, Options, argv)
     for name in ("trials", "timesteps", "seeds", "workers"):
         value = getattr(opts, name)
         if value is not None and value < 1:

@@ -167,6 +167,13 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
         raise TypeError(f"env = {describe(env)} is {a_type(env)}; expected a gymnasium.Env")
     wrappers, base = _layers(env)
     model, horizon = getattr(base, "model", None), getattr(base, "horizon", None)
+    if isinstance(model, SDJLSModel) and not (
+        isinstance(horizon, int) and not isinstance(horizon, bool)
+    ):
+        raise TypeError(
+            f"env's horizon = {describe(horizon)} is {a_type(horizon)} ({type(base).__name__} "
+            "underneath); expected an int, the number of steps of an episode"
+        )
     if not isinstance(model, SDJLSModel) or not isinstance(horizon, int):
         raise ValueError(
             f"env is a {type(base).__name__} underneath; expected an SDJLS environment "

@@ -38,6 +38,7 @@ from sdjls_gym.dynamics import (
     draw_categorical,
 )
 from sdjls_gym.errors import InvalidModelError, InvalidModelTypeError
+from sdjls_gym.messages import a_type, describe
 from sdjls_gym.model_checks import validate_fields
 
 __all__ = ["SDJLSModel"]
@@ -462,7 +463,8 @@ class SDJLSModel:
         """
         if not isinstance(data, dict):
             raise InvalidModelTypeError(
-                f"a model description must be a dict/table, got {type(data).__name__}"
+                f"data = {describe(data)} is {a_type(data)}; expected a dict/table of the model's "
+                "fields (a model description)"
             )
         names = [f.name for f in fields(cls)]
         unknown = sorted(set(data) - set(names))

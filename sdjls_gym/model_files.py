@@ -41,7 +41,7 @@ def load_model(path: str | os.PathLike) -> SDJLSModel:
     path = _as_path(path)
     suffix = path.suffix.lower()
     if suffix not in SUFFIXES:
-        raise InvalidModelError(f"model file {str(path)!r} must end in .json or .toml")
+        raise InvalidModelError(f"path = {str(path)!r}: a model file must end in .json or .toml")
     text = None
     try:
         text = path.read_text(encoding="utf-8")

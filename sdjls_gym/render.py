@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from sdjls_gym.messages import a_type, describe
 from sdjls_gym.model import SDJLSModel
 from sdjls_gym.validation import check_array, check_int, check_positive
 
@@ -197,7 +198,7 @@ class EpisodeRenderer:
         divergence_bound: float | None = None,
     ) -> None:
         if not isinstance(model, SDJLSModel):
-            raise TypeError(f"model is a {type(model).__name__}; expected an SDJLSModel")
+            raise TypeError(f"model = {describe(model)} is {a_type(model)}; expected an SDJLSModel")
         self.model = model
         self.horizon = check_int("horizon", horizon, low=1)
         self.divergence_bound = (
@@ -225,7 +226,9 @@ class EpisodeRenderer:
         model = self.model
         xs = check_array("xs", xs, shape=(None, model.n), finite=False, what="states x_0 .. x_K")
         if xs.shape[0] < 1:
-            raise ValueError("xs has no rows; expected the states x_0 .. x_K, K >= 0")
+            raise ValueError(
+                f"xs has shape {xs.shape}, no rows; expected the states x_0 .. x_K, K >= 0"
+            )
         raw = np.asarray(modes)
         if raw.dtype.kind not in "iu":
             raise TypeError(f"modes has dtype {raw.dtype}; expected ints (one mode per state)")

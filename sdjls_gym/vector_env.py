@@ -19,6 +19,7 @@ from sdjls_gym.env import (
     resolve_model,
 )
 from sdjls_gym.functional import EnvParams, Restart, may_overflow
+from sdjls_gym.messages import describe
 from sdjls_gym.model import SDJLSModel
 from sdjls_gym.observation import encode_observation, observation_space
 from sdjls_gym.validation import check_int, check_numbers, check_optional_int
@@ -225,7 +226,11 @@ class SDJLSVectorEnv(VectorEnv):
             else:
                 raise ValueError(f"actions have shape {u.shape}; expected ({B}, {model.m})")
         if not np.isfinite(u.sum()) and not np.isfinite(u).all():  # the sum first: cheaper
-            raise ValueError("actions contain NaN or inf; expected finite numbers")
+            row = int(np.flatnonzero(~np.isfinite(u).all(axis=1))[0])
+            raise ValueError(
+                f"actions[{row}] = {describe(u[row])} is not finite (NaN or inf); expected "
+                f"finite numbers, actions = {describe(u)}"
+            )
         u = np.clip(u, self._low, self._high)
 
         reset = self._prev_done

@@ -9,6 +9,7 @@ import numpy as np
 from gymnasium import spaces
 
 from sdjls_gym.env import SDJLSEnv
+from sdjls_gym.messages import a_type, describe
 from sdjls_gym.validation import (
     check_array,
     check_choice,
@@ -46,6 +47,15 @@ def _action_changing_layers(env: gym.Env) -> list[str]:
     return found
 
 
+def _check_env(env: Any) -> None:
+    """Refuse (``TypeError``) a wrapper's ``env`` that is not a ``gymnasium.Env``, naming it."""
+    if not isinstance(env, gym.Env):
+        raise TypeError(
+            f"env = {describe(env)} is {a_type(env)}; expected a gymnasium.Env (an SDJLS "
+            "environment, possibly wrapped)"
+        )
+
+
 class ViolationPenalty(gym.Wrapper):
     """Reward ``reward - beta * info["cost"]``: a fixed penalty per step that violates a row.
 
@@ -62,6 +72,7 @@ class ViolationPenalty(gym.Wrapper):
     """
 
     def __init__(self, env: gym.Env, beta: float) -> None:
+        _check_env(env)
         super().__init__(env)
         self.beta = beta
 
@@ -112,6 +123,7 @@ class ResidualAction(gym.ActionWrapper):
     """
 
     def __init__(self, env: gym.Env, K: np.ndarray, nu_bound: float = 100.0) -> None:
+        _check_env(env)
         super().__init__(env)
         base = env.unwrapped
         if not isinstance(base, SDJLSEnv):
@@ -210,6 +222,7 @@ class ScaleObservationReward(gym.Wrapper):
         reward_clip: float = REWARD_CLIP,
         reward_transform: str = REWARD_TRANSFORM,
     ) -> None:
+        _check_env(env)
         super().__init__(env)
         self.n = _sdjls_base(env, "ScaleObservationReward").model.n
         self.x_scale = check_positive("x_scale", x_scale)
@@ -258,6 +271,7 @@ class TerminateOutside(gym.Wrapper):
     """
 
     def __init__(self, env: gym.Env, bound: float = TERMINATE_BOUND) -> None:
+        _check_env(env)
         super().__init__(env)
         self.horizon = int(_sdjls_base(env, "TerminateOutside").horizon)
         self.bound = check_positive("bound", bound)
@@ -276,6 +290,10 @@ class FiniteHorizon(gym.Wrapper):
     The time ``k / T`` is part of the observation, so the problem is a finite-horizon one and
     nothing should be bootstrapped past ``x_T`` (stable-baselines3 bootstraps on truncation).
     """
+
+    def __init__(self, env: gym.Env) -> None:
+        _check_env(env)
+        super().__init__(env)
 
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)

@@ -105,8 +105,6 @@ def test_policy_for_recognizes_an_sdjls_env_by_its_model_and_horizon():
     ctrl = LinearFeedbackController(macro(), PAPER_K)
     env = gym.make("SDJLS-Macro-v0")
     assert policy_for(ctrl, env).horizon == 20
-    env.unwrapped.horizon = 20.0  # not an int: not an SDJLS environment any more
-    # known gap: "env is a SDJLSEnv underneath; expected an SDJLS environment" names neither
-    # horizon nor its value 20.0
-    with raises_naming(ValueError, "env", "SDJLSEnv"):
+    env.unwrapped.horizon = 20.0  # not an int: refused, naming the horizon and its value
+    with raises_naming(TypeError, "horizon", 20.0):
         policy_for(ctrl, env)

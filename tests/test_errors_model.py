@@ -235,9 +235,7 @@ CASES = [
         "mode-names-generator",
     ),
     case(lambda c: model(c, state_names=["income"]), M, "state_names", ["income"], "state-names"),
-    # known gap: "a model description must be a dict/table, got list" names neither the
-    # argument (data) nor the value
-    case(lambda c: SDJLSModel.from_dict([1, 2]), T, "model description", UNSHOWN, "from-dict-list"),
+    case(lambda c: SDJLSModel.from_dict([1, 2]), T, "data", [1, 2], "from-dict-list"),
     case(lambda c: macro().H(2**70), ValueError, "k", 2**70, "H-k-huge"),
     case(
         lambda c: macro().H(np.uint64(2**64 - 1)),
@@ -269,7 +267,7 @@ CASES = [
         "list.json",
         "json-not-a-table",
     ),
-    case(lambda c: json_file(c, "model.yaml", "A: 1"), M, "model file", "model.yaml", "suffix"),
+    case(lambda c: json_file(c, "model.yaml", "A: 1"), M, "path", "model.yaml", "suffix"),
     case(
         lambda c: model_file(c, "bad_R.json", R=[[[1.0]], [[-1.2]], [[1.3]]]),
         M,

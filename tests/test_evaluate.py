@@ -12,7 +12,14 @@ import numpy as np
 import pytest
 from conftest import raises_naming
 
-from benchmarks.evaluate import REFERENCE_XIS, RawEnvPolicy, Score, evaluate, main, statistics
+from benchmarks.evaluate import (
+    REFERENCE_XIS,
+    RawEnvPolicy,
+    Score,
+    evaluate,
+    main,
+    rollout_statistics,
+)
 from benchmarks.montecarlo import paper_rhc, rollout
 from controllers import LinearFeedbackController
 from sdjls_gym.systems.macro import PAPER_K, macro
@@ -30,7 +37,7 @@ def test_a_controller_is_scored_on_its_exact_states(feedback):
     """The score is the statistics of the closed-loop rollouts of the same seed."""
     s = evaluate(feedback, episodes=E, seed=3)
     ro = rollout(macro(), feedback, E, 20, 3)
-    ref = statistics(ro, 1e6)
+    ref = rollout_statistics(ro, 1e6)
     assert isinstance(s, Score) and (s.episodes, s.steps, s.seed) == (E, 20, 3)
     assert s.cost_mean == ref["cost_mean"] and s.violation == ref["violation"]
     np.testing.assert_array_equal(s.episode_costs, ro.episode_cost)

@@ -421,8 +421,7 @@ def test_odd_arrays_are_refused_by_name_without_a_warning(case):
         if masked
         else np.concatenate([value] * 2)
     )
-    # known gap: a longdouble beyond float64 is shown as its float64 cast (inf), not as 1e+400;
-    # the vector env's "actions contain NaN or inf" shows no value at all
+    # known gap: a longdouble beyond float64 is shown as its float64 cast (inf), not as 1e+400
     shown = (lambda v: UNSHOWN) if masked or case == "longdouble-1e400" else (lambda v: v)
     raises(error, "action", shown(value), lambda: _stepped_env().step(value))
     raises(error, "actions", shown(actions), lambda: _stepped_vector_env().step(actions))

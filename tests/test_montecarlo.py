@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import raises_naming
 
-from benchmarks.evaluate import statistics
+from benchmarks.evaluate import rollout_statistics
 from benchmarks.montecarlo import Rollouts, rollout
 from benchmarks.stats import mean_ci, wilson
 from controllers import LinearFeedbackController
@@ -80,7 +80,7 @@ def test_rows_that_do_not_diverge_are_unaffected_with_a_random_initial_mode():
 def test_score_counts_every_step_after_divergence():
     model = macro()
     ro = rollout(model, _HalfUnstable(model), RUNS, T, seed=3)
-    stats = statistics(ro, 1e6)
+    stats = rollout_statistics(ro, 1e6)
     assert stats["diverged"] == RUNS // 2
     # 20 stable rows as simulated, plus 20 rows violated from their divergence on
     stable = ro.any_violation[RUNS // 2 :].sum()
@@ -136,7 +136,7 @@ def _synthetic(violated: np.ndarray) -> Rollouts:
 
 
 def score(ro: Rollouts) -> dict:
-    return statistics(ro, 1e6)
+    return rollout_statistics(ro, 1e6)
 
 
 def _widths(stats: dict) -> tuple[float, float]:
@@ -169,5 +169,5 @@ def test_episode_interval_at_the_ends_and_with_one_episode():
     one[0, 0] = True  # shares 0.05, 0, 0: the t interval reaches below 0
     near_zero = score(_synthetic(one))["violation_episode_t95"]
     assert near_zero[0] == 0.0 < near_zero[1]
-    with raises_naming(ValueError, "values", 1):  # 1 sample
+    with raises_naming(ValueError, "episodes", 1):  # the intervals are over episodes
         score(_synthetic(np.ones((1, T), dtype=bool)))

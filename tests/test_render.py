@@ -14,7 +14,7 @@ import warnings
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import UNSHOWN, raises_naming
+from conftest import raises_naming
 
 import sdjls_gym  # noqa: F401  (registers the ids)
 from sdjls_gym import SDJLSEnv
@@ -328,7 +328,7 @@ def test_render_before_reset_raises():
     [
         ([[2.0, 2.0, 2.0]], [0], ValueError, "xs", (1, 3)),
         ([[2.0, "a"]], [0], TypeError, "xs", [[2.0, "a"]]),
-        (np.zeros((0, 2)), [], ValueError, "xs", UNSHOWN),  # "xs has no rows"
+        (np.zeros((0, 2)), [], ValueError, "xs", (0, 2)),  # no rows
         ([[2.0, 2.0]], [3], ValueError, "modes", [3]),
         ([[2.0, 2.0]], [0.0], TypeError, "modes", np.dtype("float64")),
         ([[2.0, 2.0]], [True], TypeError, "modes", np.dtype("bool")),
@@ -382,3 +382,8 @@ def test_record_video_writes_the_episode(tmp_path):
         assert round(clip.duration * clip.fps) == steps + 1  # the reset frame and one per step
     finally:
         clip.close()
+
+
+def test_a_renderer_names_a_model_that_is_not_one():
+    with raises_naming(TypeError, "model", "macro"):
+        EpisodeRenderer("macro", HORIZON)

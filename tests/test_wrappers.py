@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 from conftest import raises_naming
 
-from sdjls_gym.wrappers import ResidualAction, ViolationPenalty
+from sdjls_gym.wrappers import (
+    FiniteHorizon,
+    ResidualAction,
+    ScaleObservationReward,
+    TerminateOutside,
+    ViolationPenalty,
+)
 
 
 def _quiet_env(model, **kwargs):
@@ -85,6 +91,25 @@ def test_residual_action_applies_K_theta_x_plus_nu(quiet_paper_model, paper):
         modes.add(mode)
     assert truncated
     assert len(modes) == 3
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda env, K: ResidualAction(env, K),
+        lambda env, K: ViolationPenalty(env, 1.0),
+        lambda env, K: ScaleObservationReward(env),
+        lambda env, K: TerminateOutside(env),
+        lambda env, K: FiniteHorizon(env),
+    ],
+    ids=["ResidualAction", "ViolationPenalty", "ScaleObservationReward", "TerminateOutside",
+         "FiniteHorizon"],
+)  # fmt: skip
+@pytest.mark.parametrize("bad", ["SDJLS-Macro-v0", None])
+def test_a_wrapper_names_an_env_that_is_not_one(paper, make, bad):
+    """Gymnasium's own refusal shows only the class; the wrappers name ``env`` and its value."""
+    with raises_naming(TypeError, "env", bad):
+        make(bad, paper.K)
 
 
 def test_residual_action_errors(paper):
