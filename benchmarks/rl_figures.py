@@ -24,6 +24,15 @@ def _errbars(ax: Any, s: Any, **kw: Any) -> None:
                 yerr=[[max(c - clo, 0.0)], [max(chi - c, 0.0)]], capsize=2, **kw)  # fmt: skip
 
 
+def shared_legend_entries(axes: Any) -> tuple[list[Any], list[str]]:
+    """The labelled artists of every panel in ``axes``, one entry per label, first seen first."""
+    entries: dict[str, Any] = {}
+    for ax in list(np.ravel(axes)):
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            entries.setdefault(label, handle)
+    return list(entries.values()), list(entries)
+
+
 def make_figures(
     out: Path,
     curves: list[tuple[str, str, list[ControllerResult]]],
@@ -62,7 +71,7 @@ def make_figures(
     # cost against violation frequency: everything (log scale), and a zoom on the stable ones
     zoom_max = 3.0 * max(p.score.cost_mean for _, _, pts in curves for p in pts)
     flat = {(c.algo, c.variant): c.flat for c in status}
-    fig, axes = plt.subplots(1, 2, figsize=(14, 6))
+    fig, axes = plt.subplots(1, 2, figsize=(17.5, 6))
     for panel, ax in enumerate(axes):
         keep = (lambda s: True) if panel == 0 else (lambda s: s.cost_mean <= zoom_max)
         for i, (family, color, pts) in enumerate(curves):
@@ -94,11 +103,17 @@ def make_figures(
         else:
             ax.set_ylabel("mean episode cost (95% interval)")
             ax.set_title(f"Zoom: mean episode cost <= {zoom_max:.3g}")
-            ax.legend(fontsize=6.5, ncol=2, loc="best")
+    # one legend for both panels: the full panel holds marks (diverging agents) that the zoom
+    # leaves out, and every mark of a committed figure is named
+    handles, labels = shared_legend_entries(axes)
+    fig.legend(handles, labels, fontsize=6.5, ncol=1, loc="center left", bbox_to_anchor=(0.80, 0.5))
     fig.suptitle(
         "Cost against violations: model-based curves over xi, one point per other controller"
     )
-    save(fig, "fig_cost_violation.png")
+    fig.tight_layout(rect=(0, 0, 0.80, 1))
+    fig.savefig(out / "fig_cost_violation.png", dpi=110)
+    plt.close(fig)
+    names.append("fig_cost_violation.png")
 
     ref = next((r for r in curves[0][2] if r.xi == xi), None)
     algos = list(dict.fromkeys(r.run.algo for r in runs))

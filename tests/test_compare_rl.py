@@ -527,3 +527,27 @@ def test_against_curve_interpolates_at_the_controllers_own_frequency():
     assert d.ci95 == pytest.approx((-5.0, -5.0))  # no spread between the episodes
     assert d.xi == pytest.approx(0.8) and d.curve == "curve"
     assert against_curve(points[:1], others) == []
+
+
+@pytest.mark.slow  # reruns the --quick comparison (about 15 s)
+def test_every_labelled_mark_of_the_figures_is_in_a_legend(quick_run, tmp_path, monkeypatch):
+    """Issue 33: marks drawn only in the full panel of fig_cost_violation.png (diverging agents,
+    beyond the zoom) had no legend entry. Every labelled artist of every saved figure must appear
+    in a legend of that figure (its axes' legends or the figure's)."""
+    from matplotlib.figure import Figure
+
+    out = _copy(quick_run, tmp_path)
+    unnamed: dict[str, set[str]] = {}
+    real = Figure.savefig
+
+    def spy(self, fname, *args, **kw):
+        marks = {lab for ax in self.axes for lab in ax.get_legend_handles_labels()[1]}
+        legends = [ax.get_legend() for ax in self.axes] + list(self.legends)
+        named = {t.get_text() for lg in legends if lg is not None for t in lg.get_texts()}
+        if marks - named:
+            unnamed[Path(fname).name] = marks - named
+        return real(self, fname, *args, **kw)
+
+    monkeypatch.setattr(Figure, "savefig", spy)
+    compare_rl.main([*ARGS, "--out", str(out)])
+    assert not unnamed, unnamed
