@@ -62,7 +62,8 @@ import scipy.sparse as sp
 
 from sdjls_gym._validate import check_mapping, describe
 
-from .dual_qp import REGULARIZE, DaqpData, daqp_data, run_daqp
+from .active_set import ActiveSetQP, candidate_maps
+from .dual_qp import REGULARIZE, DaqpData, DaqpWorkspace, daqp_data, run_daqp
 from .kkt import KKT_TOL, ActiveSetMaps, active_set_maps
 
 __all__ = [
@@ -94,6 +95,10 @@ MAX_LOCAL_CANDIDATES = 256
 
 #: Exact active-set maps kept per family (least recently used are dropped).
 MAX_CACHED_MAPS = 512
+
+#: Active sets of a family tested at once on a batch (:meth:`QPFamily.seen`): the most recently
+#: used of its cached maps.
+SEEN_SETS = 64
 
 #: A row whose residual at OSQP's solution is within this fraction of its terms counts as nearly
 #: active (OSQP's polished solutions are accurate to ~1e-10 relative).
@@ -260,18 +265,34 @@ class QPFamily:
         self._daqp_simple = bool(
             self.A.shape[0] >= d and np.array_equal(self.A[self.A.shape[0] - d :], np.eye(d))
         )
+        # the one-sided index of each row's upper and lower side (-1: absent), and the gathers
+        # that give OSQP's bounds l, u from [h; inf]
+        rows_A, n_up = self.A.shape[0], self.upper_idx.size
+        self._upper_of = np.full(rows_A, -1, dtype=np.int64)
+        self._lower_of = np.full(rows_A, -1, dtype=np.int64)
+        self._upper_of[self.upper_idx] = np.arange(n_up)
+        self._lower_of[self.lower_idx] = n_up + np.arange(self.lower_idx.size)
+        self._hi_gather = np.where(self._upper_of >= 0, self._upper_of, self.c)
+        self._lo_gather = np.where(self._lower_of >= 0, self._lower_of, self.c)
+        #: whether P has kept its first value (update_P not called): DAQP's workspace is kept
+        self._fixed_P = True
+        #: the variables without curvature (zero rows of P: the slacks), which the exact solve
+        #: of an active set takes from their rows (see controllers.kkt.active_set_factor)
+        self.pivots = ~self.P.any(axis=1)
         self._reset_state()
 
     def _reset_state(self) -> None:
-        self._maps: dict[tuple[int, ...], ActiveSetMaps | None] = {}
+        self._maps: OrderedDict[tuple[int, ...], ActiveSetMaps | None] = OrderedDict()
+        self._seen: tuple[tuple, ActiveSetQP] | None = None  # seen(): its key and its stack
         self._osqp: osqp.OSQP | None = None
         self._enum: Any = None  # the ActiveSetQP of a full enumeration, built on first use
         self._daqp: DaqpData | None = None  # DAQP's scaled data for the current P
+        self._daqp_ws: DaqpWorkspace | None = None  # DAQP's workspace (fixed P only)
         self.warm: tuple[int, ...] | None = None
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
-        for key in ("_maps", "_osqp", "_enum", "_daqp", "warm"):
+        for key in ("_maps", "_seen", "_osqp", "_enum", "_daqp", "_daqp_ws", "warm"):
             state.pop(key, None)
         return state
 
@@ -316,9 +337,13 @@ class QPFamily:
             else:
                 self._osqp = None
         self.P = P
+        self.pivots = ~P.any(axis=1)
         self._maps.clear()
+        self._seen = None
         self._enum = None
         self._daqp = None
+        self._daqp_ws = None
+        self._fixed_P = False
         self.can_enumerate = False
 
     # ------------------------------------------------------------------ data
@@ -328,23 +353,47 @@ class QPFamily:
 
     def bounds(self, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Bounds ``l, u`` (c,) of OSQP's form from ``h`` (infinite where a side is absent)."""
-        lo = np.full(self.A.shape[0], -np.inf)
-        hi = np.full(self.A.shape[0], np.inf)
-        nu = self.upper_idx.size
-        hi[self.upper_idx] = h[:nu]
-        lo[self.lower_idx] = -h[nu:]
-        return lo, hi
+        padded = np.append(h, np.inf)
+        return -padded[self._lo_gather], padded[self._hi_gather]
+
+    def rows_of_multipliers(self, y: np.ndarray) -> tuple[int, ...] | None:
+        """The active set (one-sided rows, sorted) of multipliers ``y`` in OSQP's form (one per
+        row of ``A``: positive where its upper side is active, negative for the lower, 0 where
+        inactive, as DAQP reports them); None when a side that does not exist is active or
+        there are more than ``d`` rows."""
+        nz = np.flatnonzero(y)
+        if nz.size > self.d:
+            return None
+        rows = np.where(y[nz] > 0.0, self._upper_of[nz], self._lower_of[nz])
+        if nz.size and int(rows.min()) < 0:
+            return None
+        return tuple(sorted(rows.tolist()))
 
     # ------------------------------------------------------------------ exact solves
     def maps(self, rows: tuple[int, ...]) -> ActiveSetMaps | None:
-        """The exact maps of an active set (cached; the cache is emptied when it is full)."""
+        """The exact maps of an active set (cached, least recently used dropped first)."""
         cache = self._maps
         out = cache.get(rows, False)
         if out is False:
             if len(cache) >= MAX_CACHED_MAPS:
-                cache.clear()
-            out = cache[rows] = active_set_maps(self.P, self.C, rows)
+                cache.popitem(last=False)
+            out = cache[rows] = active_set_maps(self.P, self.C, rows, pivots=self.pivots)
+        else:
+            cache.move_to_end(rows)
         return out
+
+    def seen(self) -> ActiveSetQP | None:
+        """The active sets this family has met (the :data:`SEEN_SETS` most recently used of
+        the cached exact maps) as an :class:`controllers.active_set.ActiveSetQP`, to test them
+        on a batch at once; None when there is none. Largest sets first (as the enumeration)."""
+        keys = [rows for rows, m in reversed(self._maps.items()) if m is not None][:SEEN_SETS]
+        if not keys:
+            return None
+        keys.sort(key=lambda rows: (-len(rows), rows))
+        key = tuple(keys)
+        if self._seen is None or self._seen[0] != key:
+            self._seen = (key, ActiveSetQP(self.C, [self._maps[rows] for rows in keys]))
+        return self._seen[1]
 
     def verify(self, rows: tuple[int, ...], w: np.ndarray) -> list[float] | None:
         """``z`` if the active set ``rows`` gives the optimum of instance ``w``, else None."""
@@ -357,9 +406,7 @@ class QPFamily:
         if not self.can_enumerate:
             return None
         if self._enum is None:
-            from .active_set import ActiveSetQP
-
-            self._enum = ActiveSetQP(self.P, self.C)
+            self._enum = ActiveSetQP(self.C, candidate_maps(self.P, self.C))
         self.budget.use(self, self.enumeration_floats)
         return self._enum
 
@@ -510,14 +557,25 @@ class QPFamily:
     def _solve_daqp(
         self, w: np.ndarray, start: tuple[int, ...] | None, notes: list[str]
     ) -> Solution | None:
-        """DAQP warm-started from ``start`` (an active set), then from a cold start; the active
-        set of its answer re-solved exactly and verified (:meth:`local`)."""
+        """DAQP, then the active set of its answer re-solved exactly and verified: first the
+        rows of its nonzero multipliers, then :meth:`local` around its answer. Attempts: with a
+        fixed Hessian, the family's workspace (warm from its last solve, then cold); else warm
+        started from ``start`` (an active set), then cold; then on regularized objectives."""
         status = first = ""
-        attempts = [(start, 0.0)] if start is not None else []
-        attempts += [(None, 0.0)] + [(None, mu) for mu in REGULARIZE]
-        for begin, mu in attempts:
-            z, y, status = self.run_daqp(w, begin, mu)
+        attempts: list[tuple[tuple[int, ...] | None, float, bool]] = []
+        if self._fixed_P:
+            attempts += [(None, 0.0, False), (None, 0.0, True)]
+        else:
+            attempts += [(start, 0.0, False)] if start is not None else []
+            attempts += [(None, 0.0, True)]
+        attempts += [(None, mu, True) for mu in REGULARIZE]
+        for begin, mu, cold in attempts:
+            z, y, status = self.run_daqp(w, begin, mu, cold)
             if z is not None:
+                rows = self.rows_of_multipliers(y)
+                out = None if rows is None else self.verify(rows, w)
+                if out is not None:
+                    return Solution(out, rows, "daqp")
                 sol = self.local(z, w, y)
                 if sol is not None:
                     return Solution(sol.z, sol.rows, "daqp")
@@ -527,13 +585,24 @@ class QPFamily:
         return None
 
     def run_daqp(
-        self, w: np.ndarray, start: tuple[int, ...] | None = None, regularize: float = 0.0
+        self,
+        w: np.ndarray,
+        start: tuple[int, ...] | None = None,
+        regularize: float = 0.0,
+        cold: bool = False,
     ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
-        """DAQP on instance ``w`` (:func:`controllers.dual_qp.run_daqp`), warm-started from the
-        active set ``start``: ``(z, y, status)``, ``z = y = None`` on failure."""
+        """DAQP on instance ``w`` (:mod:`controllers.dual_qp`): ``(z, y, status)``, ``z = y =
+        None`` on failure. A family whose Hessian has kept its first value solves in its
+        workspace (warm from its last solve unless ``cold``); otherwise, or with a ``start``
+        (an active set) or a ``regularize`` term, DAQP is set up for this one solve."""
         if self._daqp is None:
             self._daqp = daqp_data(self.P, self.A, self._daqp_simple)
         lo, hi = self.bounds(np.asarray(w[self.d :]))
+        q = np.asarray(w[: self.d])
+        if self._fixed_P and start is None and not regularize:
+            if self._daqp_ws is None:
+                self._daqp_ws = DaqpWorkspace(self._daqp)
+            return self._daqp_ws.solve(q, lo, hi, cold)
         nu = self.upper_idx.size
         begin = None
         if start is not None:
@@ -541,7 +610,7 @@ class QPFamily:
                 (int(self.upper_idx[i]), False) if i < nu else (int(self.lower_idx[i - nu]), True)
                 for i in start
             ]
-        return run_daqp(self._daqp, np.asarray(w[: self.d]), lo, hi, begin, regularize)
+        return run_daqp(self._daqp, q, lo, hi, begin, regularize)
 
     def enumerate_one(self, w: np.ndarray) -> Solution | None:
         """Full enumeration for one instance (None if the family is too large or nothing

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from .horizon import HorizonSettings
 from .kkt import ActiveSetFactor, active_set_factor, check_active_set
 from .p3 import CLARABEL_SETTINGS
 from .qp import QPFamily, Solution
@@ -81,7 +82,8 @@ class TreeQP(QPFamily):
 
     def _reset_state(self) -> None:
         super()._reset_state()
-        self._factors: OrderedDict[tuple[int, ...], ActiveSetFactor | None] = OrderedDict()
+        self._factors: OrderedDict[tuple, ActiveSetFactor | None] = OrderedDict()
+        self._pivot_key = self.pivots.tobytes()
         self._factor_floats = 0
         self._osqp_P: np.ndarray | None = None  # the Hessian the OSQP object holds (None: P)
 
@@ -108,6 +110,7 @@ class TreeQP(QPFamily):
         if not self._has_P:
             self._has_P = True
             self.can_enumerate = self._may_enumerate
+        self._pivot_key = self.pivots.tobytes()
 
     def run_osqp(self, w: np.ndarray, retry: bool = False) -> tuple:
         if self._osqp is not None and self._osqp_P is not None:
@@ -117,14 +120,16 @@ class TreeQP(QPFamily):
         return super().run_osqp(w, retry)
 
     def _factor(self, rows: tuple[int, ...]) -> ActiveSetFactor | None:
-        """The active set's factor (:func:`controllers.kkt.active_set_factor`, independent of
-        ``P``; cached within :data:`FACTOR_CACHE_FLOATS`), or None when its rows are dependent."""
+        """The active set's factor (:func:`controllers.kkt.active_set_factor`, a function of the
+        rows and of which variables have no curvature; cached within
+        :data:`FACTOR_CACHE_FLOATS`), or None when its rows are dependent."""
         cache = self._factors
-        if rows in cache:
-            cache.move_to_end(rows)
-            return cache[rows]
-        out = active_set_factor(self.C, rows)
-        cache[rows] = out
+        key = (rows, self._pivot_key)
+        if key in cache:
+            cache.move_to_end(key)
+            return cache[key]
+        out = active_set_factor(self.C, rows, self.pivots)
+        cache[key] = out
         self._factor_floats += 0 if out is None else out.floats
         while self._factor_floats > FACTOR_CACHE_FLOATS and len(cache) > 1:
             _, old = cache.popitem(last=False)
@@ -208,21 +213,21 @@ def solve_condensed_cvxpy(
     return np.asarray(z.value, dtype=np.float64), np.nan_to_num(y)
 
 
-def solve_tree_cvxpy(ctrl: Any, fam: Any, x: np.ndarray, k: int, pr: Any):
+def solve_tree_cvxpy(s: HorizonSettings, steps: int, fam: Any, x: np.ndarray, k: int, pr: Any):
     """The tree written plainly with cvxpy (node by node, from the model's matrices), solved
     by Clarabel: ``(nu (M, m), rho (M,), value)`` or None."""
     import cvxpy as cp
 
-    model, tree = ctrl.model, fam.tree
+    model, tree = s.model, fam.tree
     M, m, n = tree.size, model.m, model.n
     nu = cp.Variable((M, m))
     rho = cp.Variable(M, nonneg=True)
-    At, B, K = ctrl.A_tilde, model.B, ctrl.K
+    At, B, K = s.A_tilde, model.B, s.K
     noise = model.noise_cov
     means: list[Any] = [None] * M
     covs = [np.zeros((n, n))] * M
     objective = 0.0
-    constraints = [cp.abs(nu) <= ctrl.nu_bound]
+    constraints = [cp.abs(nu) <= s.nu_bound]
     for i in range(M):
         th, a = int(tree.mode[i]), int(tree.parent[i])
         if a < 0:
@@ -240,18 +245,16 @@ def solve_tree_cvxpy(ctrl: Any, fam: Any, x: np.ndarray, k: int, pr: Any):
             + float(np.trace(K[th].T @ model.R[th] @ K[th] @ cov))
         )
         weight = float(pr.weight[i])
-        objective = objective + weight * (stage + ctrl.alpha * rho[i])
+        objective = objective + weight * (stage + s.alpha * rho[i])
         mean_next = At[th] @ mean + B[th] @ nu[i]
         cov_next = At[th] @ cov @ At[th].T + noise[th]
         band = model.H0 + (k + tree.stage[i] + 1) * model.H_rate
         constraints.append(model.G @ mean_next <= band - fam.tightening[i] + rho[i])
-        if tree.stage[i] == ctrl.steps - 1:
+        if tree.stage[i] == steps - 1:
             for j in range(model.N):
                 bj = float(pr.branch[i, j])
                 if bj > 0.0:
-                    term = cp.quad_form(mean_next, ctrl.Psi[j]) + float(
-                        np.trace(ctrl.Psi[j] @ cov_next)
-                    )
+                    term = cp.quad_form(mean_next, s.Psi[j]) + float(np.trace(s.Psi[j] @ cov_next))
                     objective = objective + weight * bj * term
     with warnings.catch_warnings():  # node by node on purpose: the reference stays plain
         warnings.filterwarnings("ignore", "Objective contains too many subexpressions")

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .horizon import Status
 from .kkt import KKT_TOL
 from .tree_data import TreeFamily
 from .tree_qp import solve_condensed_cvxpy, solve_tree_cvxpy
@@ -30,7 +31,7 @@ TINY_PROBABILITY = 1e-12
 CONTINUATION_FROM = 1e3
 CONTINUATION_STEP = 1e3
 
-_PATHS = {"warm": "active_set_warm", "osqp": "osqp", "osqp_retry": "osqp_retry"}
+_PATHS = {"warm": "active_set_warm", "enumeration": "active_set"}
 
 
 @dataclass
@@ -46,8 +47,8 @@ class _Probabilities:
 
 class TreeSolver:
     """The QP methods of :class:`controllers.ScenarioTreeController` (a mixin: it reads the
-    controller's ``model``, ``alpha``, ``nu_bound``, ``solver``, ``cvxpy_fallback`` and
-    ``_warm_start``)."""
+    controller's ``model``, ``settings``, ``steps``, ``alpha``, ``nu_bound``, ``solver``,
+    ``cvxpy_fallback`` and ``_warm_start``)."""
 
     @staticmethod
     def _row_weights(fam: TreeFamily, pr: _Probabilities) -> tuple[np.ndarray, np.ndarray]:
@@ -118,29 +119,28 @@ class TreeSolver:
         excess = np.where(excess <= KKT_TOL * terms, 0.0, excess)
         return np.maximum(excess.max(axis=1), 0.0)
 
-    def _solve(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities):
+    def _solve(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities, notes: list):
         """One QP with fixed probabilities: ``(nu (M, m), rho (M,), cost, status, path)``;
-        ``cost`` is None unless a solver reported it (the caller computes the last one only).
-        Whatever path found the answer (the warm active set, DAQP, OSQP, cvxpy), it is called
-        solved only after the engine's KKT test (:mod:`controllers.kkt`)."""
+        ``cost`` is None unless a solver reported it (the caller computes the last one only);
+        ``notes`` receives what failed on the way. Whatever path found the answer (the warm
+        active set, DAQP, OSQP, cvxpy), it is called solved only after the engine's KKT test
+        (:mod:`controllers.kkt`)."""
         M, m = fam.size, self.model.m
         P, w = self._qp(fam, x, k, pr)
         engine = fam.engine
         engine.update_P(P)
-        notes: list[str] = []
         if self.solver == "cvxpy":  # the plain reference, its active set verified
-            out = solve_tree_cvxpy(self, fam, x, k, pr)
+            out = solve_tree_cvxpy(self.settings, self.steps, fam, x, k, pr)
             if out is None:
-                return self._answer(fam, x, k, np.zeros((M, m)), "fallback_nu0: cvxpy failed",
-                                    "fallback")  # fmt: skip
+                notes.append("cvxpy failed")
+                return self._answer(fam, x, k, np.zeros((M, m)), Status.FALLBACK_NU0, "fallback")
             return self._verified(fam, x, k, pr, w, out[0], None, notes, "cvxpy")
         sol = engine.solve(w, warm=self._warm_start, notes=notes)
         if sol is None:
             sol = self._continuation(fam, x, k, pr, notes)
         if sol is not None:
             nu, rho = self._exact(fam, x, k, pr, sol)
-            status = "solved" if not notes else f"solved ({'; '.join(notes)})"
-            return nu, rho, None, status, _PATHS.get(sol.path, sol.path)
+            return nu, rho, None, Status.SOLVED, _PATHS.get(sol.path, sol.path)
         tiny = (pr.path > 0.0) & (pr.path < TINY_PROBABILITY)
         if tiny.any():  # the test cannot resolve their weights: an answer without them
             rough = _Probabilities(pr.q, pr.branch, pr.path, pr.weight, pr.idle | tiny)
@@ -153,8 +153,7 @@ class TreeSolver:
                     f"{int(tiny.sum())} nodes of path probability below {TINY_PROBABILITY:g} "
                     "left out"
                 )
-                status = "approximate: " + "; ".join(notes)
-                return nu, rho, None, status, _PATHS.get(sol.path, sol.path)
+                return nu, rho, None, Status.APPROXIMATE, _PATHS.get(sol.path, sol.path)
             engine.update_P(P)
         if not self.cvxpy_fallback:
             notes.append("cvxpy retry disabled")
@@ -162,11 +161,10 @@ class TreeSolver:
             rescue = solve_condensed_cvxpy(P, w, engine)
             if rescue is not None:
                 z, y = rescue
-                return self._verified(fam, x, k, pr, w, z[: M * m].reshape(M, m), y, notes,
-                                      "cvxpy")  # fmt: skip
+                nu0 = z[: M * m].reshape(M, m)
+                return self._verified(fam, x, k, pr, w, nu0, y, notes, "cvxpy")
             notes.append("cvxpy failed")
-        return self._answer(fam, x, k, np.zeros((M, m)), "fallback_nu0: " + "; ".join(notes),
-                            "fallback")  # fmt: skip
+        return self._answer(fam, x, k, np.zeros((M, m)), Status.FALLBACK_NU0, "fallback")
 
     def _continuation(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities, notes):
         """The QP at a huge state by continuation in the state: its data are affine in ``x``
@@ -192,8 +190,7 @@ class TreeSolver:
     def _verified(self, fam, x, k, pr: _Probabilities, w, nu, y, notes: list[str], path: str):
         """The answer of a solver outside the engine (offsets ``nu`` (M, m), multipliers ``y``
         or None): its active set re-solved exactly and verified by the engine's KKT test
-        (then "solved", or "solved by cvxpy (...)" after failures), else "unverified" with its
-        offsets and their smallest feasible slacks."""
+        (then solved), else unverified with its offsets and their smallest feasible slacks."""
         M, m = fam.size, self.model.m
         nu = np.clip(np.asarray(nu, dtype=np.float64).reshape(M, m), -self.nu_bound, self.nu_bound)
         nu[pr.idle] = 0.0
@@ -215,10 +212,9 @@ class TreeSolver:
                 notes.append(f"the {path} answer's active set completed by daqp")
         if sol is None:
             notes.append(f"the {path} answer did not verify")
-            return self._answer(fam, x, k, nu, "unverified: " + "; ".join(notes), path)
+            return self._answer(fam, x, k, nu, Status.UNVERIFIED, path)
         nu, rho = self._exact(fam, x, k, pr, sol)
-        status = "solved" if not notes else f"solved by {path} ({'; '.join(notes)})"
-        return nu, rho, None, status, path
+        return nu, rho, None, Status.SOLVED, path
 
     def _exact(self, fam: TreeFamily, x, k, pr: _Probabilities, sol) -> tuple:
         """``(nu, rho)`` of a verified solution: ``rho = 0`` where the bound ``rho >= 0`` is

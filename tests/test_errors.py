@@ -856,7 +856,7 @@ CASES = [
         "fallback",
     ),
     case(
-        lambda c: UnconstrainedRecedingHorizonController(macro(), PAPER_K, PSI, alpha=0.0),
+        lambda c: UnconstrainedRecedingHorizonController(macro(), PAPER_K, Psi=PSI, alpha=0.0),
         ValueError,
         r"alpha = 0\.0 is out of range",
         "unconstrained-alpha",

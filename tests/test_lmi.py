@@ -10,10 +10,12 @@ from controllers.lmi import (
     LMIError,
     LMIInfeasibleError,
     LMISolverError,
-    MeanSquareCertificate,
     check_proposition2,
-    second_moment_spectral_radius,
     synthesize_gains,
+)
+from controllers.mean_square import (
+    MeanSquareCertificate,
+    second_moment_spectral_radius,
     verify_mean_square_bound,
 )
 from sdjls_gym import SDJLSModel
