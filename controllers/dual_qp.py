@@ -84,10 +84,17 @@ class DaqpData:
     y_scale: np.ndarray  # the scaling of the multiplier of each row of A (scale[index])
 
 
-def daqp_data(P: np.ndarray, A: np.ndarray, simple: bool) -> DaqpData:
-    """:class:`DaqpData` of a family (``simple``: its last ``d`` rows of ``A`` are the identity)."""
+def daqp_data(
+    P: np.ndarray,
+    A: np.ndarray,
+    simple: bool,
+    scaling: tuple[np.ndarray, np.ndarray] | None = None,
+) -> DaqpData:
+    """:class:`DaqpData` of a family (``simple``: its last ``d`` rows of ``A`` are the
+    identity). ``scaling``: ``(D, E)`` to use instead of :func:`kkt_scaling` of ``P`` (the
+    scaling of an earlier Hessian of the same family: only a hint's quality depends on it)."""
     d, c = P.shape[0], A.shape[0]
-    D, E = kkt_scaling(P, A)
+    D, E = kkt_scaling(P, A) if scaling is None else scaling
     H = P * D[:, None] * D[None, :]
     top = float(np.max(np.abs(H), initial=0.0))
     cs = 1.0 / top if top > 0.0 else 1.0
@@ -168,8 +175,12 @@ def run_daqp(
     hi: np.ndarray,
     warm: list[tuple[int, bool]] | None = None,
     regularize: float = 0.0,
+    subset: np.ndarray | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
     """DAQP on ``min 1/2 z'Pz + q'z  s.t.  lo <= A z <= hi`` (the rows of :func:`daqp_data`).
+
+    ``subset``: the general rows DAQP sees (sorted indices into ``data.general``; the simple
+    bounds always), None for all; the omitted rows get multiplier 0 in ``y``.
 
     ``warm``: ``(row of A, at its lower side)`` pairs to start from. ``regularize``: 0 for the
     QP itself; else the objective is normalized by its largest linear coefficient and
@@ -199,12 +210,22 @@ def run_daqp(
     sense = np.zeros(m, dtype=np.int32)
     for a, lower in warm or ():
         sense[data.index[a]] = _ACTIVE | (_LOWER if lower else 0)
+    A_gen = data.A_gen
+    if subset is not None:  # DAQP's constraints: the simple bounds, then the general rows
+        first = d if data.simple else 0
+        keep = np.concatenate([np.arange(first), first + subset])
+        A_gen, bu, bl, sense = A_gen[subset], bu[keep], bl[keep], sense[keep]
+        m = keep.size
     try:
         x, _, flag, info = daqp.solve(
-            H, f, data.A_gen, bu, bl, sense, iter_limit=max(1000, 20 * m), **settings
+            H, f, A_gen, bu, bl, sense, iter_limit=max(1000, 20 * m), **settings
         )
     except Exception as exc:  # noqa: BLE001 - an episode must not crash on a solver error
         return None, None, f"error {type(exc).__name__}: {exc}"
+    if subset is not None and flag == 1:
+        lam = np.zeros(data.index.size)
+        lam[keep] = info["lam"]
+        info = {**info, "lam": lam}
     return _answer(data, x, flag, info)
 
 

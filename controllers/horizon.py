@@ -20,7 +20,7 @@ import numpy as np
 from sdjls_gym._validate import check_bool, check_choice, check_number
 from sdjls_gym.model import SDJLSModel
 
-from .base import Controller, check_gain, check_terminal_weights
+from .base import MAX_STATE, Controller, check_gain, check_terminal_weights
 from .chance import CONSTRAINT_KINDS, check_xi
 from .qp import check_osqp_settings
 
@@ -42,6 +42,10 @@ MAX_NU_BOUND = 1e12
 
 #: Largest entry of the QP's matrices (see :func:`controllers.p3.check_magnitudes`).
 MAX_QP_ENTRY = 1e100
+
+#: Types accepted without conversion by the fast input check of ``act`` (bool is not among them).
+_INT_TYPES = frozenset([int] + [np.dtype(c).type for c in np.typecodes["AllInteger"]])
+_FLOAT64 = np.dtype(np.float64)
 
 
 class Status(str, Enum):
@@ -229,6 +233,23 @@ class RecedingHorizonBase(Controller):
         self._warm_start = True
         #: how many answers each path (``info["solver"]``) gave (see :attr:`path_counts`)
         self._path_counts: dict[str, int] = {}
+
+    def _check_inputs(self, x: Any, mode: Any, k: Any) -> tuple[np.ndarray, int, int]:
+        """The checks of the base class, with a shortcut for the common case: ``x`` a finite
+        float64 ``(n,)`` array (used as is, not copied), ``mode`` and ``k`` Python or numpy
+        ints in range. Anything else goes through the full checks (same errors)."""
+        if (
+            type(x) is np.ndarray
+            and x.dtype is _FLOAT64
+            and x.shape == self._x_shape
+            and type(mode) in _INT_TYPES
+            and type(k) in _INT_TYPES
+            and 0 <= mode < self.model.N
+            and 0 <= k <= self.max_k
+            and all(-MAX_STATE <= v <= MAX_STATE for v in x.tolist())  # False for NaN
+        ):
+            return x, int(mode), int(k)
+        return super()._check_inputs(x, mode, k)
 
     # ------------------------------------------------------------------ instrumentation
     @property

@@ -81,6 +81,19 @@ def _ruiz(CS: np.ndarray, d: int, sweeps: int = 30) -> tuple[np.ndarray, np.ndar
     return Dc, Dr, used
 
 
+def _blocks(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """The block-diagonal ``[[A, 0], [0, B]]``."""
+    out = np.zeros((A.shape[0] + B.shape[0], A.shape[1] + B.shape[1]))
+    out[: A.shape[0], : A.shape[1]] = A
+    out[A.shape[0] :, A.shape[1] :] = B
+    return out
+
+
+def _two(index: np.ndarray, offset: int) -> np.ndarray:
+    """``index`` and ``index + offset``: rows of both halves of a stacked array."""
+    return np.concatenate([index, index + offset])
+
+
 @dataclass(frozen=True, eq=False)
 class ActiveSetFactor:
     """The part of an active set's exact solve that depends only on ``C`` and the rows.
@@ -149,12 +162,72 @@ class ActiveSetFactor:
     Lmap: np.ndarray
     Zp: np.ndarray
     Tp: np.ndarray
+    n_rows: int  # rows of C (the instance has d + n_rows entries)
     absQ2: np.ndarray = field(init=False, repr=False)
     absLmap: np.ndarray = field(init=False, repr=False)
+    consts: dict = field(init=False, repr=False)  # derived arrays used by every solve
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "absQ2", np.abs(self.Q2))
         object.__setattr__(self, "absLmap", np.abs(self.Lmap))
+        coef = self.b_coef[:, None]
+        d = self.used.size + self.b_vars.size + self.S.size
+        N, bv = self.N, self.b_vars
+        consts = {
+            # flat indices of P's blocks: P[N, N], P[N, bv] and P's diagonal at N
+            "NN": (N[:, None] * d + N[None, :]).ravel(),
+            "NB": (N[:, None] * d + bv[None, :]).ravel(),
+            "BP": (bv[:, None] * d + np.arange(d)[None, :]).ravel(),
+            "diagN": N * (d + 1),
+            "inv_b": 1.0 / coef,
+            "unit_b": bool(np.all(np.abs(self.b_coef) == 1.0)),
+            "abs_inv_b": 1.0 / np.abs(coef),
+            "absCgB": np.abs(self.CgB),
+            "absE": np.abs(self.E),
+            "absCaN": np.abs(self.CaN),
+            "absCuS": np.abs(self.CuS),
+            "abs_inv_c": 1.0 / np.abs(self.c[:, None]),
+            # where each multiplier goes in the order of the rows
+            "at_u": np.searchsorted(self.idx, self.gen[self.iu]),
+            "at_a": np.searchsorted(self.idx, self.gen[self.ia]),
+            "at_b": np.searchsorted(self.idx, self.b_rows),
+        }
+        # the products of _solve act on [values; magnitudes] stacked: one product per step with
+        # the block-diagonal operator [[A, 0], [0, +-|A|]] (the sign makes the magnitudes add)
+        consts.update(
+            CgB2=_blocks(self.CgB, -np.abs(self.CgB)),
+            E2=_blocks(self.E, -np.abs(self.E)),
+            CaN2=_blocks(self.CaN, -np.abs(self.CaN)),
+            CaNT2=_blocks(self.CaN.T, -np.abs(self.CaN.T)),
+            CuST2=_blocks(self.CuS.T, np.abs(self.CuS.T)),
+            CgBT2=_blocks(self.CgB.T, np.abs(self.CgB.T)),
+            Zp2=_blocks(self.Zp, self.Tp),
+            Q22=_blocks(self.Q2, np.abs(self.Q2)),
+            Lmap2=_blocks(-self.Lmap, np.abs(self.Lmap)),
+            Dn2=np.concatenate([self.Dn, self.Dn])[:, None],
+            inv_b2=np.concatenate([1.0 / self.b_coef, 1.0 / np.abs(self.b_coef)])[:, None],
+            lam_b2=np.concatenate([-1.0 / self.b_coef, 1.0 / np.abs(self.b_coef)])[:, None],
+            inv_c2=np.concatenate([1.0 / self.c, 1.0 / np.abs(self.c)])[:, None],
+            lam_c2=np.concatenate([-1.0 / self.c, 1.0 / np.abs(self.c)])[:, None],
+        )
+        # the rows of both halves of the stacked arrays (see _two)
+        width, s_all, g_n = d + self.n_rows, self.idx.size, self.gen.size
+        consts.update(
+            hb2=_two(d + self.b_rows, width),
+            gen2=_two(d + self.gen, width),
+            ia2=_two(self.ia, g_n),
+            iu2=_two(self.iu, g_n),
+            qN2=_two(N, width),
+            qS2=_two(self.S, width),
+            qB2=_two(bv, width),
+            zN2=_two(N, d),
+            zS2=_two(self.S, d),
+            zB2=_two(bv, d),
+            at_u2=_two(consts["at_u"], s_all),
+            at_a2=_two(consts["at_a"], s_all),
+            at_b2=_two(consts["at_b"], s_all),
+        )
+        object.__setattr__(self, "consts", consts)
 
     @property
     def floats(self) -> int:
@@ -269,6 +342,7 @@ def active_set_factor(
         Lmap=Lmap,
         Zp=Zp,
         Tp=Tp,
+        n_rows=C.shape[0],
     )
 
 
@@ -283,12 +357,15 @@ def snap_bounds(z: list[float], bounds: tuple, w: np.ndarray) -> list[float]:
     return z
 
 
-def _free_scaling(fac: ActiveSetFactor, P: np.ndarray) -> np.ndarray:
+def _free_scaling(fac: ActiveSetFactor, flat: np.ndarray) -> np.ndarray:
     """``Dc`` of the variables ``N``: the Ruiz scaling of those in a reduced row; one in no
     reduced row is scaled by its curvature, ``1 / sqrt(P_jj)`` (1 where ``P_jj = 0``).
     Variables of very different sizes (an offset of 1 next to a slack of 1e12, rows scaled by
-    1e-11) then get comparable scaled sizes, and rank and conditioning are judged in them."""
-    diag = np.abs(np.diag(P))[fac.N]
+    1e-11) then get comparable scaled sizes, and rank and conditioning are judged in them.
+    ``flat``: ``P`` raveled."""
+    if fac.used.all():
+        return fac.Dc_used
+    diag = np.abs(flat[fac.consts["diagN"]])
     loose = ~fac.used & (diag > 0.0)
     if not loose.any():
         return fac.Dc_used
@@ -298,94 +375,129 @@ def _free_scaling(fac: ActiveSetFactor, P: np.ndarray) -> np.ndarray:
 
 
 def _reduced(fac: ActiveSetFactor, P: np.ndarray):
-    """The part of the solve that depends on ``P``: ``(Dc, Pt, Y)`` with ``Pt`` the scaled
-    Hessian of the variables ``N`` and ``Y = -(Q2' Pt Q2)^{-1} Q2'`` (d_n - s_u, d_n), so that
-    ``y = Y (q~ + Pt z~_p)``; None when the reduced Hessian is not positive definite (the
-    minimizer is not unique), relative to its scale, or when a pivot slack has curvature."""
+    """The part of the solve that depends on ``P``: ``(Dc, Pt, Y, P_NB, ops)`` with ``Pt`` the
+    scaled Hessian of the variables ``N``, ``Y = -(Q2' Pt Q2)^{-1} Q2'`` (d_n - s_u, d_n), so
+    that ``y = Y (q~ + Pt z~_p)``, ``P_NB`` the coupling of ``N`` to the fixed variables (None
+    where it is zero) and ``ops`` the block-diagonal forms of :func:`_solve`; None when the
+    reduced Hessian is not positive definite (the minimizer is not unique), relative to its
+    scale, or when a pivot slack has curvature."""
     if fac.S.size and np.any(P[fac.S]):
         return None
     N = fac.N
-    Dc = _free_scaling(fac, P)
-    Pt = P[np.ix_(N, N)] * Dc[:, None] * Dc[None, :]
-    if not fac.Q2.shape[1]:
-        return Dc, Pt, np.zeros((0, N.size))
-    Q2 = fac.Q2
-    M = Q2.T @ Pt @ Q2
-    M = 0.5 * (M + M.T)
-    eig, vecs = np.linalg.eigh(M)
-    if not (eig[-1] > 0.0 and eig[0] > _PD_TOL * eig[-1]):
-        return None
-    return Dc, Pt, -((vecs / eig) @ (vecs.T @ Q2.T))
-
-
-def _solve(fac: ActiveSetFactor, red: tuple, P: np.ndarray, W: np.ndarray, absW: np.ndarray):
-    """The exact solution of the active set for the instances ``W`` (d + c, k), and the
-    magnitude of the terms of every quantity for ``absW`` (``|W|``; the identity for the maps).
-
-    Returns ``(z, T_z, lam, T_lam)``: ``z`` (d, k), the multipliers ``lam`` (s, k) in the order
-    of ``fac.rows`` (of the sign of each row's multiplier; scaled for the reduced rows), and
-    the magnitudes of the terms summed to compute them. The same products serve the maps
-    (``W = I``, :func:`active_set_maps`) and one instance (:func:`check_active_set`)."""
-    Dc, Pt, Y = red
-    d = P.shape[0]
-    k = W.shape[1]
-    Wq, Wh, aq, ah = W[:d], W[d:], absW[:d], absW[d:]
-    N, S, bv = fac.N, fac.S, fac.b_vars
-    coef = fac.b_coef[:, None]
-    zB = Wh[fac.b_rows] / coef  # the fixed variables, exactly
-    T_zB = ah[fac.b_rows] / np.abs(coef)
-    absCgB = np.abs(fac.CgB)
-    rg = Wh[fac.gen] - fac.CgB @ zB  # the general rows' right side, less the fixed part
-    T_rg = ah[fac.gen] + absCgB @ T_zB
-    ra, T_ra = rg[fac.ia], T_rg[fac.ia]
-    ru = rg[fac.iu] - fac.E @ ra  # the other rows, the pivot slacks substituted
-    T_ru = T_rg[fac.iu] + np.abs(fac.E) @ T_ra
-    zp = fac.Zp @ ru  # the particular solution (scaled variables N)
-    T_zp = fac.Tp @ T_ru
-    c = fac.c[:, None]
-    P_NB = P[np.ix_(N, bv)]
-    qS = Wq[S] / c
-    absCaN = np.abs(fac.CaN)
-    qt = Dc[:, None] * (Wq[N] + P_NB @ zB - fac.CaN.T @ qS)  # the scaled linear term on N
-    T_qt = Dc[:, None] * (aq[N] + np.abs(P_NB) @ T_zB + absCaN.T @ (aq[S] / np.abs(c)))
+    flat = P.ravel()
+    Dc = _free_scaling(fac, flat)
+    dn = N.size
+    Pt = flat[fac.consts["NN"]].reshape(dn, dn) * Dc[:, None] * Dc[None, :]
+    P_NB = None
+    if fac.b_vars.size:
+        P_NB = flat[fac.consts["NB"]].reshape(dn, fac.b_vars.size)
+        if not P_NB.any():
+            P_NB = None
+    if fac.Q2.shape[1]:
+        Q2 = fac.Q2
+        M = Q2.T @ Pt @ Q2
+        M = 0.5 * (M + M.T)
+        eig, vecs = np.linalg.eigh(M)
+        if not (eig[-1] > 0.0 and eig[0] > _PD_TOL * eig[-1]):
+            return None
+        Y = -((vecs / eig) @ (vecs.T @ Q2.T))
+    else:
+        Y = np.zeros((0, dn))
     absPt = np.abs(Pt)
-    g = qt + Pt @ zp
-    T_g = T_qt + absPt @ T_zp
-    zt = zp + fac.Q2 @ (Y @ g)
-    T_zt = T_zp + fac.absQ2 @ (np.abs(Y) @ T_g)
-    zN, T_zN = Dc[:, None] * zt, Dc[:, None] * T_zt
-    zS = (ra - fac.CaN @ zN) / c  # the pivot slacks, from their rows
-    T_zS = (T_ra + absCaN @ T_zN) / np.abs(c)
-    z = np.empty((d, k))
-    T_z = np.empty((d, k))
-    z[N], z[S], z[bv] = zN, zS, zB
-    T_z[N], T_z[S], T_z[bv] = T_zN, T_zS, T_zB
+    ops = {"Pt2": _blocks(Pt, absPt), "Dc2": np.concatenate([Dc, Dc])[:, None]}
+    if Y.shape[0]:
+        ops["Y2"] = _blocks(Y, np.abs(Y))
+    if P_NB is not None:
+        ops["PNB2"] = _blocks(P_NB, np.abs(P_NB))
+    if fac.b_vars.size:
+        Pb = flat[fac.consts["BP"]].reshape(fac.b_vars.size, P.shape[0])
+        ops["Pb2"] = _blocks(Pb, np.abs(Pb))
+    return Dc, Pt, Y, P_NB, ops
+
+
+def _solve(fac: ActiveSetFactor, red: tuple, P: np.ndarray, W2: np.ndarray):
+    """The exact solution of the active set for the instances ``W`` (d + c, k) given stacked
+    with the magnitudes of their entries, ``W2 = [W; |W|]`` (``|W|``: the identity for the
+    maps), and the magnitude of the terms of every quantity.
+
+    Returns ``(z2, lam2)``: ``[z; T_z]`` (2 d, k) and ``[lam; T_lam]`` (2 s, k), the
+    multipliers in the order of ``fac.rows`` (of the sign of each row's multiplier; scaled for
+    the reduced rows) and the magnitudes of the terms summed to compute them. Each step is one
+    product with a block-diagonal operator (:attr:`ActiveSetFactor.consts`) on the stacked
+    values and magnitudes. The same products serve the maps (:func:`active_set_maps`) and one
+    instance (:func:`check_active_set`); the parts that are empty for this active set (no
+    bound, no pivot row, no null space) are skipped."""
+    Dc, Pt, Y, P_NB, ops = red
+    d = P.shape[0]
+    k = W2.shape[1]
+    nb, ns, nu = fac.b_vars.size, fac.S.size, fac.iu.size
+    cache = fac.consts
+    if nb:  # the fixed variables, exactly: h / C_ij (a product by 1 / C_ij when it is +-1)
+        zB = W2[cache["hb2"]]
+        if cache["unit_b"]:
+            zB = zB * cache["inv_b2"]
+        else:
+            zB[:nb] /= fac.b_coef[:, None]
+            zB[nb:] *= cache["abs_inv_b"]
+    # the general rows' right side, less the fixed part; the pivot slacks substituted
+    rg = W2[cache["gen2"]]
+    if nb and fac.gen.size:
+        rg = rg - cache["CgB2"] @ zB
+    if ns:
+        ra = rg[cache["ia2"]]
+        ru = rg[cache["iu2"]] - cache["E2"] @ ra
+    else:
+        ru = rg
+    # the scaled linear term on N
+    qN = W2[cache["qN2"]]
+    if P_NB is not None:
+        qN = qN + ops["PNB2"] @ zB
+    if ns:
+        qN = qN - cache["CaNT2"] @ (W2[cache["qS2"]] * cache["inv_c2"])
+    qt = ops["Dc2"] * qN
+    if nu:
+        zt = cache["Zp2"] @ ru  # the particular solution (scaled variables N)
+        if Y.shape[0]:
+            zt = zt + cache["Q22"] @ (ops["Y2"] @ (qt + ops["Pt2"] @ zt))
+    elif Y.shape[0]:  # no reduced row: the minimizer of the scaled objective on N
+        zt = ops["Y2"] @ qt
+    else:  # no variable left
+        zt = np.zeros((0, k))
+    zN = ops["Dc2"] * zt
+    z2 = np.empty((2 * d, k))
+    z2[cache["zN2"]] = zN
+    if nb:
+        z2[cache["zB2"]] = zB
+    if ns:  # the pivot slacks, from their rows
+        z2[cache["zS2"]] = (ra - cache["CaN2"] @ zN) * cache["inv_c2"]
     # multipliers: the reduced rows' from stationarity on N (scaled: Pt z~ + q~ + Chat' lam^ = 0,
     # lam^ of the sign of the row's multiplier), the pivot rows' from their slacks',
     # q_s + c lam_a + C_uS' lam_u = 0, the bounds' from the fixed variables',
     # (P z + q + C_g' lam_g)_j + C_ij lam_i = 0
-    lam_hat = -fac.Lmap @ (Pt @ zt + qt)
-    T_hat = fac.absLmap @ (absPt @ T_zt + T_qt)
-    lam_u, T_lu = fac.Dn[:, None] * lam_hat, fac.Dn[:, None] * T_hat
-    absCuS = np.abs(fac.CuS)
-    lam_a = -(Wq[S] + fac.CuS.T @ lam_u) / c
-    T_la = (aq[S] + absCuS.T @ T_lu) / np.abs(c)
-    lam_g = np.empty((fac.gen.size, k))
-    T_lg = np.empty((fac.gen.size, k))
-    lam_g[fac.iu], lam_g[fac.ia] = lam_u, lam_a
-    T_lg[fac.iu], T_lg[fac.ia] = T_lu, T_la
-    lam = np.empty((fac.idx.size, k))
-    T_lam = np.empty((fac.idx.size, k))
-    at = np.searchsorted(fac.idx, fac.gen)
-    lam[at] = np.concatenate([lam_hat, lam_a])[np.argsort(np.concatenate([fac.iu, fac.ia]))]
-    T_lam[at] = np.concatenate([T_hat, T_la])[np.argsort(np.concatenate([fac.iu, fac.ia]))]
-    if bv.size:
-        stat = P[bv] @ z + Wq[bv] + fac.CgB.T @ lam_g
-        T_stat = np.abs(P[bv]) @ T_z + aq[bv] + absCgB.T @ T_lg
-        at = np.searchsorted(fac.idx, fac.b_rows)
-        lam[at] = -stat / coef
-        T_lam[at] = T_stat / np.abs(coef)
-    return z, T_z, lam, T_lam
+    s_all = fac.idx.size
+    lam2 = np.empty((2 * s_all, k))
+    if nu:
+        lam_hat = cache["Lmap2"] @ (ops["Pt2"] @ zt + qt)
+        lam2[cache["at_u2"]] = lam_hat
+        if ns or nb:
+            lam_u = cache["Dn2"] * lam_hat
+    if ns:
+        q_s = W2[cache["qS2"]]
+        if nu:
+            q_s = q_s + cache["CuST2"] @ lam_u
+        lam_a = q_s * cache["lam_c2"]
+        lam2[cache["at_a2"]] = lam_a
+    if nb:
+        stat = ops["Pb2"] @ z2 + W2[cache["qB2"]]
+        if fac.gen.size:
+            lam_g = np.empty((2 * fac.gen.size, k))
+            if nu:
+                lam_g[cache["iu2"]] = lam_u
+            if ns:
+                lam_g[cache["ia2"]] = lam_a
+            stat = stat + cache["CgBT2"] @ lam_g
+        lam2[cache["at_b2"]] = stat * cache["lam_b2"]
+    return z2, lam2
 
 
 @dataclass(frozen=True, eq=False)
@@ -496,7 +608,8 @@ def active_set_maps(
     if red is None:
         return None
     eye = np.eye(d + c)
-    Z, T_Z, lam, T_lam = _solve(fac, red, P, eye, eye)
+    z2, lam2 = _solve(fac, red, P, np.vstack([eye, eye]))
+    Z, lam, T_lam = z2[:d], lam2[: fac.idx.size], lam2[fac.idx.size :]
     absC = np.abs(C)
     eye_h = eye[d:]
     # every row, active ones included, is tested at the returned z against its own terms
@@ -536,21 +649,25 @@ def check_active_set(
     if red is None:
         return None
     d = P.shape[0]
+    s_all = fac.idx.size
     with np.errstate(over="ignore", invalid="ignore"):
-        z2, _, lam2, T_lam2 = _solve(fac, red, P, w[:, None], np.abs(w)[:, None])
-    z, lam, lam_T = z2[:, 0], lam2[:, 0], T_lam2[:, 0]
+        z2, lam2 = _solve(fac, red, P, np.concatenate([w, np.abs(w)])[:, None])
+    z, lam, lam_T = z2[:d, 0], lam2[:s_all, 0], lam2[s_all:, 0]
     h = w[d:]
     gen = fac.gen
-    if gen.size:  # one step of iterative refinement on the general rows (see ActiveSetMaps)
-        r = np.zeros_like(w)
-        r[d + gen] = C[gen] @ z - h[gen]
-        with np.errstate(over="ignore", invalid="ignore"):
-            dz = _solve(fac, red, P, r[:, None], np.abs(r)[:, None])[0][:, 0]
-        z = z - dz
-        z[fac.b_vars] = h[fac.b_rows] / fac.b_coef
     absC = np.abs(C) if absC is None else absC
     primal = C @ z - h  # every row, at the returned z, against its own terms
     primal_T = absC @ np.abs(z) + np.abs(h)
+    if gen.size and np.any(np.abs(primal[gen]) > KKT_TOL * primal_T[gen]):
+        # one step of iterative refinement on the general rows (see ActiveSetMaps)
+        r = np.zeros_like(w)
+        r[d + gen] = primal[gen]
+        with np.errstate(over="ignore", invalid="ignore"):
+            dz = _solve(fac, red, P, np.concatenate([r, np.abs(r)])[:, None])[0][:d, 0]
+        z = z - dz
+        z[fac.b_vars] = h[fac.b_rows] / fac.b_coef
+        primal = C @ z - h
+        primal_T = absC @ np.abs(z) + np.abs(h)
     primal[fac.idx] = np.abs(primal[fac.idx])  # the active rows are equalities
     resid = np.concatenate([primal, -lam])
     terms = np.concatenate([primal_T, lam_T])

@@ -104,6 +104,15 @@ SEEN_SETS = 64
 #: active (OSQP's polished solutions are accurate to ~1e-10 relative).
 NEAR_ACTIVE_TOL = 1e-6
 
+#: DAQP sees a growing subset of the general rows first (QPFamily._solve_screened) in families
+#: with more one-sided rows than this many per variable, in at most SCREEN_ROUNDS rounds.
+SCREEN_RATIO = 4
+SCREEN_ROUNDS = 8
+
+#: With the violated rows, a round of QPFamily._solve_screened adds the rows within this
+#: fraction of their terms from active at DAQP's answer (fewer rounds).
+SCREEN_NEAR = 0.05
+
 #: OSQP's infinity: bounds beyond it are clipped by OSQP.
 OSQP_INFTY = float(osqp.constant("OSQP_INFTY"))
 
@@ -191,7 +200,7 @@ class Solution:
 
     z: list[float]
     rows: tuple[int, ...]
-    path: str  # "warm", "osqp", "osqp_retry", "enumeration"
+    path: str  # "warm", "repair", "daqp", "osqp", "osqp_retry", "enumeration"
 
 
 class QPFamily:
@@ -276,6 +285,11 @@ class QPFamily:
         self._lo_gather = np.where(self._lower_of >= 0, self._lower_of, self.c)
         #: whether P has kept its first value (update_P not called): DAQP's workspace is kept
         self._fixed_P = True
+        #: whether DAQP first sees a subset of the general rows (see _solve_screened): for
+        #: families with more than SCREEN_RATIO rows per variable
+        self.screen = bool(self.c > SCREEN_RATIO * d)
+        self._general_pos: np.ndarray | None = None
+        self._pool: np.ndarray | None = None  # the subset of the last screened solve
         #: the variables without curvature (zero rows of P: the slacks), which the exact solve
         #: of an active set takes from their rows (see controllers.kkt.active_set_factor)
         self.pivots = ~self.P.any(axis=1)
@@ -287,12 +301,23 @@ class QPFamily:
         self._osqp: osqp.OSQP | None = None
         self._enum: Any = None  # the ActiveSetQP of a full enumeration, built on first use
         self._daqp: DaqpData | None = None  # DAQP's scaled data for the current P
+        #: the scaling of DAQP's data for an earlier P, reused after update_P (None: compute)
+        self._daqp_scaling: tuple[np.ndarray, np.ndarray] | None = None
         self._daqp_ws: DaqpWorkspace | None = None  # DAQP's workspace (fixed P only)
         self.warm: tuple[int, ...] | None = None
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
-        for key in ("_maps", "_seen", "_osqp", "_enum", "_daqp", "_daqp_ws", "warm"):
+        for key in (
+            "_maps",
+            "_seen",
+            "_osqp",
+            "_enum",
+            "_daqp",
+            "_daqp_ws",
+            "_daqp_scaling",
+            "warm",
+        ):
             state.pop(key, None)
         return state
 
@@ -341,6 +366,8 @@ class QPFamily:
         self._maps.clear()
         self._seen = None
         self._enum = None
+        if self._daqp is not None:  # DAQP's scaling is kept (kkt_scaling costs ~1 ms)
+            self._daqp_scaling = (self._daqp.D, self._daqp.E)
         self._daqp = None
         self._daqp_ws = None
         self._fixed_P = False
@@ -517,9 +544,10 @@ class QPFamily:
         """
         notes = [] if notes is None else notes
         if warm and self.warm is not None:
-            z = self.verify(self.warm, w)
-            if z is not None:
-                return Solution(z, self.warm, "warm")
+            sol = self.warm_solve(w)
+            if sol is not None:
+                self.warm = sol.rows
+                return sol
         if self.use_daqp:
             sol = self._solve_daqp(w, self.warm if warm else None, notes)
             if sol is not None:
@@ -546,6 +574,12 @@ class QPFamily:
             return self._enumerate_noted(w, notes, True)
         return None
 
+    def warm_solve(self, w: np.ndarray) -> Solution | None:
+        """The answer from the last active set :attr:`warm` (not None): that set, if it passes
+        the KKT test at ``w``."""
+        z = self.verify(self.warm, w)
+        return None if z is None else Solution(z, self.warm, "warm")
+
     def _enumerate_noted(self, w: np.ndarray, notes: list[str], note: bool) -> Solution | None:
         sol = self.enumerate_one(w)
         if sol is not None:
@@ -561,15 +595,24 @@ class QPFamily:
         rows of its nonzero multipliers, then :meth:`local` around its answer. Attempts: with a
         fixed Hessian, the family's workspace (warm from its last solve, then cold); else warm
         started from ``start`` (an active set), then cold; then on regularized objectives."""
+        if self.screen:
+            sol = self._solve_screened(w, start)
+            if sol is not None:
+                return sol
         status = first = ""
-        attempts: list[tuple[tuple[int, ...] | None, float, bool]] = []
+        attempts: list[tuple[tuple[int, ...] | str | None, float, bool]] = []
         if self._fixed_P:
             attempts += [(None, 0.0, False), (None, 0.0, True)]
         else:
             attempts += [(start, 0.0, False)] if start is not None else []
             attempts += [(None, 0.0, True)]
         attempts += [(None, mu, True) for mu in REGULARIZE]
+        if self._daqp_scaling is not None:  # then once more with the scaling of this P
+            attempts.append(("rescale", 0.0, True))
         for begin, mu, cold in attempts:
+            if begin == "rescale":
+                self._daqp_scaling = self._daqp = None
+                begin = None
             z, y, status = self.run_daqp(w, begin, mu, cold)
             if z is not None:
                 rows = self.rows_of_multipliers(y)
@@ -590,16 +633,19 @@ class QPFamily:
         start: tuple[int, ...] | None = None,
         regularize: float = 0.0,
         cold: bool = False,
+        subset: np.ndarray | None = None,
     ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
         """DAQP on instance ``w`` (:mod:`controllers.dual_qp`): ``(z, y, status)``, ``z = y =
         None`` on failure. A family whose Hessian has kept its first value solves in its
         workspace (warm from its last solve unless ``cold``); otherwise, or with a ``start``
-        (an active set) or a ``regularize`` term, DAQP is set up for this one solve."""
+        (an active set), a ``regularize`` term or a ``subset`` of the general rows of ``A``
+        (sorted positions among them; see :meth:`_solve_screened`), DAQP is set up for this
+        one solve."""
         if self._daqp is None:
-            self._daqp = daqp_data(self.P, self.A, self._daqp_simple)
+            self._daqp = daqp_data(self.P, self.A, self._daqp_simple, self._daqp_scaling)
         lo, hi = self.bounds(np.asarray(w[self.d :]))
         q = np.asarray(w[: self.d])
-        if self._fixed_P and start is None and not regularize:
+        if self._fixed_P and start is None and not regularize and subset is None:
             if self._daqp_ws is None:
                 self._daqp_ws = DaqpWorkspace(self._daqp)
             return self._daqp_ws.solve(q, lo, hi, cold)
@@ -610,7 +656,69 @@ class QPFamily:
                 (int(self.upper_idx[i]), False) if i < nu else (int(self.lower_idx[i - nu]), True)
                 for i in start
             ]
-        return run_daqp(self._daqp, q, lo, hi, begin, regularize)
+        return run_daqp(self._daqp, q, lo, hi, begin, regularize, subset)
+
+    def _solve_screened(self, w: np.ndarray, start: tuple[int, ...] | None) -> Solution | None:
+        """DAQP on a subset of the general rows, grown until no row it omits is violated: for
+        a family with many more rows than variables (a tree of 111 nodes has 2220 chance rows
+        and 222 variables) DAQP's set-up, linear in the rows, dominates its run. The subset
+        starts with the general rows of ``start`` and those nearly active at the solution of
+        that active set; each round adds every omitted row violated at DAQP's answer and starts
+        DAQP from its last working set. When none is violated, DAQP's answer is the optimum of
+        the whole QP, and the active set of its multipliers is verified as usual. None when a
+        round fails or after :data:`SCREEN_ROUNDS` rounds."""
+        general = self._daqp_general_rows()
+        n_up = self.upper_idx.size
+        # the rows DAQP needed at the family's last screened solve, a good start nearby
+        take = np.zeros(general.size, dtype=bool) if self._pool is None else self._pool.copy()
+        if start is not None:
+            report: dict = {}
+            self.verify(start, w, report)
+            rows = set(start) | set(report.get("near", ()))
+            for i in rows:
+                a = self.upper_idx[i] if i < n_up else self.lower_idx[i - n_up]
+                take[self._general_pos[a]] = self._general_pos[a] >= 0
+        h = np.asarray(w[self.d :])
+        begin = start
+        for _ in range(SCREEN_ROUNDS):
+            subset = np.flatnonzero(take)
+            z, y, _ = self.run_daqp(w, begin, 0.0, False, subset)
+            if z is None:
+                return None
+            slack = h - self.C @ z
+            terms = self.absC @ np.abs(z) + np.abs(h)
+            violated = slack < -NEAR_ACTIVE_TOL * terms
+            new = np.zeros(general.size, dtype=bool)
+            if violated.any():  # the violated rows, and those nearly active, join
+                violated |= slack < SCREEN_NEAR * terms
+            for i in np.flatnonzero(violated).tolist():
+                a = self.upper_idx[i] if i < n_up else self.lower_idx[i - n_up]
+                pos = self._general_pos[a]
+                if pos >= 0 and not take[pos]:
+                    new[pos] = True
+            rows = self.rows_of_multipliers(y)
+            if not new.any():
+                self._pool = take
+                out = None if rows is None else self.verify(rows, w)
+                if out is not None:
+                    return Solution(out, rows, "daqp")
+                sol = self.local(z, w, y)
+                return None if sol is None else Solution(sol.z, sol.rows, "daqp")
+            take |= new
+            begin = rows
+        return None
+
+    def _daqp_general_rows(self) -> np.ndarray:
+        """The rows of ``A`` DAQP takes as general constraints (the others are its simple
+        bounds); :attr:`_general_pos` maps a row of ``A`` to its position among them (-1)."""
+        if self._daqp is None:
+            self._daqp = daqp_data(self.P, self.A, self._daqp_simple, self._daqp_scaling)
+        general = self._daqp.general
+        if self._general_pos is None:
+            pos = np.full(self.A.shape[0], -1, dtype=np.int64)
+            pos[general] = np.arange(general.size)
+            self._general_pos = pos
+        return general
 
     def enumerate_one(self, w: np.ndarray) -> Solution | None:
         """Full enumeration for one instance (None if the family is too large or nothing

@@ -63,9 +63,6 @@ from typing import Any
 
 import numpy as np
 
-from sdjls_gym._validate import MAX_INDEX
-
-from .base import MAX_STATE
 from .chance import tightening
 from .horizon import MAX_ALPHA, MAX_NU_BOUND, MAX_QP_ENTRY, RecedingHorizonBase, Status
 from .p3 import (
@@ -90,10 +87,6 @@ __all__ = [
     "RecedingHorizonController",
     "UnconstrainedRecedingHorizonController",
 ]
-
-#: Types accepted without conversion by the fast input check of ``act`` (bool is not among them).
-_INT_TYPES = frozenset([int] + [np.dtype(c).type for c in np.typecodes["AllInteger"]])
-_FLOAT64 = np.dtype(np.float64)
 
 _PATHS = {
     "warm": "active_set_warm",
@@ -179,23 +172,6 @@ class RecedingHorizonController(RecedingHorizonBase):
                 )
 
     # ------------------------------------------------------------------ single decisions
-    def _check_inputs(self, x: Any, mode: Any, k: Any) -> tuple[np.ndarray, int, int]:
-        """The checks of the base class, with a shortcut for the common case: ``x`` a finite
-        float64 ``(n,)`` array (used as is, not copied), ``mode`` and ``k`` Python or numpy
-        ints in range. Anything else goes through the full checks (same errors)."""
-        if (
-            type(x) is np.ndarray
-            and x.dtype is _FLOAT64
-            and x.shape == self._x_shape
-            and type(mode) in _INT_TYPES
-            and type(k) in _INT_TYPES
-            and 0 <= mode < self.model.N
-            and 0 <= k < MAX_INDEX  # max_k: P3 reads H_{k+1}
-            and all(-MAX_STATE <= v <= MAX_STATE for v in x.tolist())  # False for NaN
-        ):
-            return x, int(mode), int(k)
-        return super()._check_inputs(x, mode, k)
-
     def _family(self, x: np.ndarray, mode: int, k: int) -> Family:
         inside = max(self.model.constraint_values_one(x, k).tolist()) <= 0.0  # in C1 at time k
         return self._families[(mode, inside)]

@@ -76,7 +76,7 @@ from .tree_data import (
     check_tree_size,
     family_magnitudes,
 )
-from .tree_solve import TINY_PROBABILITY, TreeSolver, _Probabilities
+from .tree_solve import TINY_PROBABILITY, TreeSolver, _Context, _Probabilities
 
 __all__ = [
     "DAMPING",
@@ -272,14 +272,13 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
         )
 
     # ------------------------------------------------------------------ probabilities
-    def _region_q(self, fam: TreeFamily, x: np.ndarray, k: int, z: np.ndarray | None):
-        """``q`` (S,) of the nodes ``tree.sq`` for the plan ``z`` (None: every ``nu = 0``)."""
-        proj = fam.proj_x @ x
+    def _region_q(self, fam: TreeFamily, ctx: _Context, z: np.ndarray | None):
+        """``q`` (S,) of the nodes ``tree.sq`` for the plan ``z`` (None: every ``nu = 0``) of
+        the decision ``ctx``."""
+        proj = ctx.proj0
         if z is not None:
-            proj = proj + fam.proj_z @ z
-        model = self.model
-        H = model.H0 + (k + fam.q_time)[:, None] * model.H_rate  # H_{k + t}
-        return self._regions.probability(proj.reshape(fam.proj_sd.shape), fam.proj_sd, H)
+            proj = proj + (fam.proj_z @ z).reshape(proj.shape)
+        return self._regions.probability_within(proj, fam.proj_sd, ctx.limits)
 
     def _probabilities(self, fam: TreeFamily, q: np.ndarray) -> _Probabilities:
         tree = fam.tree
@@ -328,17 +327,18 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
             inside = max(self.model.constraint_values_one(x, k).tolist()) <= 0.0
             fam = self._families[(mode, inside)]
             depends = bool(fam.tree.sq.size) and bool(np.any(fam.dP_q))
-            q = self._region_q(fam, x, k, None)  # the plan of nu = 0
+            ctx = self._context(fam, x, k)
+            q = self._region_q(fam, ctx, None)  # the plan of nu = 0
             gap, last_gap, step = 0.0, math.inf, 1.0
             for it in range(1, self.iterations + 1):
                 pr = self._probabilities(fam, q)
                 notes: list[str] = []
-                nu, rho, cost, status, path = self._solve(fam, x, k, pr, notes)
+                nu, rho, cost, status, path = self._solve(fam, x, k, pr, notes, ctx)
                 self._count(path)
                 if not depends:
                     break
                 z = np.concatenate([nu.ravel(), rho])
-                q_new = self._region_q(fam, x, k, z)
+                q_new = self._region_q(fam, ctx, z)
                 gap = float(np.max(np.abs(q_new - q)))
                 if gap <= PROB_TOL or it == self.iterations:
                     break

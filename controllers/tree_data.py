@@ -83,6 +83,17 @@ MAX_FAMILY_FLOATS = 8_000_000
 FAMILY_BUDGET_FLOATS = 32_000_000
 
 
+#: Matrices of a family with at most this many entries are kept dense (see TreeFamily.Lz).
+DENSE_FLOATS = 200_000
+
+
+def _compact(M: Any) -> Any:
+    """``M`` dense (read-only) when it has at most :data:`DENSE_FLOATS` entries, else CSR."""
+    if M.shape[0] * M.shape[1] <= DENSE_FLOATS:
+        return _frozen(M.toarray() if sp.issparse(M) else M)
+    return sp.csr_matrix(M)
+
+
 def _frozen(a: np.ndarray) -> np.ndarray:
     a = np.ascontiguousarray(a, dtype=np.float64)
     a.setflags(write=False)
@@ -300,9 +311,11 @@ class TreeFamily:
     cov_next: np.ndarray  # (M, n, n) covariance of each node's next state
     tightening: np.ndarray  # (M, r)
     Lx: np.ndarray  # (R, n)
-    Lz: sp.csr_matrix  # (R, d) sparse: a node's rows involve the offsets of its ancestors only
-    LzT: sp.csr_matrix  # (d, R)
-    P_stack: sp.csr_matrix  # (d * d, sources): the Hessian is (P_stack @ v).reshape(d, d)
+    # sparse beyond DENSE_FLOATS (a node's rows involve the offsets of its ancestors only),
+    # dense below (scipy.sparse's product costs more than a small dense one)
+    Lz: Any  # (R, d)
+    LzT: Any  # (d, R)
+    P_stack: Any  # (d * d, sources): the Hessian is (P_stack @ v).reshape(d, d)
     row_source: np.ndarray  # (R,) index of each row's weight in [w (M); w_last b_last (M_last N)]
     stage_trace: np.ndarray  # (M,) tr((Q + K'RK) Sigma_i)
     term_trace: np.ndarray  # (M_last, N) tr(Psi_j next Sigma_i)
@@ -514,9 +527,9 @@ def build_tree_family(
         cov_next=_frozen(cov_next),
         tightening=_frozen(tight),
         Lx=_frozen(Lx),
-        Lz=sp.csr_matrix(Lz),
-        LzT=sp.csr_matrix(Lz.T),
-        P_stack=P_stack,
+        Lz=_compact(Lz),
+        LzT=_compact(Lz.T),
+        P_stack=_compact(P_stack),
         row_source=np.array(source, dtype=np.int64),
         stage_trace=_frozen(stage_trace),
         term_trace=_frozen(term_trace),

@@ -83,13 +83,14 @@ class TreeQP(QPFamily):
     def _reset_state(self) -> None:
         super()._reset_state()
         self._factors: OrderedDict[tuple, ActiveSetFactor | None] = OrderedDict()
+        self._freed: tuple[bytes, list] | None = None  # see _slack_bounds
         self._pivot_key = self.pivots.tobytes()
         self._factor_floats = 0
         self._osqp_P: np.ndarray | None = None  # the Hessian the OSQP object holds (None: P)
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
-        for key in ("_factors", "_factor_floats", "_osqp_P"):
+        for key in ("_factors", "_factor_floats", "_osqp_P", "_freed"):
             state.pop(key, None)
         return state
 
@@ -145,13 +146,68 @@ class TreeQP(QPFamily):
         :meth:`controllers.kkt.ActiveSetMaps.check`) for the one instance. ``report``: see
         :func:`controllers.kkt.check_active_set`."""
         if report is not None:
-            report.update(add=[], drop=[])
+            report.update(add=[], drop=[], near=[])
         if len(rows) > self.d:
             return None
         fac = self._factor(rows)
         if fac is None:
             return None
         return check_active_set(fac, self.P, self.C, w, self.absC, report)
+
+    def warm_solve(self, w: np.ndarray) -> Solution | None:
+        """The last active set, then up to :data:`REPAIR_STEPS` primal-dual active-set steps
+        from it (see :meth:`repair`): the probabilities of a fixed-point iteration, or the
+        next state of a closed loop, move the optimum's active set by a few rows, which these
+        steps find at the cost of a few exact solves (a DAQP run on a 111-node tree costs
+        tens of them)."""
+        report: dict = {}
+        out = self.verify(self.warm, w, report)
+        if out is not None:
+            return Solution(out, self.warm, "warm")
+        sol = self.repair(set(self.warm), w, report)
+        return None if sol is None else Solution(sol.z, sol.rows, "repair")
+
+    def repair(self, rows: set[int], w: np.ndarray, report: dict) -> Solution | None:
+        """Up to :data:`REPAIR_STEPS` primal-dual active-set steps from the active set
+        ``rows``, whose KKT test at ``w`` failed with ``report`` (see
+        :func:`controllers.kkt.check_active_set`): the rows whose multipliers are negative leave
+        the set, the violated rows join it (the most violated first, up to ``d`` rows), and the
+        new set is verified. None when no set verifies (or a set repeats)."""
+        seen = {tuple(sorted(rows))}
+        freed = self._slack_bounds()
+        for _ in range(REPAIR_STEPS):
+            if not (report["add"] or report["drop"]):
+                return None
+            kept = rows.difference(report["drop"])
+            add = report["add"][: max((self.d - len(kept)) // 2, 1)]
+            # a violated row joins with its slack free (its bound rho >= 0 leaves the set)
+            rows = kept.union(add).difference(*[freed[i] for i in add])
+            key = tuple(sorted(rows))
+            if key in seen:
+                return None
+            seen.add(key)
+            out = self.verify(key, w, report)
+            if out is not None:
+                return Solution(out, key, "repair")
+        return None
+
+    def _slack_bounds(self) -> list[tuple[int, ...]]:
+        """Per one-sided row, the bound rows on the slacks it involves (variables without
+        curvature, :attr:`pivots`); cached per pattern of slacks."""
+        if self._freed is None or self._freed[0] != self._pivot_key:
+            single = np.count_nonzero(self.C, axis=1) == 1
+            bound_of: dict[int, list[int]] = {}
+            for i in np.flatnonzero(single).tolist():
+                bound_of.setdefault(int(np.flatnonzero(self.C[i])[0]), []).append(i)
+            on = (self.C != 0.0) & self.pivots[None, :]
+            freed = [
+                tuple(b for j in np.flatnonzero(on[i]).tolist() for b in bound_of.get(j, ()))
+                if not single[i]
+                else ()
+                for i in range(self.c)
+            ]
+            self._freed = (self._pivot_key, freed)
+        return self._freed[1]
 
     def local(self, z: np.ndarray, w: np.ndarray, y: np.ndarray | None = None) -> Solution | None:
         """:meth:`QPFamily.local`, then up to :data:`REPAIR_STEPS` primal-dual active-set
@@ -167,19 +223,12 @@ class TreeQP(QPFamily):
         if len(rows) > self.d:
             return None
         report: dict = {}
-        seen: set[tuple[int, ...]] = set()
-        for _ in range(REPAIR_STEPS):
-            key = tuple(sorted(rows))
-            seen.add(key)
-            out = self.verify(key, w, report)
-            if out is not None:
-                return Solution(out, key, "")
-            kept = rows.difference(report["drop"])
-            room = self.d - len(kept)
-            rows = kept.union(report["add"][: max(room, 0)])
-            if not (report["add"] or report["drop"]) or tuple(sorted(rows)) in seen:
-                return None
-        return None
+        key = tuple(sorted(rows))
+        out = self.verify(key, w, report)
+        if out is not None:
+            return Solution(out, key, "")
+        sol = self.repair(rows, w, report)
+        return None if sol is None else Solution(sol.z, sol.rows, "")
 
 
 def solve_condensed_cvxpy(

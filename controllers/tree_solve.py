@@ -31,7 +31,7 @@ TINY_PROBABILITY = 1e-12
 CONTINUATION_FROM = 1e3
 CONTINUATION_STEP = 1e3
 
-_PATHS = {"warm": "active_set_warm", "enumeration": "active_set"}
+_PATHS = {"warm": "active_set_warm", "repair": "active_set_repair", "enumeration": "active_set"}
 
 
 @dataclass
@@ -43,6 +43,17 @@ class _Probabilities:
     path: np.ndarray  # (M,)
     weight: np.ndarray  # (M,) the path probabilities that weight the objective (= path)
     idle: np.ndarray  # (M,) bool: nodes of path probability 0 (left out of the QP)
+
+
+@dataclass
+class _Context:
+    """What one decision computes once: the parts of the QP and of the region probabilities
+    that depend on the state and the time alone (not on the probabilities)."""
+
+    lx: np.ndarray  # (R,) Lx x
+    h_chance: np.ndarray  # (M r,) the chance rows' bounds: band - tightening + chance_x x
+    proj0: np.ndarray  # (S, classes) the projections of the nodes tree.sq's means at nu = 0
+    limits: tuple  # RegionClasses.limits of the bands H_{k + t} of those nodes
 
 
 class TreeSolver:
@@ -58,24 +69,40 @@ class TreeSolver:
         v = np.concatenate([pr.weight, (pr.weight[last, None] * pr.branch[last]).ravel()])
         return v, v[fam.row_source]
 
-    def _qp(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities):
-        """``(P, w)``: the Hessian and the instance ``[q; h]`` of the engine.
+    def _context(self, fam: TreeFamily, x: np.ndarray, k: int) -> _Context:
+        """The :class:`_Context` of a decision at ``(x, k)``."""
+        model = self.model
+        band = model.H0 + (k + fam.chance_time)[:, None] * model.H_rate  # H_{k + t + 1}
+        h_chance = (band - fam.tightening).ravel() + fam.chance_x @ x
+        H = model.H0 + (k + fam.q_time)[:, None] * model.H_rate  # H_{k + t}
+        proj0 = (fam.proj_x @ x).reshape(fam.proj_sd.shape)
+        return _Context(fam.Lx @ x, h_chance, proj0, self._regions.limits(H))
+
+    def _qp(
+        self,
+        fam: TreeFamily,
+        x: np.ndarray,
+        k: int,
+        pr: _Probabilities,
+        ctx: _Context | None = None,
+    ):
+        """``(P, w)``: the Hessian and the instance ``[q; h]`` of the engine (``ctx``: the
+        decision's :class:`_Context` at ``(x, k)``, when the caller has it).
 
         A node of path probability 0 (and its subtree) weighs nothing: its offset and slack
         appear in no other node's cost or rows, so they are decoupled exactly, with unit
         curvature, no linear cost and chance rows made slack for every ``z`` (their optimum is
         then ``nu = rho = 0``; the plan reports their smallest feasible slacks)."""
         M, m, r = fam.size, self.model.m, self.model.r
+        ctx = self._context(fam, x, k) if ctx is None else ctx
         v, wrow = self._row_weights(fam, pr)
         d = fam.engine.d
         P = (fam.P_stack @ v).reshape(d, d)
-        lx = fam.Lx @ x
-        qlin = 2.0 * (fam.LzT @ (wrow * lx))
+        qlin = 2.0 * (fam.LzT @ (wrow * ctx.lx))
         qlin[M * m :] += self.alpha * pr.weight
-        model = self.model
-        band = model.H0 + (k + fam.chance_time)[:, None] * model.H_rate  # H_{k + t + 1}
-        h_chance = (band - fam.tightening).ravel() + fam.chance_x @ x
+        h_chance = ctx.h_chance
         if pr.idle.any():
+            h_chance = h_chance.copy()
             nodes = np.flatnonzero(pr.idle)
             idle = np.concatenate([(nodes[:, None] * m + np.arange(m)).ravel(), M * m + nodes])
             P[idle, :] = 0.0
@@ -119,14 +146,22 @@ class TreeSolver:
         excess = np.where(excess <= KKT_TOL * terms, 0.0, excess)
         return np.maximum(excess.max(axis=1), 0.0)
 
-    def _solve(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities, notes: list):
+    def _solve(
+        self,
+        fam: TreeFamily,
+        x: np.ndarray,
+        k: int,
+        pr: _Probabilities,
+        notes: list,
+        ctx: _Context | None = None,
+    ):
         """One QP with fixed probabilities: ``(nu (M, m), rho (M,), cost, status, path)``;
         ``cost`` is None unless a solver reported it (the caller computes the last one only);
         ``notes`` receives what failed on the way. Whatever path found the answer (the warm
         active set, DAQP, OSQP, cvxpy), it is called solved only after the engine's KKT test
         (:mod:`controllers.kkt`)."""
         M, m = fam.size, self.model.m
-        P, w = self._qp(fam, x, k, pr)
+        P, w = self._qp(fam, x, k, pr, ctx)
         engine = fam.engine
         engine.update_P(P)
         if self.solver == "cvxpy":  # the plain reference, its active set verified
@@ -144,7 +179,7 @@ class TreeSolver:
         tiny = (pr.path > 0.0) & (pr.path < TINY_PROBABILITY)
         if tiny.any():  # the test cannot resolve their weights: an answer without them
             rough = _Probabilities(pr.q, pr.branch, pr.path, pr.weight, pr.idle | tiny)
-            P2, w2 = self._qp(fam, x, k, rough)
+            P2, w2 = self._qp(fam, x, k, rough, ctx)
             engine.update_P(P2)
             sol = engine.solve(w2, warm=False, notes=[])
             if sol is not None:
