@@ -21,6 +21,7 @@ run resumes.
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -39,16 +40,22 @@ RAY_MAX_RETRIES = 2
 # ---------------------------------------------------------------------------- process backend
 _QUEUE: Any = None  # in a worker: where progress goes
 _STOP: Any = None  # in a worker: set by the main process to stop every training
+_PARENT_PID: int | None = None  # in a worker: the main process's pid
 
 
 def _init_worker(queue: Any, stop: Any) -> None:
-    global _QUEUE, _STOP
-    _QUEUE, _STOP = queue, stop
+    global _QUEUE, _STOP, _PARENT_PID
+    _QUEUE, _STOP, _PARENT_PID = queue, stop, os.getppid()
 
 
 def _should_stop() -> bool:
+    """Asked, the main process ended, or the worker was handed to another parent: a main
+    process killed by a signal (``kill PID``) left its workers training on, their parent
+    sentinel never reporting it (measured here), so the parent's pid is compared too."""
+    if _STOP.is_set() or (_PARENT_PID is not None and os.getppid() != _PARENT_PID):
+        return True
     parent = mp.parent_process()
-    return _STOP.is_set() or (parent is not None and not parent.is_alive())
+    return parent is not None and not parent.is_alive()
 
 
 def _report(name: str, steps: int) -> None:
@@ -127,7 +134,7 @@ def _run_ray(
         task = ray.remote(num_cpus=1, max_retries=RAY_MAX_RETRIES)(train_run)
         for spec in todo:
             pending[task.remote(spec)] = spec
-            log(f"[train] {spec.name} (Ray task)")
+            log(f"[train] {spec.label} (Ray task)")
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
             for ref in done:
@@ -162,16 +169,18 @@ def train_all(
     if backend == "ray":
         _import_ray()  # the message naming the extra, before any work
     run_dir.mkdir(parents=True, exist_ok=True)
-    results: dict[str, RunRecord] = {}
+    results: dict[str, RunRecord] = {}  # by RunSpec.label (the name with its task)
     todo = []
     for spec in specs:
         kept = None if retrain else load_run(run_dir, spec)
         if kept is None:
             todo.append(spec)
         else:
-            results[spec.name] = kept
-    # longest first (by estimated training time), so that the workers finish close together
-    todo.sort(key=lambda s: -s.timesteps / HP.STEPS_PER_SECOND[s.algo])
+            results[spec.label] = kept
+    # seed by seed (the first seed of every configuration is a pilot that finishes first), and
+    # within a seed longest first (by estimated training time), so that the workers finish close
+    # together
+    todo.sort(key=lambda s: (s.seed, -s.timesteps / HP.STEPS_PER_SECOND[s.algo]))
     if results:
         log(f"reusing {len(results)} finished run(s) from {run_dir} (--retrain to train again)")
     bar = tqdm(total=sum(s.timesteps for s in todo), desc="training", unit="step",
@@ -184,11 +193,12 @@ def train_all(
 
     def finished(spec: RunSpec, record: RunRecord, policy: bytes) -> None:
         save_run(run_dir, record, policy)
-        on_progress(spec.name, spec.timesteps)
-        results[spec.name] = record
+        on_progress(spec.label, spec.timesteps)
+        results[spec.label] = record
         last = record.learning_curve[-1]
+        cpu = "" if record.cpu_time_s is None else f" ({record.cpu_time_s:.0f} s CPU)"
         log(
-            f"[done] {spec.name}: {record.timesteps} steps in {record.train_time_s:.0f} s; last "
+            f"[done] {spec.label}: {record.timesteps} steps in {record.train_time_s:.0f} s{cpu}; last "
             f"learning-curve point: median cost {last.episode_cost_median:.4g}, violations "
             f"{last.violation:.3f}, diverged {last.diverged}/{spec.curve_episodes}"
         )
@@ -200,11 +210,11 @@ def train_all(
         _run_ray(todo, workers, address, finished, log)
     elif workers == 1 or len(todo) == 1:
         for spec in todo:
-            log(f"[train] {spec.name} ({spec.timesteps} steps)")
+            log(f"[train] {spec.label} ({spec.timesteps} steps)")
             finished(spec, *train_run(spec, on_progress))
     else:
         _run_processes(todo, workers, finished, on_progress, log)
     bar.close()
     if todo:
         log(f"trained {len(todo)} run(s) in {time.perf_counter() - t0:.0f} s ({backend})")
-    return [results[s.name] for s in specs]
+    return [results[s.label] for s in specs]

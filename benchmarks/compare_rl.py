@@ -1,23 +1,34 @@
-"""The receding-horizon controller against stable-baselines3 agents on cost and violation frequency.
+"""Receding-horizon controllers against stable-baselines3 agents, on the tasks of the suite.
 
-Run ``python -m benchmarks.compare_rl --help`` for the options. On ``SDJLS-Macro-v0`` it trains
-PPO, SAC and TD3 (``--algos``) with ``--seeds`` seeds each in six variants (``--variants``): on
-the reward alone (``reward``), with a violation penalty ``reward - beta * info["cost"]``
-(``beta100``, ``beta1000``, ``beta10000``), as residual agents choosing ``nu`` on top of the
-paper's gains (``residual``, beta = 1000), and with ``beta`` adapted by dual ascent towards a
-violation frequency of ``1 - xi = 0.15`` (``lagrangian``). Every agent and every model-based
-controller (:data:`MODEL_BASED_CURVES`, :data:`SINGLE_CONTROLLERS`) is then scored by
-:func:`benchmarks.evaluate.evaluate` on the same ``--eval-episodes`` episodes (common random
-numbers).
+Run ``python -m benchmarks.compare_rl --help`` for the options. Two presets (``--preset``):
 
-Outputs under ``--out`` (default ``results/rl/``; with ``--quick`` a temporary folder,
-:data:`QUICK_OUT`): ``summary.json``, ``summary.csv``, the figures, ``REPORT.md`` (each written
-atomically), and per training ``runs/<name>-<fingerprint>.json`` (learning curve, dual ascent,
-training time) and ``.pt`` (the policy's state dict, 40-130 KB). A run is named by the fingerprint
-of its whole configuration: a kept run of the same configuration is not trained again
-(``--retrain`` trains anew), and a run of another configuration is kept beside it, never in its
-place. The evaluation is not cached, so a change of the evaluation needs no training. The
-trainings run in local processes or as Ray tasks (``--backend``, :mod:`benchmarks.backends`).
+* ``suite`` (the default): on every task of ``sdjls_gym.SUITE`` (``--tasks``), the five
+  configurations of :data:`benchmarks.rl_hyperparams.SUITE_CONFIGS` (PPO on the reward alone,
+  PPO residual on ``nu`` over the task's gains ``K``, and the Lagrangian PPO, SAC and TD3, whose
+  penalty follows the violation frequency towards the task's ``1 - xi``), 5 seeds each, with
+  the budgets of :data:`~benchmarks.rl_hyperparams.SUITE_TIMESTEPS`, into ``results/rl_suite``;
+* ``macro``: the comparison of ``results/rl``: the macro task, PPO, SAC and TD3 in six variants
+  (``--algos``, ``--variants``: the reward alone, the penalties ``beta100``, ``beta1000``,
+  ``beta10000``, ``residual``, ``lagrangian``), 3 seeds, the budgets of
+  :func:`~benchmarks.rl_hyperparams.timesteps`, scored with the model-based controllers
+  (:data:`MODEL_BASED_CURVES`, :data:`SINGLE_CONTROLLERS`) by
+  :func:`benchmarks.evaluate.evaluate` on the same ``--eval-episodes`` episodes (common random
+  numbers).
+
+Each training environment is :func:`benchmarks.rl_envs.make_train_env` of its task and variant.
+``--train-only`` trains and keeps the runs and stops before any scoring. Without it, a comparison
+on the macro task alone writes the full report (``summary.json``, ``summary.csv``, the figures,
+``REPORT.md``, each written atomically); on other tasks each agent is scored on its task by
+:func:`~benchmarks.evaluate.evaluate`, without model-based references (their per-task curves
+come with ``benchmarks.suite``).
+
+Per training, ``runs/<task>/<name>-<fingerprint>.json`` (learning curve, dual ascent, training
+and CPU time) and ``.pt`` (the policy's state dict, 40-130 KB). A run is named by the fingerprint
+of its whole configuration, task included: a kept run of the same configuration is not trained
+again (``--retrain`` trains anew; an interrupted command resumes from the finished runs), and a
+run of another configuration is kept beside it, never in its place. The evaluation is not
+cached, so a change of the evaluation needs no training. The trainings run in local processes
+or as Ray tasks (``--backend``, :mod:`benchmarks.backends`).
 """
 
 from __future__ import annotations
@@ -40,6 +51,7 @@ from benchmarks.backends import BACKENDS, train_all
 from benchmarks.evaluate import REFERENCE_XIS, check_evaluation, evaluate
 from benchmarks.files import stable_floats, write_atomic
 from benchmarks.montecarlo import multistep_rhc, paper_rhc, rollout
+from benchmarks.rl_envs import MACRO, get_task
 from benchmarks.rl_figures import make_figures
 from benchmarks.rl_report import (
     ControllerResult,
@@ -51,7 +63,10 @@ from benchmarks.rl_report import (
     best_agent,
     best_config,
     comparable,
+    curve_table,
     hyperparams_record,
+    result_json,
+    table,
     write_csv,
     write_report,
 )
@@ -71,12 +86,32 @@ from controllers import (
     UnconstrainedRecedingHorizonController,
     tightened_set_empty,
 )
+from sdjls_gym import SUITE
 from sdjls_gym.systems.macro import HORIZON, PAPER_K, PAPER_RHC, macro
 
 XI = PAPER_RHC["xi"]
 XI_SWEEP = REFERENCE_XIS
 INCOME_TRAJECTORIES = 30  # incomes drawn per panel of the income figure
-DEFAULT_OUT = Path("results/rl")
+#: The presets: their tasks, configurations, seeds, budgets and output folder.
+PRESETS: dict[str, dict[str, Any]] = {
+    "suite": {
+        "tasks": list(SUITE),
+        "configs": [f"{a}_{v}" for a, v in HP.SUITE_CONFIGS],
+        "seeds": HP.SUITE_SEEDS,
+        "budgets": "suite",
+        "out": Path("results/rl_suite"),
+    },
+    "macro": {
+        "tasks": [MACRO],
+        "configs": [f"{a}_{v}" for a in ALGOS for v in VARIANTS],
+        "seeds": 3,
+        "budgets": "macro",
+        "out": Path("results/rl"),
+    },
+}
+DEFAULT_OUT = PRESETS["suite"]["out"]
+#: Every ``--configs`` value: ``<algo>_<variant>``.
+CONFIGS = tuple(f"{a}_{v}" for a in ALGOS for v in VARIANTS)
 #: Where ``--quick`` writes by default: outside the repository (a temporary folder).
 QUICK_OUT = Path(tempfile.gettempdir()) / "sdjls-gym" / "compare_rl-quick"
 
@@ -154,23 +189,56 @@ SINGLE_CONTROLLERS: tuple[tuple[str, str, Callable[[Any], Any]], ...] = (
 # ----------------------------------------------------------------------------- options
 @dataclass
 class Options:
-    algos: list[str] = field(
-        default_factory=lambda: list(ALGOS),
-        metadata={"help": "stable-baselines3 algorithms to train", "nargs": "+", "choices": ALGOS},
+    preset: str = field(
+        default="suite",
+        metadata={
+            "help": "defaults of --tasks, --configs, --seeds, the budgets and --out: 'suite' "
+            "(every task, the 5 configurations of rl_hyperparams.SUITE_CONFIGS, 5 seeds, "
+            "results/rl_suite) or 'macro' (the comparison of results/rl: the macro task, 3 "
+            "algorithms x 6 variants, 3 seeds)",
+            "choices": tuple(PRESETS),
+        },
     )
-    variants: list[str] = field(
-        default_factory=lambda: list(VARIANTS),
-        metadata={"help": "training variants", "nargs": "+", "choices": VARIANTS},
+    tasks: list[str] | None = field(
+        default=None,
+        metadata={
+            "help": "suite env ids to train on (default: the preset's)",
+            "nargs": "+",
+            "choices": SUITE,
+        },  # fmt: skip
+    )
+    configs: list[str] | None = field(
+        default=None,
+        metadata={
+            "help": "configurations <algo>_<variant> (default: the preset's)",
+            "nargs": "+",
+            "choices": CONFIGS,
+        },  # fmt: skip
+    )
+    algos: list[str] | None = field(
+        default=None,
+        metadata={
+            "help": "with --variants: train every algorithm in every variant (instead of "
+            "--configs); one alone combines with all variants / all algorithms",
+            "nargs": "+",
+            "choices": ALGOS,
+        },
+    )
+    variants: list[str] | None = field(
+        default=None,
+        metadata={"help": "training variants (see --algos)", "nargs": "+", "choices": VARIANTS},
     )
     timesteps: int | None = field(
         default=None,
         metadata={
-            "help": "env steps per training run (default: per algorithm and variant, "
+            "help": "env steps per training run (default: the preset's budgets, "
             "benchmarks/rl_hyperparams.py; "
             f"{HP.QUICK_TIMESTEPS} with --quick; N replaces them all)"
         },
     )
-    seeds: int = field(default=3, metadata={"help": "training seeds per algorithm and variant"})
+    seeds: int | None = field(
+        default=None, metadata={"help": "training seeds per configuration (default: the preset's)"}
+    )
     eval_episodes: int = field(
         default=1000,
         metadata={"help": "evaluation episodes per controller and trained agent (one noise seed)"},
@@ -180,8 +248,8 @@ class Options:
         default=None,
         metadata={
             "help": "folder for figures, summary files, REPORT.md and runs/ (*.json, *.pt); "
-            f"default: {DEFAULT_OUT}, or {QUICK_OUT} with --quick (a smoke test never writes "
-            "into the committed results)"
+            "default: the preset's (results/rl_suite, results/rl), or "
+            f"{QUICK_OUT} with --quick (a smoke test never writes into the committed results)"
         },
     )
     workers: int = field(
@@ -209,10 +277,30 @@ class Options:
             "3 learning-curve points of 20 episodes"
         },
     )
+    train_only: bool = field(
+        default=False,
+        metadata={
+            "help": "train and keep the runs, then stop: no scoring, no report (rerun without "
+            "it to score the kept runs)"
+        },
+    )
+    tuned: list[Path] | None = field(
+        default=None,
+        metadata={
+            "help": "summaries of benchmarks.tune studies (<out>/<study>.json): their best "
+            "hyperparameters replace the defaults of that task's configuration (seeds from 0: "
+            "never the tuning's)",
+            "nargs": "+",
+        },
+    )
     retrain: bool = field(
         default=False, metadata={"help": "train again even when runs/ has the trained run"}
     )
     no_progress: bool = field(default=False, metadata={"help": "do not show the progress bar"})
+
+    def config_pairs(self) -> list[tuple[str, str]]:
+        """The ``(algo, variant)`` pairs of :attr:`configs`."""
+        return [tuple(c.split("_", 1)) for c in self.configs or []]  # type: ignore[misc]
 
 
 def parse_args(argv: list[str] | None = None) -> Options:
@@ -225,9 +313,13 @@ def parse_args(argv: list[str] | None = None) -> Options:
         flag, meta = "--" + f.name.replace("_", "-"), f.metadata
         if f.type in ("bool", bool):
             parser.add_argument(flag, action="store_true", help=meta["help"])
+        elif f.name == "tuned":
+            parser.add_argument(flag, nargs="+", type=Path, default=None, metavar="STUDY.json",
+                                help=meta["help"])  # fmt: skip
         elif "nargs" in meta:
-            parser.add_argument(flag, nargs="+", choices=meta["choices"],
-                                default=f.default_factory(), help=meta["help"])  # fmt: skip
+            parser.add_argument(flag, nargs="+", choices=meta["choices"], default=None,
+                                metavar=f.name.upper()[:-1],
+                                help=f"{meta['help']}; one of: {', '.join(meta['choices'])}")  # fmt: skip
         elif "choices" in meta:
             parser.add_argument(flag, choices=meta["choices"], default=f.default, help=meta["help"])
         else:
@@ -235,8 +327,21 @@ def parse_args(argv: list[str] | None = None) -> Options:
             parser.add_argument(flag, type=conv, default=f.default, help=meta["help"])
     given = {a.split("=")[0] for a in (sys.argv[1:] if argv is None else argv)}
     opts = Options(**vars(parser.parse_args(argv)))
+    preset = PRESETS[opts.preset]
     if opts.quick and "--eval-episodes" not in given:
         opts.eval_episodes = 200
+    if opts.configs is not None and (opts.algos is not None or opts.variants is not None):
+        parser.error("--configs with --algos/--variants: give the configurations one way")
+    if opts.algos is not None or opts.variants is not None:
+        algos = opts.algos if opts.algos is not None else list(ALGOS)
+        variants = opts.variants if opts.variants is not None else list(VARIANTS)
+        opts.configs = [f"{a}_{v}" for a in dict.fromkeys(algos) for v in dict.fromkeys(variants)]
+    opts.configs = list(dict.fromkeys(opts.configs or preset["configs"]))
+    opts.algos = list(dict.fromkeys(a for a, _ in opts.config_pairs()))
+    opts.variants = list(dict.fromkeys(v for _, v in opts.config_pairs()))
+    opts.tasks = list(dict.fromkeys(opts.tasks or preset["tasks"]))
+    if opts.seeds is None:
+        opts.seeds = preset["seeds"]
     for name in ("seeds", "workers"):
         if getattr(opts, name) < 1:
             parser.error(f"--{name} = {getattr(opts, name)}; expected a positive integer")
@@ -249,17 +354,44 @@ def parse_args(argv: list[str] | None = None) -> Options:
         parser.error(f"--timesteps = {opts.timesteps}; expected a positive integer")
     if opts.address is not None and opts.backend != "ray":
         parser.error(f"--address = {opts.address!r} needs --backend ray")
+    try:
+        tuned_overrides(opts.tuned)
+    except ValueError as exc:
+        parser.error(str(exc))
     if opts.out is None:
-        opts.out = QUICK_OUT if opts.quick else DEFAULT_OUT
+        opts.out = QUICK_OUT if opts.quick else preset["out"]
     elif opts.quick and _holds_a_full_comparison(opts.out):
         parser.error(
             f"--quick with --out {opts.out}: that folder holds the report of a full comparison, "
             "which a smoke test would replace; give another --out (or none: "
             f"--quick writes to {QUICK_OUT})"
         )
-    opts.algos = list(dict.fromkeys(opts.algos))
-    opts.variants = list(dict.fromkeys(opts.variants))
     return opts
+
+
+def tuned_overrides(paths: list[Path] | None) -> dict[tuple[str, str, str], tuple]:
+    """``(task, algo, variant) -> overrides`` of the best trial of each ``benchmarks.tune``
+    summary in ``paths``."""
+    out: dict[tuple[str, str, str], tuple] = {}
+    for path in paths or []:
+        try:
+            data = json.loads(Path(path).read_text())
+            settings, best = data["settings"], data["best"]
+            key = (settings["task"], settings["algo"], settings["variant"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise ValueError(f"--tuned {path}: not a benchmarks.tune summary ({exc!r})") from None
+        if best is None:
+            raise ValueError(f"--tuned {path}: the study has no complete trial")
+        if key in out:
+            raise ValueError(f"--tuned {path}: a second study of {key}")
+        out[key] = tuple(sorted((k, v) for k, v in best["overrides"].items()))
+    return out
+
+
+def specs_of(opts: Options) -> list[Any]:
+    """The runs of ``opts`` (:func:`benchmarks.rl_train.run_specs`)."""
+    return run_specs(opts.config_pairs(), opts.seeds, opts.timesteps, opts.quick, opts.tasks,
+                     PRESETS[opts.preset]["budgets"], tuned_overrides(opts.tuned))  # fmt: skip
 
 
 def _holds_a_full_comparison(out: Path) -> bool:
@@ -304,22 +436,40 @@ def incomes(controller: Any, opts: Options) -> Any:
 
 
 # ----------------------------------------------------------------------------- main
-def main(argv: list[str] | None = None) -> Summary:
+def _log(msg: str) -> None:
+    tqdm.write(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr)
+
+
+def main(argv: list[str] | None = None) -> Summary | dict[str, Any] | None:
+    """Train (and, without ``--train-only``, score) as the options say.
+
+    Returns the macro comparison's :class:`~benchmarks.rl_report.Summary` (``--tasks`` the
+    macro task alone), the per-task scores' dict (other tasks), or None (``--train-only``).
+    """
     argv = sys.argv[1:] if argv is None else list(argv)
     opts = parse_args(argv)
     opts.out.mkdir(parents=True, exist_ok=True)
-
-    def log(msg: str) -> None:
-        tqdm.write(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr)
-
-    model = macro()
-    specs = run_specs(opts.algos, opts.variants, opts.seeds, opts.timesteps, opts.quick)
-    log(f"{len(specs)} training runs: {', '.join(opts.algos)} x {', '.join(opts.variants)} x "
+    log = _log
+    specs = specs_of(opts)
+    log(f"{len(specs)} training runs: {len(opts.tasks)} task(s) x {', '.join(opts.configs)} x "
         f"{opts.seeds} seed(s)")  # fmt: skip
     run_dir = opts.out / "runs"
     trained = train_all(specs, run_dir, backend=opts.backend, workers=opts.workers,
                         address=opts.address, retrain=opts.retrain,
                         progress=not opts.no_progress, log=log)  # fmt: skip
+    if opts.train_only:
+        log(f"--train-only: {len(trained)} run(s) kept in {run_dir}; no scoring")
+        return None
+    if opts.tasks != [MACRO]:
+        return score_per_task(specs, trained, run_dir, opts, argv)
+    return report_macro(specs, trained, run_dir, opts, argv)
+
+
+def report_macro(specs: list[Any], trained: list[Any], run_dir: Path, opts: Options,
+                 argv: list[str]) -> Summary:  # fmt: skip
+    """The comparison on the macro task: every agent and model-based controller scored on the
+    same episodes; summary.json, summary.csv, the figures and REPORT.md."""
+    log, model = _log, macro()
     # every controller is scored after the training, in this process: the same machine load
     # for the decision times of all of them
     log(f"scoring the model-based controllers on {opts.eval_episodes} episodes")
@@ -351,7 +501,7 @@ def main(argv: list[str] | None = None) -> Summary:
         options={k: str(v) if isinstance(v, Path) else v for k, v in asdict(opts).items()},
         versions=package_versions(),
         timesteps={
-            a: {s.variant: s.timesteps for s in specs if s.algo == a and s.seed == 0}
+            a: {s.variant: s.timesteps for s in specs if s.algo == a and s.seed == specs[0].seed}
             for a in opts.algos
         },  # fmt: skip
         hyperparams=hyperparams_record(opts.algos, opts.variants),
@@ -381,6 +531,59 @@ def main(argv: list[str] | None = None) -> Summary:
     write_csv(opts.out / "summary.csv", mb + aggs + runs)
     write_atomic(opts.out / "REPORT.md", write_report(summary, XI, MODEL_BASED_CURVES[0].family))
     log(f"wrote {opts.out}/REPORT.md")
+    return summary
+
+
+def score_per_task(specs: list[Any], trained: list[Any], run_dir: Path, opts: Options,
+                   argv: list[str]) -> dict[str, Any]:  # fmt: skip
+    """Each agent scored on its own task (no model-based reference: the suite's per-task curves
+    come with ``benchmarks.suite``); ``summary.json`` and a ``REPORT.md`` of per-task tables."""
+    import torch
+
+    torch.set_num_threads(1)  # as in training, and for the agents' decision times
+    command = "python -m benchmarks.compare_rl" + ("" if not argv else " " + " ".join(argv))
+    summary: dict[str, Any] = {
+        "command": command,
+        "options": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(opts).items()},
+        "versions": package_versions(),
+        "tasks": {},
+    }
+    lines = [
+        "# RL agents on the tasks of the suite (agents only)",
+        "",
+        f"Generated by `{command}`. Each agent is scored by `benchmarks.evaluate.evaluate` on "
+        f"{opts.eval_episodes} episodes of its task (noise seed {opts.seed}); the model-based "
+        "references per task are `benchmarks.suite`'s.",
+        "",
+    ]
+    for task in opts.tasks:
+        pairs = [(s, r) for s, r in zip(specs, trained, strict=True) if s.task == task]
+        _log(f"scoring the {len(pairs)} agents of {task} on {opts.eval_episodes} episodes")
+        env_kwargs = dict(get_task(task).env_kwargs)
+        runs = [
+            RunResult(
+                run,
+                evaluate(
+                    load_policy(s, policy_path(kept_run_path(run_dir, s))),
+                    episodes=opts.eval_episodes,
+                    seed=opts.seed,
+                    env_id=task,
+                    env_kwargs=env_kwargs,
+                ),
+            )  # fmt: skip
+            for s, run in pairs
+        ]
+        aggs, status = aggregate(runs), curve_status([r.run for r in runs])
+        summary["tasks"][task] = {
+            "rl_runs": [result_json(r) for r in runs],
+            "rl_aggregates": [asdict(a) for a in aggs],
+            "learning_curves": [asdict(c) for c in status],
+        }
+        lines += [f"## {task}", "", *table(aggs), "", *curve_table(status), ""]
+    write_atomic(opts.out / "summary.json",
+                 json.dumps(stable_floats(json.loads(json.dumps(summary))), indent=1) + "\n")  # fmt: skip
+    write_atomic(opts.out / "REPORT.md", "\n".join(lines) + "\n")
+    _log(f"wrote {opts.out}/REPORT.md")
     return summary
 
 

@@ -16,8 +16,10 @@ up to then and its remaining steps count as violated. :class:`Score` holds the m
 with a 95% Student-t interval and the median; the per-step violation frequency (any row of
 ``G x <= H_k``) with its 95% Wilson interval and a Student-t interval over the episodes' shares
 of violated steps; the diverged episodes; the largest ``|u|``; the decision time per state; and,
-on the paper's system, the paired gap to the curve of the paper's receding-horizon controller
-(individual constraints, ``xi`` in :data:`REFERENCE_XIS`) scored on the same episodes.
+on a task of the suite (:data:`sdjls_gym.systems.TASKS`), the paired gap to the task's reference
+curve, its one-step receding-horizon controller over a sweep of ``xi`` scored on the same episodes
+(:mod:`benchmarks.reference`; on the paper's system, the paper's controller with individual
+constraints at ``xi`` in :data:`REFERENCE_XIS`).
 
 A policy is one of
 
@@ -37,7 +39,7 @@ An agent whose ``observation_space`` / ``action_space`` are not the scored envir
 refused (:func:`benchmarks.policies.check_spaces`). A ``predict`` with SB3's ``state`` and
 ``episode_start`` parameters (recurrent policies) gets its state back at each step, as SB3's
 ``evaluate_policy`` does. A policy's actions are read by ``env.step``'s rule
-(:func:`sdjls_gym._validate.check_numbers`). A diverged episode's state never reaches the policy.
+(:func:`sdjls_gym.validation.check_numbers`). A diverged episode's state never reaches the policy.
 
 Command line: ``python -m benchmarks.evaluate --policy PATH.zip --algo ppo`` (an SB3 model;
 ``--train-env package.module:attribute`` names its training environment, ``--vec-normalize
@@ -48,7 +50,6 @@ writes the score. Every input is checked before the evaluation; a bad one is a p
 
 from __future__ import annotations
 
-import functools
 import json
 import time
 from dataclasses import asdict, dataclass, field
@@ -58,12 +59,21 @@ import gymnasium as gym
 import numpy as np
 
 from benchmarks.files import write_atomic
-from benchmarks.montecarlo import Rollouts, paper_rhc, rollout
+from benchmarks.montecarlo import Rollouts, rollout
 from benchmarks.policies import RawEnvPolicy, _check_policy, as_controller
-from benchmarks.stats import CurveGap, mean_ci, paired_curve_gap, wilson
+from benchmarks.reference import (
+    REFERENCE_CONSTRAINT,
+    REFERENCE_XIS,
+    curve_xis,
+    reference_curve,
+    task_of,
+)
+from benchmarks.stats import CurveGap, mean_ci, wilson
 from sdjls_gym import SDJLSModel
-from sdjls_gym._validate import a_type, check_int, check_mapping, describe
 from sdjls_gym.env import SDJLSEnv
+from sdjls_gym.messages import a_type, describe
+from sdjls_gym.systems import TASKS, Task
+from sdjls_gym.validation import check_int, check_mapping
 
 __all__ = [
     "REFERENCE_CONSTRAINT",
@@ -75,10 +85,6 @@ __all__ = [
     "evaluate_rollouts",
 ]
 
-#: The reference curve: the paper's receding-horizon controller with these constraints at these
-#: levels ``xi`` (section 6's gains, Psi, alpha and |nu| <= 100).
-REFERENCE_XIS: tuple[float, ...] = (0.3, 0.5, 0.7, 0.8, 0.85, 0.9, 0.95, 0.99)
-REFERENCE_CONSTRAINT = "individual"
 #: Visited states drawn from the rollouts to time the decisions on.
 TIMING_STATES = 1000
 #: Most episodes one evaluation simulates: they run together, and their rollouts are held in
@@ -111,10 +117,11 @@ class Score:
     decision_time_batched_s, decision_time_single_s : float
         Seconds per state: a batch of visited states at once, and one state at a time.
     curve_gap : CurveGap or None
-        Mean cost minus the reference curve's at this violation frequency, paired over the
-        episodes, with a 95% bootstrap interval (:func:`benchmarks.stats.paired_curve_gap`);
-        None where the frequency is outside the curve's range, an episode diverged, or the
-        system is not the paper's.
+        Mean cost minus the task's reference curve's at this violation frequency, paired over
+        the episodes, with a 95% bootstrap interval, also in percent of the curve's cost
+        (:func:`benchmarks.stats.paired_curve_gap`, :mod:`benchmarks.reference`); None where
+        the frequency is outside the curve's range, an episode diverged, or the system is not
+        a task of the suite.
     episode_costs, episode_violations : (episodes,) arrays
         Each episode's cost and share of violated steps (for paired comparisons).
     """
@@ -156,10 +163,11 @@ class EnvSpec:
     horizon: int
     action_bound: float
     divergence_bound: float
-    paper_system: bool  # the macro example: the reference curve applies
+    paper_system: bool  # the macro example
     env_id: str = "SDJLS-Macro-v0"
     observation_space: Any = None  # the raw environment's: what a scored agent must act on
     action_space: Any = None
+    task: Task | None = None  # the suite's task of this system: its reference curve applies
 
 
 def _key(model: SDJLSModel) -> str:
@@ -205,6 +213,7 @@ def resolve_env(env_id: str, env_kwargs: dict[str, Any]) -> EnvSpec:
             env_id=env_id,
             observation_space=base.observation_space,
             action_space=base.action_space,
+            task=task_of(env_id, env_kwargs, base.model),
         )
     finally:
         env.close()
@@ -264,23 +273,6 @@ def decision_time(
     return float(best / len(x)), float((time.perf_counter() - t0) / len(idx))
 
 
-@functools.lru_cache(maxsize=8)
-def reference_curve(
-    episodes: int, seed: int, horizon: int, action_bound: float, divergence_bound: float
-) -> tuple[tuple[float, ...], np.ndarray, np.ndarray]:
-    """``(xis, costs (P, E), violations (P, E))`` of the reference curve on the paper's system."""
-    from sdjls_gym.systems.macro import macro
-
-    model = macro()
-    costs, viols = [], []
-    for xi in REFERENCE_XIS:
-        ctrl = paper_rhc(model, xi, REFERENCE_CONSTRAINT, horizon=horizon)
-        ro = rollout(model, ctrl, episodes, horizon, seed, action_bound, None, divergence_bound)
-        costs.append(ro.episode_cost)
-        viols.append(ro.any_violation.mean(axis=1))
-    return REFERENCE_XIS, np.stack(costs), np.stack(viols)
-
-
 def evaluate_rollouts(
     controller: Any, spec: EnvSpec, episodes: int, seed: int, env_id: str = "SDJLS-Macro-v0"
 ) -> tuple[Score, Rollouts]:
@@ -293,13 +285,12 @@ def evaluate_rollouts(
     states = decision_states(ro, min(TIMING_STATES, ro.runs * spec.horizon))
     batched, single = decision_time(controller, *states)
     gap = None
-    if spec.paper_system and stats["diverged"] == 0:
-        xis, c_costs, c_viols = reference_curve(
-            episodes, seed, spec.horizon, float(np.max(spec.action_bound)), spec.divergence_bound
-        )
-        gap = paired_curve_gap(
-            stats["episode_costs"], stats["episode_violations"], c_costs, c_viols, xis
-        )
+    if spec.task is not None and stats["diverged"] == 0:
+        curve = reference_curve(
+            spec.task, episodes, seed, horizon=spec.horizon, action_bound=spec.action_bound,
+            divergence_bound=spec.divergence_bound,
+        )  # fmt: skip
+        gap = curve.gap(stats["episode_costs"], stats["episode_violations"])
     score = Score(
         env_id=env_id,
         seed=seed,
@@ -355,7 +346,7 @@ def evaluate(
     TypeError, ValueError
         A bad argument (a class instead of an agent, an agent whose spaces are not the raw
         environment's, an unknown ``env_id``), before any episode is run.
-    sdjls_gym._validate.NotANumberError
+    sdjls_gym.errors.NotANumberError
         The policy returned what ``env.step`` refuses (``"1.0"``, ``True``, None).
     """
     episodes, seed = check_evaluation(episodes, seed)
@@ -489,11 +480,13 @@ def describe_score(name: str, score: Score) -> list[str]:
     g = score.curve_gap
     if g is None:
         lines.append("Against the RHC curve: no paired gap (an episode diverged, the violation "
-                     "frequency is outside the curve's range, or the system is not the paper's).")  # fmt: skip
+                     "frequency is outside the curve's range, or the system is not a task of "
+                     "the suite).")  # fmt: skip
     else:
+        xis = curve_xis(TASKS[score.env_id]) if score.env_id in TASKS else REFERENCE_XIS
         lines.append(
-            f"Against the RHC curve (individual constraints, xi in {REFERENCE_XIS[0]:g}.."
-            f"{REFERENCE_XIS[-1]:g}): at violation frequency {g.violation:.3f} the curve, at xi = "
+            f"Against the RHC curve ({REFERENCE_CONSTRAINT} constraints, xi in {xis[0]:g}.."
+            f"{xis[-1]:g}): at violation frequency {g.violation:.3f} the curve, at xi = "
             f"{g.xi:.3f}, costs {g.curve_cost:.4g}; cost minus curve {g.mean:+.1f} (95% bootstrap "
             f"interval {g.ci95[0]:+.1f} to {g.ci95[1]:+.1f})."
         )

@@ -14,8 +14,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from sdjls_gym._validate import NotANumberError, a_type, check_numbers, describe
-from sdjls_gym.env import SDJLSEnv, decode_observation, encode_observation
+from sdjls_gym.env import SDJLSEnv
+from sdjls_gym.errors import NotANumberError
+from sdjls_gym.messages import a_type, describe
+from sdjls_gym.observation import decode_observation, encode_observation
+from sdjls_gym.validation import check_numbers
 from sdjls_gym.wrappers import ResidualAction, ScaleObservationReward, scale_observation
 
 __all__ = ["RawEnvPolicy", "as_controller", "check_spaces"]
@@ -42,7 +45,7 @@ def check_spaces(agent: Any, observation_space: Any, action_space: Any, where: s
 
 
 def _actions(value: Any, m: int, obs: np.ndarray) -> np.ndarray:
-    """A policy's answer read by ``env.step``'s rule (:func:`sdjls_gym._validate.check_numbers`):
+    """A policy's answer read by ``env.step``'s rule (:func:`sdjls_gym.validation.check_numbers`):
     ``"1.0"``, ``True`` or None are not actions."""
     if value is None:
         raise NotANumberError(

@@ -9,6 +9,11 @@ phase per episode. Observations and rewards are scaled by fixed functions
 (:data:`ENV`, :class:`sdjls_gym.wrappers.ScaleObservationReward`) rather than ``VecNormalize``,
 whose running statistics never forget the first, diverging episodes. What was tried and what it
 gave is in ``results/rl/HISTORY.md``.
+
+The suite comparison (issue 31) uses the same hyperparameters on every task, with the scalings
+of each task (:data:`TASK_SCALES`), the penalties in units of its reward scale, its own
+configurations, seeds and budgets (:data:`SUITE_CONFIGS`, :data:`SUITE_SEEDS`,
+:data:`SUITE_TIMESTEPS`); their history is ``results/rl_suite/HISTORY.md``.
 """
 
 from __future__ import annotations
@@ -32,6 +37,31 @@ ENV: dict[str, float | str] = {
     "reward_transform": W.REWARD_TRANSFORM,
     "terminate_bound": W.TERMINATE_BOUND,
 }
+
+#: Per task of the suite: the observation's state scale ``x_scale``, the reward scale
+#: ``reward_scale`` (both of :data:`ENV`) and the bound ``u_bound`` on ``|u|`` of the agents acting
+#: on ``u`` (:data:`U_BOUND` on the macro task). Written from one rule,
+#: :func:`benchmarks.rl_envs.derive_scales`, on 300 episodes (noise seed 0) of the task's own
+#: receding-horizon controller at its ``xi``: ``x_scale`` is the 95th percentile of ``|x_i|``,
+#: ``reward_scale`` the mean stage cost / 2.5 and ``u_bound`` 1.25 x the largest ``|u_i|`` (not
+#: below it, at most the task's action bound), each to one significant digit. The rule gives the
+#: macro task the values ``results/rl`` was trained with. Every penalty (:data:`BETAS`,
+#: :data:`RESIDUAL_BETA`, the Lagrangian's ``beta0`` and ``lr_dual``) is written for the macro
+#: task's reward scale, 100, and multiplied by ``reward_scale / 100`` on the others; training
+#: episodes end at ``|x| > TERMINATE_SCALES * x_scale``. Tasks outside this table (the generator
+#: with other parameters) get :func:`~benchmarks.rl_envs.derive_scales` at run time.
+TASK_SCALES: dict[str, dict[str, float]] = {
+    "SDJLS-Macro-v0": {"x_scale": 10.0, "reward_scale": 100.0, "u_bound": 60.0},
+    "SDJLS-Solar-v0": {"x_scale": 2.0, "reward_scale": 20.0, "u_bound": 50.0},
+    "SDJLS-VTOL-v0": {"x_scale": 2.0, "reward_scale": 3.0, "u_bound": 20.0},
+    "SDJLS-ThreeState-v0": {"x_scale": 0.9, "reward_scale": 0.5, "u_bound": 2.0},
+    "SDJLS-Degradation-v0": {"x_scale": 1.0, "reward_scale": 0.2, "u_bound": 2.0},
+    "SDJLS-Random-v0": {"x_scale": 0.2, "reward_scale": 0.02, "u_bound": 0.8},
+}
+
+#: Training episodes end once ``max |x| > TERMINATE_SCALES * x_scale`` (100 on the macro task,
+#: :data:`ENV`'s ``terminate_bound``): there the scaled observation is saturated.
+TERMINATE_SCALES = 10.0
 
 #: Fixed violation penalties ``beta`` of the penalized variants, added to the stage cost before
 #: the training reward's log transform (see :data:`ENV`): the penalized per-step cost is
@@ -67,6 +97,14 @@ U_BOUND = 60.0
 #: Offsets of the residual agents: ``u = K_theta x + nu`` with ``|nu| <= nu_bound`` (the paper's
 #: set U, the same as the receding-horizon controller's).
 RESIDUAL_NU_BOUND = 100.0
+
+#: On the suite's tasks the residual agents' bound on ``|nu|`` is the task's receding-horizon
+#: controller's ``nu_bound``, at most this many times the task's ``u_bound`` (:data:`TASK_SCALES`):
+#: ``nu`` must be able to cancel ``K x`` (about ``u``) and add as much again. The RHC's bounds are
+#: 5-50 times the largest ``|u|`` it applies on the small tasks, where exploration noise of a
+#: fixed share of ``[-1, 1]`` would otherwise be an input noise several times the useful input.
+#: Macro: min(100, 2 x 60) = :data:`RESIDUAL_NU_BOUND`.
+RESIDUAL_NU_U_BOUNDS = 2.0
 
 #: Violation penalty of the residual agents (the middle of :data:`BETAS`): like the
 #: receding-horizon controller, they trade cost against violations rather than ignore the band.
@@ -188,6 +226,43 @@ TIMESTEPS_VARIANT: dict[tuple[str, str], int] = {
     ("td3", "residual"): 1_200_000,
     ("td3", "lagrangian"): 600_000,
 }
+
+
+#: The suite comparison (issue 31): per task, PPO on the reward alone, PPO residual over the
+#: task's gains, and the Lagrangian PPO, SAC and TD3; :data:`SUITE_SEEDS` seeds each.
+SUITE_CONFIGS: tuple[tuple[str, str], ...] = (
+    ("ppo", "reward"),
+    ("ppo", "residual"),
+    ("ppo", "lagrangian"),
+    ("sac", "lagrangian"),
+    ("td3", "lagrangian"),
+)
+SUITE_SEEDS = 5
+
+#: Budgets (env steps per run) of the suite comparison, the same on every task: the default
+#: command (6 tasks x 5 configurations x 5 seeds) must fit in 12 CPU-hours, about 290 CPU-s per
+#: run. CPU per env step measured here on every task, one torch thread, two trainings at once
+#: (short runs; the machine shared with other jobs): PPO 0.30-0.48 ms (the Lagrangian's
+#: evaluations included), SAC 9.3-10.6 ms, TD3 4.6-7.0 ms; on a quieter day about half of that
+#: (the runs of results/rl: SAC 4.1-4.7 ms). Why these and what the flatness test said:
+#: ``results/rl_suite/HISTORY.md``.
+SUITE_TIMESTEPS: dict[tuple[str, str], int] = {
+    ("ppo", "reward"): 600_000,
+    ("ppo", "residual"): 600_000,
+    ("ppo", "lagrangian"): 600_000,
+    ("sac", "lagrangian"): 40_000,
+    ("td3", "lagrangian"): 50_000,
+}
+#: Per-task changes to :data:`SUITE_TIMESTEPS`: ``{(task, algo, variant): steps}``.
+SUITE_TIMESTEPS_TASK: dict[tuple[str, str, str], int] = {}
+
+
+def suite_timesteps(task: str, algo: str, variant: str) -> int:
+    """Budget of one run of the suite comparison (:data:`SUITE_TIMESTEPS`, changed per task by
+    :data:`SUITE_TIMESTEPS_TASK`); a configuration outside the suite's gets the budget of
+    :func:`timesteps`."""
+    default = SUITE_TIMESTEPS.get((algo, variant), timesteps(algo, variant))
+    return SUITE_TIMESTEPS_TASK.get((task, algo, variant), default)
 
 
 #: Rough training speeds (env steps/s, one torch thread, two trainings in parallel on the

@@ -132,12 +132,13 @@ class Summary:
 
     def to_json(self) -> dict[str, Any]:
         out = asdict(self)
-        out["model_based"] = [_result_json(r) for r in self.model_based]
-        out["rl_runs"] = [_result_json(r) for r in self.rl_runs]
+        out["model_based"] = [result_json(r) for r in self.model_based]
+        out["rl_runs"] = [result_json(r) for r in self.rl_runs]
         return json.loads(json.dumps(out))
 
 
-def _result_json(r: ControllerResult | RunResult) -> dict[str, Any]:
+def result_json(r: ControllerResult | RunResult) -> dict[str, Any]:
+    """A scored controller or run as summary.json holds it (a run without its configuration)."""
     if isinstance(r, RunResult):
         data = {k: v for k, v in r.run.to_json().items() if k != "config"}
         tail = {k: data.pop(k) for k in ("learning_curve", "dual_ascent")}
@@ -404,7 +405,8 @@ def _against_curve_sections(against: dict[str, list[AgainstCurve]]) -> list[str]
     return lines
 
 
-def _curve_table(status: list[CurveStatus]) -> list[str]:
+def curve_table(status: list[CurveStatus]) -> list[str]:
+    """The learning-curve table of REPORT.md: the flatness test per configuration."""
     lines = [
         "| agent | training steps | late window (steps) | violation frequency, late | "
         "change | diverged share, late | change | median cost change | flat |",
@@ -535,7 +537,7 @@ def write_report(summary: Summary, xi: float, reference: str) -> str:
         f"{FLAT_TOL['diverged']:g} and, where the median episode does not diverge, median cost "
         f"change < {100 * FLAT_TOL['cost_rel']:g}%.",
         "",
-        *_curve_table(summary.learning_curves),
+        *curve_table(summary.learning_curves),
         "",
         "## Training time",
         "",

@@ -1,12 +1,15 @@
 """Training one stable-baselines3 agent of the RL comparison, and the files a run is kept in.
 
-A run is described by a :class:`RunSpec` (algorithm, variant, seed, budget, learning-curve
-settings). :func:`train_run` trains it and returns its :class:`RunRecord` (learning curve, dual
-ascent, training time) and its policy's state dict (tens of KB); :func:`save_run` writes both
-under ``runs/<name>-<fingerprint>.json`` and ``.pt``, named by the run's whole configuration
-hashed into :meth:`RunSpec.fingerprint`, so that a run of another configuration never replaces a
-kept one; :func:`load_run` reads the kept run of a spec back. Training runs in a
-worker (a process or a Ray task); the files are written by the main process.
+A run is described by a :class:`RunSpec` (task, algorithm, variant, seed, budget, learning-curve
+settings, hyperparameter overrides). :func:`train_run` trains it on the task's training
+environment (:func:`benchmarks.rl_envs.make_train_env`'s recipe, rebuilt from the run's
+configuration by :func:`env_from_config`) and returns its :class:`RunRecord` (learning curve,
+dual ascent, training and CPU time) and its policy's state dict (tens of KB); :func:`save_run`
+writes both under ``runs/<task>/<name>-<fingerprint>.json`` and ``.pt``, named by the run's whole
+configuration hashed into :meth:`RunSpec.fingerprint`, so that a run of another configuration
+never replaces a kept one; :func:`load_run` reads the kept run of a spec back (also the macro
+comparison's runs kept before the suite, :meth:`RunSpec.legacy_fingerprint`). Training runs in
+a worker (a process or a Ray task); the files are written by the main process.
 """
 
 from __future__ import annotations
@@ -23,7 +26,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.wrappers import RescaleAction
 from stable_baselines3.common.callbacks import BaseCallback
 
 from benchmarks import rl_hyperparams as HP
@@ -31,20 +33,40 @@ from benchmarks.evaluate import resolve_env, statistics
 from benchmarks.files import write_atomic
 from benchmarks.montecarlo import rollout
 from benchmarks.policies import RawEnvPolicy
-from sdjls_gym._validate import check_choice, check_positive
-from sdjls_gym.systems.macro import PAPER_K
-from sdjls_gym.wrappers import (
-    FiniteHorizon,
-    ResidualAction,
-    ScaleObservationReward,
-    TerminateOutside,
-    ViolationPenalty,
+from benchmarks.rl_envs import (
+    ACTION_KINDS,
+    MACRO,
+    VARIANTS,
+    env_from_config,
+    get_task,
+    make_train_env,
+    task_digest,
+    task_settings,
+    variant_setup,
 )
 
+__all__ = [
+    "ACTION_KINDS",
+    "ALGOS",
+    "VARIANTS",
+    "CurvePoint",
+    "DualPoint",
+    "RunRecord",
+    "RunSpec",
+    "env_from_config",
+    "kept_run_path",
+    "load_policy",
+    "load_run",
+    "make_train_env",
+    "policy_from_config",
+    "run_path",
+    "run_specs",
+    "save_run",
+    "train_run",
+    "variant_setup",
+]
+
 ALGOS = ("ppo", "sac", "td3")
-VARIANTS = ("reward", *(f"beta{b:g}" for b in HP.BETAS), "residual", "lagrangian")
-#: ``"u"``: the agent chooses ``u``; ``"residual"``: the offset ``nu`` of ``u = K_theta x + nu``.
-ACTION_KINDS = ("u", "residual")
 #: How the evaluations made during training (learning curve, dual ascent) treat a diverged
 #: episode; part of a run's fingerprint, so that runs scored by another rule are trained again.
 CURVE_SCORING = "a diverged episode holds its state; its later steps count as violated"
@@ -94,6 +116,7 @@ class RunRecord:
     cpu_time_s: float | None = None  # below the wall time when the training shared its core
     eval_time_s: float | None = None  # the learning curve's and the dual ascent's share
     kind: str = "rl-seed"
+    task: str = MACRO  # the env id (runs kept before the suite are all on the macro task)
 
     @property
     def curve_episodes(self) -> int:
@@ -124,6 +147,13 @@ def _jsonable(value: Any) -> Any:
 # ----------------------------------------------------------------------------- run specs
 @dataclass(frozen=True)
 class RunSpec:
+    """One training: algorithm, variant, seed, budget, learning-curve settings and task.
+
+    ``overrides`` (``(name, value)`` pairs, e.g. from ``benchmarks.tune``) replace entries of the
+    algorithm's hyperparameters; ``net_arch`` goes into ``policy_kwargs`` and ``lr_dual`` into
+    the Lagrangian's dual ascent.
+    """
+
     algo: str
     variant: str
     seed: int
@@ -131,134 +161,138 @@ class RunSpec:
     curve_points: int
     curve_episodes: int
     curve_seed: int
+    task: str = MACRO
+    overrides: tuple[tuple[str, Any], ...] = ()
 
     @property
     def name(self) -> str:
         return f"{self.algo}_{self.variant}_s{self.seed}"
 
+    @property
+    def label(self) -> str:
+        """The name with its task, for tables across tasks: ``"SDJLS-Solar-v0 ppo_reward_s0"``."""
+        return f"{self.task} {self.name}"
+
+    def hyperparams(self) -> dict[str, Any]:
+        """:func:`HP.hyperparams` of the algorithm and variant with :attr:`overrides`."""
+        hp = copy.deepcopy(HP.hyperparams(self.algo, self.variant))
+        for key, value in self.overrides:
+            if key == "lr_dual":
+                continue
+            if key in ("net_arch", "log_std_init"):
+                hp["policy_kwargs"] = {**hp.get("policy_kwargs", {}), key: value}
+            else:
+                hp[key] = value
+        return hp
+
+    def lagrangian(self) -> dict[str, Any]:
+        lag = task_settings(self.task).lagrangian()
+        lag.update({k: v for k, v in self.overrides if k == "lr_dual"})
+        return lag
+
+    def _base_config(self) -> dict[str, Any]:
+        """The configuration as the macro comparison recorded it before the suite (no task)."""
+        s = task_settings(self.task)
+        fields_ = {k: v for k, v in asdict(self).items() if k not in ("task", "overrides")}
+        config = {
+            **fields_,
+            "curve_scoring": CURVE_SCORING,
+            "hyperparams": _jsonable(self.hyperparams()),
+            "env": s.env_hp(),
+            "betas": s.betas(),
+            "lagrangian": _jsonable(self.lagrangian()),
+            "residual_nu_bound": s.nu_bound,
+            "residual_beta": s.residual_beta(),
+        }
+        if variant_setup(self.variant)[0] == "u":  # residual agents do not depend on it
+            config["u_bound"] = s.u_bound
+        return config
+
     def config(self) -> dict[str, Any]:
         """Everything the training depends on; a kept run is reused only if this matches.
 
-        The final evaluation is not in it: a run's policy is kept and scored anew by every
-        report. The learning curve and the dual ascent are measured during training, so their
-        rollout rule (:data:`CURVE_SCORING`) is.
+        The task is in it (its id, ``env_kwargs`` and :func:`~benchmarks.rl_envs.task_digest`),
+        with its scalings, bounds and penalties. The final evaluation is not: a run's policy is
+        kept and scored anew by every report. The learning curve and the dual ascent are
+        measured during training, so their rollout rule (:data:`CURVE_SCORING`) is.
         """
+        task = get_task(self.task)
         config = {
-            **asdict(self),
-            "curve_scoring": CURVE_SCORING,
-            "hyperparams": _jsonable(HP.hyperparams(self.algo, self.variant)),
-            "env": HP.ENV,
-            "betas": list(HP.BETAS),
-            "lagrangian": HP.LAGRANGIAN,
-            "residual_nu_bound": HP.RESIDUAL_NU_BOUND,
-            "residual_beta": HP.RESIDUAL_BETA,
+            **self._base_config(),
+            "task": self.task,
+            "env_kwargs": dict(task.env_kwargs),
+            "task_digest": task_digest(task),
         }
-        if variant_setup(self.variant)[0] == "u":  # residual agents do not depend on it
-            config["u_bound"] = HP.U_BOUND
+        if self.overrides:
+            config["overrides"] = _jsonable(dict(self.overrides))
         return config
 
     def fingerprint(self) -> str:
-        text = json.dumps(self.config(), sort_keys=True)
-        return hashlib.sha256(text.encode()).hexdigest()[:16]
+        return _hash(self.config())
+
+    def legacy_fingerprint(self) -> str | None:
+        """The fingerprint the macro comparison gave this run before the suite (its
+        configuration without the task), under which ``results/rl/runs`` is kept; None off the
+        macro task."""
+        return _hash(self._base_config()) if self.task == MACRO else None
 
 
-def variant_setup(variant: str) -> tuple[str, float | None, bool]:
-    """``(action_kind, beta or None, lagrangian)`` of a variant."""
-    if variant == "reward":
-        return "u", None, False
-    if variant == "residual":
-        return "residual", float(HP.RESIDUAL_BETA), False
-    if variant == "lagrangian":
-        return "u", float(HP.LAGRANGIAN["beta0"]), True
-    if variant.startswith("beta") and variant in VARIANTS:
-        return "u", float(variant[4:]), False
-    raise ValueError(f"variant = {variant!r}; expected one of {VARIANTS}")
+def _hash(config: dict[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def run_specs(
-    algos: list[str], variants: list[str], seeds: int, timesteps: int | None, quick: bool
+    configs: list[tuple[str, str]],
+    seeds: int | list[int],
+    timesteps: int | None,
+    quick: bool,
+    tasks: list[str] | tuple[str, ...] = (MACRO,),
+    budgets: str = "suite",
+    tuned: dict[tuple[str, str, str], tuple[tuple[str, Any], ...]] | None = None,
 ) -> list[RunSpec]:
-    """Every (algorithm, variant, seed) run; ``timesteps`` replaces every default budget."""
+    """Every (task, algorithm, variant, seed) run, task by task.
+
+    ``budgets``: ``"suite"`` (:func:`HP.suite_timesteps`) or ``"macro"`` (:func:`HP.timesteps`,
+    the budgets of ``results/rl``); ``timesteps`` replaces every default budget, ``quick`` makes
+    them :data:`HP.QUICK_TIMESTEPS`. ``seeds``: a count (seeds 0 .. seeds - 1) or a list.
+    ``tuned``: hyperparameter overrides (:attr:`RunSpec.overrides`) by ``(task, algo, variant)``.
+    """
+    tuned = tuned or {}
+    if budgets not in ("suite", "macro"):
+        raise ValueError(f"budgets = {budgets!r}; expected 'suite' or 'macro'")
     lc = HP.LEARNING_CURVE
+    seed_list = list(range(seeds)) if isinstance(seeds, int) else list(seeds)
+
+    def budget(task: str, algo: str, variant: str) -> int:
+        if timesteps:
+            return timesteps
+        if quick:
+            return HP.QUICK_TIMESTEPS
+        if budgets == "macro":
+            return HP.timesteps(algo, variant)
+        return HP.suite_timesteps(task, algo, variant)
+
     return [
         RunSpec(
             algo=algo,
             variant=variant,
             seed=seed,
-            timesteps=timesteps or (HP.QUICK_TIMESTEPS if quick else HP.timesteps(algo, variant)),
+            timesteps=budget(task, algo, variant),
             curve_points=3 if quick else lc["points"],
             curve_episodes=20 if quick else lc["episodes"],
             curve_seed=lc["seed"],
+            task=task,
+            overrides=tuned.get((task, algo, variant), ()),
         )
-        for algo in algos
-        for variant in variants
-        for seed in range(seeds)
+        for task in tasks
+        for algo, variant in configs
+        for seed in seed_list
     ]
 
 
 # ----------------------------------------------------------------------------- environments
-def make_train_env(
-    action_kind: str,
-    beta: float | None,
-    env_hp: dict[str, Any] | None = None,
-    K: np.ndarray | None = None,
-    nu_bound: float = HP.RESIDUAL_NU_BOUND,
-    u_bound: float | None = None,
-) -> gym.Env:
-    """``SDJLS-Macro-v0`` wrapped for training one agent.
-
-    Parameters
-    ----------
-    action_kind : {"u", "residual"}
-        See :data:`ACTION_KINDS`.
-    beta : float or None
-        Violation penalty (:class:`~sdjls_gym.wrappers.ViolationPenalty`); None trains on the
-        reward alone. The Lagrangian variant changes it with ``env.set_wrapper_attr``.
-    env_hp : dict, optional
-        Scalings (:data:`benchmarks.rl_hyperparams.ENV`, the default).
-    K : (N, m, n) array
-        Gains under a residual agent.
-    nu_bound : float
-        Bound on ``|nu|`` of a residual agent.
-    u_bound : float, optional
-        Bound on ``|u|`` of an agent acting on ``u``: the environment is made with
-        ``action_bound=u_bound``. None keeps the registered bound (200). Ignored for residual
-        agents.
-
-    Returns
-    -------
-    gymnasium.Env
-        Observation ``[x / x_scale (clipped), one-hot, k / T]``, action in ``[-1, 1]``.
-        :class:`~benchmarks.evaluate.RawEnvPolicy` undoes both for an agent trained on it.
-    """
-    action_kind = check_choice("action_kind", action_kind, ACTION_KINDS)
-    if u_bound is not None:
-        u_bound = check_positive("u_bound", u_bound, "the agent's bound on |u|")
-    env_hp = dict(HP.ENV if env_hp is None else env_hp)
-    if action_kind == "residual" or u_bound is None:
-        env = gym.make("SDJLS-Macro-v0")
-    else:
-        env = gym.make("SDJLS-Macro-v0", action_bound=u_bound)
-    if action_kind == "residual":
-        if K is None:
-            raise ValueError("a residual agent needs the gains K (N, m, n)")
-        env = ResidualAction(env, K, nu_bound)
-    one = np.ones(env.action_space.shape, dtype=np.float32)
-    env = RescaleAction(env, -one, one)
-    if beta is not None:
-        env = ViolationPenalty(env, beta)
-    bound = env_hp.pop("terminate_bound", None)
-    env = ScaleObservationReward(env, **env_hp)
-    if bound is not None:
-        env = TerminateOutside(env, bound)
-    return FiniteHorizon(env)
-
-
 def _train_env(spec: RunSpec) -> gym.Env:
-    kind, beta, _ = variant_setup(spec.variant)
-    K = PAPER_K if kind == "residual" else None
-    u_bound = HP.U_BOUND if kind == "u" else None
-    return make_train_env(kind, beta, HP.ENV, K, HP.RESIDUAL_NU_BOUND, u_bound)
+    return env_from_config(spec.config(), spec.variant)
 
 
 def build_agent(spec: RunSpec, env_fns: list[Callable[[], gym.Env]]) -> Any:
@@ -267,12 +301,12 @@ def build_agent(spec: RunSpec, env_fns: list[Callable[[], gym.Env]]) -> Any:
     from stable_baselines3.common.noise import NormalActionNoise
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    hp = copy.deepcopy(HP.hyperparams(spec.algo, spec.variant))
+    hp = spec.hyperparams()
     n_envs = hp.pop("n_envs")
     venv = DummyVecEnv(env_fns * n_envs if len(env_fns) == 1 else env_fns)
     if spec.algo == "td3":
-        std = hp.pop("noise_std")
-        hp["action_noise"] = NormalActionNoise(np.zeros(1), std * np.ones(1))
+        std, m = hp.pop("noise_std"), venv.action_space.shape[0]
+        hp["action_noise"] = NormalActionNoise(np.zeros(m), std * np.ones(m))
     if isinstance(hp.get("train_freq"), list):
         hp["train_freq"] = tuple(hp["train_freq"])
     hp["learning_rate"] = HP.learning_rate(hp["learning_rate"])  # "lin_<r>": a linear decay
@@ -295,9 +329,9 @@ class TrainingLog:
 class _Evaluator:
     """The deterministic policy's statistics on the raw environment during training."""
 
-    def __init__(self, train_env: gym.Env, log: TrainingLog) -> None:
+    def __init__(self, train_env: gym.Env, log: TrainingLog, task: str = MACRO) -> None:
         self.env, self.log = train_env, log
-        self.spec = resolve_env("SDJLS-Macro-v0", {})
+        self.spec = resolve_env(task, dict(get_task(task).env_kwargs))
 
     def __call__(self, agent: Any, episodes: int, seed: int) -> dict[str, Any]:
         t0 = time.perf_counter()
@@ -314,10 +348,16 @@ class LearningCurve(BaseCallback):
     """Evaluate the deterministic policy before training and at ``spec.curve_points`` marks."""
 
     def __init__(
-        self, spec: RunSpec, log: TrainingLog, evaluator: _Evaluator, report: Callable | None
+        self,
+        spec: RunSpec,
+        log: TrainingLog,
+        evaluator: _Evaluator,
+        report: Callable | None,
+        on_point: Callable[[CurvePoint], None] | None = None,
     ) -> None:
         super().__init__()
         self.spec, self.log, self.evaluator, self.report = spec, log, evaluator, report
+        self.on_point = on_point
         points = max(1, spec.curve_points)
         self.marks = [int(round(spec.timesteps * (i + 1) / points)) for i in range(points)]
         self.next = 0
@@ -336,7 +376,9 @@ class LearningCurve(BaseCallback):
             )
         )
         if self.report is not None:
-            self.report(self.spec.name, int(self.num_timesteps))
+            self.report(self.spec.label, int(self.num_timesteps))
+        if self.on_point is not None:
+            self.on_point(self.log.curve[-1])
 
     def _on_training_start(self) -> None:
         self._record()  # the untrained policy
@@ -351,16 +393,18 @@ class LearningCurve(BaseCallback):
 class DualAscent(BaseCallback):
     """``beta <- max(0, beta + lr_dual * (violation frequency - (1 - xi)))`` after each rollout
     that ends ``period`` steps after the last update, the frequency measured on fresh
-    evaluation episodes of the deterministic policy (:data:`~benchmarks.rl_hyperparams.LAGRANGIAN`).
+    evaluation episodes of the deterministic policy (:data:`~benchmarks.rl_hyperparams.LAGRANGIAN`,
+    with the task's ``xi`` and penalty unit: :meth:`RunSpec.lagrangian`).
     """
 
     def __init__(self, spec: RunSpec, log: TrainingLog, evaluator: _Evaluator) -> None:
         super().__init__()
         self.log, self.evaluator = log, evaluator
         self.violations, self.steps = 0.0, 0
-        period = HP.LAGRANGIAN["period"]
+        self.lag = spec.lagrangian()
+        period = self.lag["period"]
         self.period = int(period[spec.algo] if isinstance(period, dict) else period)
-        self.seeds = np.random.default_rng([HP.LAGRANGIAN["seed"], spec.seed])
+        self.seeds = np.random.default_rng([self.lag["seed"], spec.seed])
 
     def _on_step(self) -> bool:
         for info in self.locals["infos"]:
@@ -372,10 +416,10 @@ class DualAscent(BaseCallback):
         if self.steps < self.period:
             return
         seed = int(self.seeds.integers(2**31))
-        freq = self.evaluator(self.model, HP.LAGRANGIAN["episodes"], seed)["violation"]
+        freq = self.evaluator(self.model, self.lag["episodes"], seed)["violation"]
         train_freq = self.violations / self.steps
-        target = 1.0 - HP.LAGRANGIAN["xi"]
-        beta = max(0.0, self.log.beta + HP.LAGRANGIAN["lr_dual"] * (freq - target))
+        target = 1.0 - self.lag["xi"]
+        beta = max(0.0, self.log.beta + self.lag["lr_dual"] * (freq - target))
         self.training_env.env_method("set_wrapper_attr", "beta", beta)
         seen = self.training_env.get_attr("beta")
         if not np.allclose(seen, beta):
@@ -414,23 +458,25 @@ def train_run(
     spec: RunSpec,
     report: Callable[[str, int], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
+    on_curve_point: Callable[[CurvePoint], None] | None = None,
 ) -> tuple[RunRecord, bytes]:
     """Train one agent: its record and its policy's state dict (``torch.save`` bytes).
 
     One torch thread; everything is rebuilt from ``spec``, so the result does not depend on
-    the process or machine it runs in. ``report(name, timesteps)`` is called at each
-    learning-curve point; ``should_stop()``, if given, can end the training
-    (:class:`TrainingStopped`).
+    the process or machine it runs in. ``report(label, timesteps)`` is called at each
+    learning-curve point, and ``on_curve_point(point)`` with the point (an exception it raises,
+    e.g. a tuner's pruning, ends the training and propagates); ``should_stop()``, if given, can
+    end the training (:class:`TrainingStopped`).
     """
     import torch
     from stable_baselines3.common.monitor import Monitor
 
     torch.set_num_threads(1)
     agent = build_agent(spec, [lambda: Monitor(_train_env(spec))])
-    _, beta0, lagrangian = variant_setup(spec.variant)
+    _, beta0, lagrangian = variant_setup(spec.variant, task_settings(spec.task))
     log = TrainingLog(beta=beta0)
-    evaluator = _Evaluator(_train_env(spec), log)
-    callbacks: list[BaseCallback] = [LearningCurve(spec, log, evaluator, report)]
+    evaluator = _Evaluator(_train_env(spec), log, spec.task)
+    callbacks: list[BaseCallback] = [LearningCurve(spec, log, evaluator, report, on_curve_point)]
     if lagrangian:
         callbacks.insert(0, DualAscent(spec, log, evaluator))
     if should_stop is not None:
@@ -439,7 +485,7 @@ def train_run(
     agent.learn(total_timesteps=spec.timesteps, callback=callbacks)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     if should_stop is not None and callbacks[-1].stopped:
-        raise TrainingStopped(f"{spec.name} was stopped at {agent.num_timesteps} steps")
+        raise TrainingStopped(f"{spec.label} was stopped at {agent.num_timesteps} steps")
     record = RunRecord(
         name=spec.name,
         algo=spec.algo,
@@ -455,6 +501,7 @@ def train_run(
         final_beta=log.beta,
         learning_curve=log.curve,
         dual_ascent=log.dual,
+        task=spec.task,
     )
     buffer = io.BytesIO()
     torch.save(agent.policy.state_dict(), buffer)
@@ -475,10 +522,11 @@ def policy_path(json_path: str | Path) -> Path:
 
 
 def save_run(run_dir: Path, record: RunRecord, policy: bytes) -> Path:
-    """Write ``<name>-<fingerprint>.pt`` then ``.json`` (a JSON file implies its policy), each
-    atomically (:func:`benchmarks.files.write_atomic`); only a run of the same configuration
-    (``--retrain``) is replaced."""
-    path = run_path(run_dir, record.name, record.fingerprint)
+    """Write ``<task>/<name>-<fingerprint>.pt`` then ``.json`` under ``run_dir`` (a JSON file
+    implies its policy), each atomically (:func:`benchmarks.files.write_atomic`); only a run of
+    the same configuration (``--retrain``) is replaced."""
+    path = run_path(Path(run_dir) / record.task, record.name, record.fingerprint)
+    path.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(policy_path(path), policy)
     write_atomic(path, json.dumps(record.to_json()) + "\n")
     return path
@@ -487,17 +535,25 @@ def save_run(run_dir: Path, record: RunRecord, policy: bytes) -> Path:
 def kept_run_path(run_dir: Path, spec: RunSpec) -> Path | None:
     """The record file of the kept run of ``spec`` (with its policy beside it), or None.
 
-    Reads ``<name>-<fingerprint>.json``, and the older layout ``<name>.json`` when the
-    fingerprint recorded in it matches (such a file is read, never written)."""
+    Reads ``run_dir/<task>/<name>-<fingerprint>.json``; on the macro task also the layouts of
+    the macro comparison before the suite (read, never written): ``run_dir/<name>-<fp>.json``
+    and ``run_dir/<name>.json``, where ``fp`` is the run's fingerprint or
+    :meth:`RunSpec.legacy_fingerprint` and the file records it."""
     fingerprint = spec.fingerprint()
-    for path in (run_path(run_dir, spec.name, fingerprint), Path(run_dir) / f"{spec.name}.json"):
+    candidates = [(run_path(Path(run_dir) / spec.task, spec.name, fingerprint), {fingerprint})]
+    legacy = spec.legacy_fingerprint()
+    if legacy is not None:
+        accepted = {fingerprint, legacy}
+        candidates += [(run_path(run_dir, spec.name, fp), accepted) for fp in (fingerprint, legacy)]
+        candidates.append((Path(run_dir) / f"{spec.name}.json", accepted))
+    for path, accepted in candidates:
         if not (path.exists() and policy_path(path).exists()):
             continue
         try:
             data = json.loads(path.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError):
             continue
-        if isinstance(data, dict) and data.get("fingerprint") == fingerprint:
+        if isinstance(data, dict) and data.get("fingerprint") in accepted:
             return path
     return None
 
@@ -508,17 +564,26 @@ def load_run(run_dir: Path, spec: RunSpec) -> RunRecord | None:
     return None if path is None else RunRecord.from_json(json.loads(path.read_text()))
 
 
-def load_policy(spec: RunSpec, path: str | Path) -> RawEnvPolicy:
-    """The trained policy of ``spec`` from its state dict at ``path``, acting on the raw env."""
+def policy_from_config(
+    algo: str, variant: str, config: dict[str, Any], path: str | Path
+) -> RawEnvPolicy:
+    """The policy whose state dict is at ``path``, rebuilt from a run's recorded ``config``
+    (its hyperparameters' ``policy_kwargs`` and its training environment,
+    :func:`env_from_config`), acting on the raw environment."""
     import torch
     from stable_baselines3 import PPO, SAC, TD3
 
-    env = _train_env(spec)
-    cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[spec.algo]
-    kwargs = copy.deepcopy(HP.hyperparams(spec.algo, spec.variant).get("policy_kwargs", {}))
+    env = env_from_config(config, variant)
+    cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[algo]
+    kwargs = copy.deepcopy(config["hyperparams"].get("policy_kwargs", {}))
     policy = cls.policy_aliases["MlpPolicy"](
         env.observation_space, env.action_space, lambda _: 0.0, **kwargs
     )
     policy.load_state_dict(torch.load(path, map_location="cpu", weights_only=True))
     policy.set_training_mode(False)
     return RawEnvPolicy(policy, env)
+
+
+def load_policy(spec: RunSpec, path: str | Path) -> RawEnvPolicy:
+    """The trained policy of ``spec`` from its state dict at ``path``, acting on the raw env."""
+    return policy_from_config(spec.algo, spec.variant, spec.config(), path)

@@ -109,6 +109,13 @@ class CurveGap:
     xi : float or None
         The curve's parameter interpolated at ``violation`` (the level ``xi`` of a receding-
         horizon controller that would violate as often), or None without the points' ``xis``.
+    relative : float or None
+        ``mean`` in percent of ``curve_cost`` (negative: cheaper than the curve); None where
+        the curve's cost is not positive.
+    relative_ci95 : (float, float) or None
+        ``ci95`` in percent of ``curve_cost`` (the curve's cost at the point estimate: a
+        resample's own curve cost can be extrapolated to zero or below where its frequency
+        leaves the curve's range, so the ratio is not resampled).
     """
 
     mean: float
@@ -116,6 +123,8 @@ class CurveGap:
     curve_cost: float
     violation: float
     xi: float | None = None
+    relative: float | None = None
+    relative_ci95: tuple[float, float] | None = None
 
 
 def paired_curve_gap(
@@ -208,7 +217,13 @@ def paired_curve_gap(
     rng = np.random.default_rng(seed)
     boot = gaps(rng.multinomial(E, np.full(E, 1.0 / E), size=resamples) / E)[0]
     lo, hi = np.percentile(boot, [2.5, 97.5])
-    return CurveGap(float(gap), (float(lo), float(hi)), float(ref), float(v), xi)
+    relative = relative_ci = None
+    if ref > 0:  # costs are >= 0: only an all-zero curve fails this
+        relative = float(100.0 * gap / ref)
+        relative_ci = (float(100.0 * lo / ref), float(100.0 * hi / ref))
+    return CurveGap(
+        float(gap), (float(lo), float(hi)), float(ref), float(v), xi, relative, relative_ci
+    )
 
 
 def paired_difference(

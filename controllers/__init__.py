@@ -1,6 +1,7 @@
 """Controllers for SDJLS models: LMI pre-stabilization, chance constraints, receding horizon.
 
-Controllers read an :class:`sdjls_gym.SDJLSModel`; they never simulate.
+Controllers read an :class:`sdjls_gym.SDJLSModel`; they never simulate. Their exceptions live
+in :mod:`sdjls_gym.errors` with the library's others; the LMI ones are exported here too.
 """
 
 from controllers.base import Controller
@@ -10,9 +11,6 @@ from controllers.env_policy import ControllerPolicy, policy_for
 from controllers.horizon import Status
 from controllers.lmi import (
     GainSynthesisResult,
-    LMIError,
-    LMIInfeasibleError,
-    LMISolverError,
     check_proposition2,
     synthesize_gains,
 )
@@ -23,6 +21,7 @@ from controllers.mean_square import (
 )
 from controllers.rhc import RecedingHorizonController, UnconstrainedRecedingHorizonController
 from controllers.scenario_tree import ScenarioTreeController
+from sdjls_gym.errors import LMIError, LMIInfeasibleError, LMISolverError
 
 __all__: list[str] = []
 __all__ += [

@@ -23,17 +23,16 @@ from typing import Any
 
 import numpy as np
 
-from sdjls_gym._validate import (
+from sdjls_gym.messages import a_type, describe
+from sdjls_gym.model import SDJLSModel
+from sdjls_gym.observation import decode_observation
+from sdjls_gym.validation import (
     MAX_INDEX,
-    a_type,
     check_array,
     check_int,
     check_int_array,
     check_optional_int,
-    describe,
 )
-from sdjls_gym.env import decode_observation
-from sdjls_gym.model import SDJLSModel
 
 __all__ = [
     "Controller",

@@ -13,21 +13,18 @@ from typing import Any
 
 import numpy as np
 
-from sdjls_gym._validate import check_array, check_choice, check_int, check_positive, describe
+from sdjls_gym.errors import RiccatiConvergenceError
+from sdjls_gym.messages import describe
 from sdjls_gym.model import SDJLSModel
+from sdjls_gym.validation import check_array, check_choice, check_int, check_positive
 
 from .base import Controller, check_gain
 
 __all__ = [
     "LinearFeedbackController",
     "MJLSLQRController",
-    "RiccatiConvergenceError",
     "coupled_riccati_residual",
 ]
-
-
-class RiccatiConvergenceError(RuntimeError):
-    """The coupled Riccati iteration did not converge (subclass of :class:`RuntimeError`)."""
 
 
 class _LinearPolicy(Controller):

@@ -32,8 +32,8 @@ from typing import Any
 import numpy as np
 from scipy import special, stats
 
-from sdjls_gym._validate import check_choice, check_int, check_probability
 from sdjls_gym.model import SDJLSModel
+from sdjls_gym.validation import check_choice, check_int, check_probability
 
 from .base import check_model
 

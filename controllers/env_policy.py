@@ -7,6 +7,9 @@ actions: fed ``u`` directly, it multiplies them by the bound and the episode div
 :func:`policy_for` reads the wrappers of the environment, converts ``u`` into the outer action
 for the ones it can invert (``RescaleAction``, ``ClipAction``), acts through a known list of
 wrappers that leave the observation and the action alone, and refuses every other one by name.
+
+It reads what it needs of the environment (``env.unwrapped.model``, ``.horizon`` and the
+spaces), not its class: the controllers depend on the model, never on the environments.
 """
 
 from __future__ import annotations
@@ -17,13 +20,12 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import wrappers as gw
 
-from sdjls_gym import wrappers as sw
-from sdjls_gym._validate import a_type, describe
-from sdjls_gym.env import SDJLSEnv
+from sdjls_gym.messages import a_type, describe
+from sdjls_gym.model import SDJLSModel
 
 from .base import Controller
 
-__all__ = ["ControllerPolicy", "PASS_THROUGH_WRAPPERS", "policy_for"]
+__all__ = ["ControllerPolicy", "PASS_THROUGH_NAMES", "PASS_THROUGH_WRAPPERS", "policy_for"]
 
 #: Wrappers that leave the observation and the action alone (they change the reward, the
 #: episode's end, records or rendering): a controller acts through them unchanged. Matched by
@@ -40,12 +42,16 @@ PASS_THROUGH_WRAPPERS: tuple[type, ...] = (
     gw.TransformReward,
     gw.ClipReward,
     gw.NormalizeReward,
-    sw.ViolationPenalty,
-    sw.TerminateOutside,
-    sw.FiniteHorizon,
 )
-#: The same, named by module and class for libraries that need not be installed.
-_PASS_THROUGH_NAMES = ("stable_baselines3.common.monitor.Monitor",)
+#: The same, named by module and class: this project's reward and episode wrappers (named, so
+#: that the controllers do not import the environments) and libraries that need not be
+#: installed.
+PASS_THROUGH_NAMES = (
+    "sdjls_gym.wrappers.ViolationPenalty",
+    "sdjls_gym.wrappers.TerminateOutside",
+    "sdjls_gym.wrappers.FiniteHorizon",
+    "stable_baselines3.common.monitor.Monitor",
+)
 
 
 def _layers(env: gym.Env) -> list[gym.Env]:
@@ -114,9 +120,11 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
     controller : Controller
         Any controller of this package (its ``model`` must be the environment's).
     env : gymnasium.Env
-        An SDJLS environment, possibly wrapped. The wrappers of :data:`PASS_THROUGH_WRAPPERS`
-        (and stable-baselines3's ``Monitor``), which leave the observation and the action alone,
-        are acted through; ``RescaleAction`` (the input ``u`` is mapped to the outer action) and
+        An SDJLS environment (its ``unwrapped`` has an ``SDJLSModel`` ``model`` and an int
+        ``horizon``: ``SDJLSEnv``), possibly wrapped. The wrappers of
+        :data:`PASS_THROUGH_WRAPPERS` and :data:`PASS_THROUGH_NAMES` (this project's
+        ``ViolationPenalty``, ``TerminateOutside``, ``FiniteHorizon``, stable-baselines3's
+        ``Monitor``), which leave the observation and the action alone, are acted through; ``RescaleAction`` (the input ``u`` is mapped to the outer action) and
         ``ClipAction`` (a no-op on the bounded input) are undone. Every other wrapper is refused
         by name, even one that keeps the observation space (``MaxAndSkipObservation``, a
         rescaling whose clip leaves the Box as it was): the controller needs the raw state and
@@ -157,7 +165,9 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
         raise TypeError(f"env = {describe(env)} is {a_type(env)}; expected a gymnasium.Env")
     layers = _layers(env)
     base = layers[-1]
-    if not isinstance(base, SDJLSEnv):
+    if not isinstance(getattr(base, "model", None), SDJLSModel) or not isinstance(
+        getattr(base, "horizon", None), int
+    ):
         raise ValueError(
             f"env is a {type(base).__name__} underneath; expected an SDJLS environment "
             '(gym.make("SDJLS-v0", ...) or "SDJLS-Macro-v0")'
@@ -171,7 +181,7 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
         kind = type(layer)
         name = kind.__name__
         if kind in PASS_THROUGH_WRAPPERS or f"{kind.__module__}.{kind.__qualname__}" in (
-            _PASS_THROUGH_NAMES
+            PASS_THROUGH_NAMES
         ):
             continue
         if kind is gw.RescaleAction:
@@ -197,11 +207,14 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
                 what = "that changes the action in a way policy_for cannot undo"
             else:
                 what = "that policy_for does not know (it may change the observation or the action)"
-            known = ", ".join(k.__name__ for k in PASS_THROUGH_WRAPPERS)
+            known = ", ".join(
+                [k.__name__ for k in PASS_THROUGH_WRAPPERS]
+                + [path.rsplit(".", 1)[1] for path in PASS_THROUGH_NAMES]
+            )
             raise ValueError(
                 f"env has a {name} {what}; a controller needs the raw observation [x, "
                 "one-hot(mode), k / horizon] and its input u must reach the raw env. policy_for "
-                f"acts through {known} and Monitor, undoes RescaleAction and ClipAction, and "
+                f"acts through {known}, undoes RescaleAction and ClipAction, and "
                 "refuses every other wrapper (act on env.unwrapped instead)"
             )
     return ControllerPolicy(controller, base.horizon, rescales)

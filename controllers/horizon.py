@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from sdjls_gym._validate import check_bool, check_choice, check_number
 from sdjls_gym.model import SDJLSModel
+from sdjls_gym.validation import check_bool, check_choice, check_number
 
 from .base import MAX_STATE, Controller, check_gain, check_terminal_weights
 from .chance import CONSTRAINT_KINDS, check_xi

@@ -32,15 +32,14 @@ import cvxpy as cp
 import numpy as np
 
 from sdjls_gym import SDJLSModel
-from sdjls_gym._validate import a_type, check_array, check_bool, check_number, describe
+from sdjls_gym.errors import LMIInfeasibleError, LMISolverError
+from sdjls_gym.messages import a_type, describe
+from sdjls_gym.validation import check_array, check_bool, check_number
 
 from .base import check_model, frozen
 
 __all__ = [
     "GainSynthesisResult",
-    "LMIError",
-    "LMIInfeasibleError",
-    "LMISolverError",
     "check_proposition2",
     "synthesize_gains",
 ]
@@ -50,19 +49,6 @@ _OBJECTIVES = ("feasibility", "max_margin")
 #: Multiple of the float64 unit roundoff allowed as the error of a computed eigenvalue, relative
 #: to the size of the matrix, before a "negative" eigenvalue is accepted as really negative.
 _ROUNDOFF_FACTOR = 1e3
-
-
-# ---------------------------------------------------------------------------------- exceptions
-class LMIError(RuntimeError):
-    """Base class of the errors of this module: an LMI problem gave no usable answer."""
-
-
-class LMIInfeasibleError(LMIError, ValueError):
-    """The solver reports the LMIs infeasible (also a :class:`ValueError`: the data are bad)."""
-
-
-class LMISolverError(LMIError):
-    """The solver failed, was inaccurate, or its answer did not pass the float64 check."""
 
 
 # ---------------------------------------------------------------------------------- results

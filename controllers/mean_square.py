@@ -19,12 +19,11 @@ import cvxpy as cp
 import numpy as np
 
 from sdjls_gym import SDJLSModel
-from sdjls_gym._validate import check_array, check_int_array, check_number
+from sdjls_gym.errors import LMIInfeasibleError, LMISolverError
+from sdjls_gym.validation import check_array, check_int_array, check_number
 
 from .base import check_model, frozen
 from .lmi import (
-    LMIInfeasibleError,
-    LMISolverError,
     as_array,
     check_eps,
     check_scalar,

@@ -26,7 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from sdjls_gym.model import SDJLSModel, max_last
+from sdjls_gym.dynamics import max_last
+from sdjls_gym.model import SDJLSModel
 
 from .base import frozen
 from .horizon import HorizonSettings

@@ -60,7 +60,8 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from sdjls_gym._validate import check_mapping, describe
+from sdjls_gym.messages import describe
+from sdjls_gym.validation import check_mapping
 
 from .active_set import ActiveSetQP, candidate_maps
 from .dual_qp import REGULARIZE, DaqpData, DaqpWorkspace, daqp_data, run_daqp

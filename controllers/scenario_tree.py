@@ -64,8 +64,8 @@ from typing import Any
 
 import numpy as np
 
-from sdjls_gym._validate import check_int
 from sdjls_gym.model import SDJLSModel
+from sdjls_gym.validation import check_int
 
 from .horizon import MAX_QP_ENTRY, RecedingHorizonBase, Status
 from .tree_data import (

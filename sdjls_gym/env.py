@@ -4,17 +4,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import sys
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from gymnasium.envs.registration import EnvSpec
-from gymnasium.error import ResetNeeded
 
-from sdjls_gym._validate import (
-    a_type,
+from sdjls_gym import functional
+from sdjls_gym.errors import ResetNeededError
+from sdjls_gym.functional import MAX_DIVERGENCE_BOUND, EnvParams, may_overflow
+from sdjls_gym.messages import a_type, describe
+from sdjls_gym.model import SDJLSModel
+from sdjls_gym.observation import encode_observation, observation_space
+from sdjls_gym.validation import (
     check_array,
     check_choice,
     check_float32_bound,
@@ -22,38 +25,18 @@ from sdjls_gym._validate import (
     check_mapping,
     check_number,
     check_numbers,
-    check_optional_int,
-    describe,
 )
-from sdjls_gym.model import SDJLSModel, max_last
 
 __all__ = [
     "SDJLSEnv",
-    "ResetNeededError",
-    "resolve_model",
-    "observation_space",
     "action_space",
-    "decode_observation",
+    "check_divergence_bound",
+    "check_model_x0",
+    "make_env",
+    "own_spec",
+    "parse_reset_options",
+    "resolve_model",
 ]
-
-#: Largest allowed ``divergence_bound``: squares of states stay finite in float64 and the clipped
-#: observation stays finite in float32.
-MAX_DIVERGENCE_BOUND = 1e30
-
-#: The stage cost reported (and negated as the reward) when it overflows float64 (or is NaN):
-#: the largest finite float. Such a step terminates the episode as diverged.
-MAX_STAGE_COST = sys.float_info.max
-
-#: Bound on a standard normal draw assumed when deciding whether a step can overflow float64.
-#: It only decides whether numpy's overflow warnings are silenced; overflow is handled anyway.
-_NOISE_DRAW_BOUND = 1e3
-
-
-class ResetNeededError(ResetNeeded, RuntimeError):
-    """``step()`` before ``reset()``, or after the episode ended (Gymnasium's convention).
-
-    Both a :class:`gymnasium.error.ResetNeeded` and a :class:`RuntimeError`.
-    """
 
 
 def resolve_model(model: SDJLSModel | str | dict | None) -> SDJLSModel:
@@ -157,101 +140,6 @@ def own_spec(spec: EnvSpec | None, max_episode_steps: int) -> EnvSpec | None:
     return dataclasses.replace(spec, kwargs=kwargs, max_episode_steps=steps)
 
 
-def check_max_episode_steps(
-    max_episode_steps: Any, horizon: int, source: str = "", remedy: str = ""
-) -> int | None:
-    """``max_episode_steps`` as an int (or None), refused when it is larger than ``horizon``.
-
-    The environments end their episodes at their ``horizon``: a ``TimeLimit`` (or the vector
-    environment's ``max_episode_steps``) may only end them earlier. A larger value would make
-    ``spec.max_episode_steps`` report more steps than an episode has.
-
-    Parameters
-    ----------
-    max_episode_steps : int or None
-        The limit asked for; None for none.
-    horizon : int
-        The environment's horizon.
-    source : str, optional
-        Where the value comes from, shown after it in the message (e.g. ``" (of the EnvSpec
-        given to gym.make)"``).
-    remedy : str, optional
-        A further way out, appended to the advice.
-
-    Raises
-    ------
-    TypeError
-        ``max_episode_steps`` is not an int.
-    ValueError
-        ``max_episode_steps`` is below 1 or above ``horizon``.
-    """
-    steps = check_optional_int("max_episode_steps", max_episode_steps, low=1)
-    if steps is not None and steps > horizon:
-        raise ValueError(
-            f"max_episode_steps = {steps}{source} is larger than horizon = {horizon}: the "
-            f"environment ends its episodes at its horizon; pass horizon={steps} instead"
-            f"{remedy} (max_episode_steps may only shorten episodes)"
-        )
-    return steps
-
-
-def _check_time_limit_of_make(frame: Any, horizon: int) -> None:
-    """Refuse the ``TimeLimit`` that ``gymnasium.make`` is about to add if it exceeds ``horizon``.
-
-    ``gymnasium.make`` builds the environment, sets ``env.unwrapped.spec`` (with
-    ``max_episode_steps=None``) and only then wraps it in ``TimeLimit(max_episode_steps)``,
-    whose spec reports that value; nothing of the limit reaches the environment. The spec
-    setter is the last call into the environment before the wrapper is added, so it reads the
-    limit from the calling frame of ``gymnasium.make`` (its ``max_episode_steps`` argument, or
-    that of the ``EnvSpec`` it was given, as ``make`` does; ``-1`` is no limit). ``frame`` is
-    the caller of the setter; a call from anywhere else is not checked.
-    """
-    if frame is None or frame.f_code is not gym.envs.registration.make.__code__:
-        return
-    names = frame.f_locals
-    steps, source, remedy = names.get("max_episode_steps"), "", ""
-    if steps is None:  # make uses the limit of the spec it was given
-        steps = getattr(names.get("env_spec"), "max_episode_steps", None)
-        source = " (of the EnvSpec given to gym.make)"
-        remedy = ", or max_episode_steps=-1 for no TimeLimit"
-    if steps is None or (isinstance(steps, (int, np.integer)) and steps == -1):
-        return
-    check_max_episode_steps(steps, horizon, source, remedy)
-
-
-def may_overflow(
-    model: SDJLSModel, action_high: np.ndarray, divergence_bound: float, horizon: int
-) -> bool:
-    """Whether a step from a state inside the divergence box could overflow float64.
-
-    A bound on every product and sum of :meth:`SDJLSModel.step_one` (next state, constraint
-    values, stage cost) for ``|x| <= divergence_bound``, ``|u| <= action_high`` and standard
-    normal draws below ``_NOISE_DRAW_BOUND``. Only used to skip numpy's error-state switch on
-    the hot path: a step that overflows anyway is still detected and terminated.
-    """
-    noise = np.abs(model.W_sqrt).sum(axis=1) * _NOISE_DRAW_BOUND
-    z = np.concatenate([np.full(model.n, divergence_bound), action_high, noise])
-    with np.errstate(over="ignore", invalid="ignore"):
-        M = np.abs(np.concatenate([model._tables["ABE"], model.G @ model._tables["ABE"]], axis=1))
-        y = M @ z
-        zxu = z[: model.n + model.m]
-        cost = np.abs(model._tables["QR"]) @ zxu @ zxu
-        H = np.abs(model.H0) + horizon * np.abs(model.H_rate)
-        worst = max(float(np.max(y)), float(np.max(cost)), float(np.max(H)))
-    return not worst < 1e300
-
-
-def observation_space(model: SDJLSModel, divergence_bound: float) -> spaces.Box:
-    """The Box ``[x (n), one-hot of the mode (N), k / horizon]`` of float32.
-
-    ``x`` is clipped to ``[-divergence_bound, divergence_bound]`` in the observation (an episode
-    terminates as soon as it leaves that box); the exact state is ``info["state"]``.
-    """
-    low = np.concatenate([np.full(model.n, -divergence_bound), np.zeros(model.N + 1)])
-    high = np.concatenate([np.full(model.n, divergence_bound), np.ones(model.N + 1)])
-    return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
-
-
 def action_space(model: SDJLSModel, action_bound: float | np.ndarray) -> spaces.Box:
     """The Box ``|u_i| <= action_bound`` of float32.
 
@@ -267,69 +155,6 @@ def action_space(model: SDJLSModel, action_bound: float | np.ndarray) -> spaces.
         "action_bound", action_bound, size=model.m, what="bound(s) on |u_i| of the float32 Box"
     ).astype(np.float32)
     return spaces.Box(-bound, bound, dtype=np.float32)
-
-
-def encode_observation(
-    model: SDJLSModel,
-    x: np.ndarray,
-    mode: np.ndarray | int,
-    k: np.ndarray | int,
-    horizon: int,
-    divergence_bound: float,
-) -> np.ndarray:
-    """Observation(s) ``[clip(x), one_hot(mode), k / horizon]``; batched over a leading axis."""
-    x = np.asarray(x, dtype=np.float64)
-    batch = x.shape[:-1]
-    obs = np.zeros((*batch, model.n + model.N + 1), dtype=np.float32)
-    # a diverged state shows at the bound: inf at +-bound, NaN at +bound
-    clipped = np.clip(x, -divergence_bound, divergence_bound)
-    obs[..., : model.n] = np.nan_to_num(clipped, copy=False, nan=divergence_bound)
-    one_hot = obs[..., model.n : model.n + model.N]
-    np.put_along_axis(one_hot, np.broadcast_to(np.asarray(mode), batch)[..., None], 1.0, axis=-1)
-    obs[..., -1] = np.asarray(k, dtype=np.float64) / horizon
-    return obs
-
-
-def decode_observation(
-    model: SDJLSModel, observation: np.ndarray, horizon: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Inverse of the observation encoding: ``(x (..., n), mode (...), k (...))``.
-
-    ``x`` comes back as float64 but carries float32 precision; use ``info["state"]`` when the
-    exact state matters.
-    """
-    obs = np.asarray(observation, dtype=np.float64)
-    if obs.shape[-1] != model.n + model.N + 1:
-        raise ValueError(
-            f"observation has shape {obs.shape}; expected (..., {model.n + model.N + 1}) = "
-            "[x (n), one-hot mode (N), k/horizon]"
-        )
-    x = obs[..., : model.n]
-    mode = np.argmax(obs[..., model.n : model.n + model.N], axis=-1)
-    k = np.rint(obs[..., -1] * horizon).astype(np.int64)
-    return x, mode, k
-
-
-def step_info(
-    model: SDJLSModel, x: np.ndarray, mode: Any, k: Any, values: np.ndarray | None = None
-) -> dict[str, Any]:
-    """The info entries that describe a state ``(x, mode, k)``; batched over a leading axis.
-
-    ``values``, the constraint values ``G x - H_k``, are computed unless given. A row whose
-    value is NaN (a diverged, non-finite state) counts as violated.
-    """
-    if values is None:
-        values = model.constraint_values(x, k)
-    inside = max_last(values) <= 0.0  # False when a value is NaN: max propagates it
-    return {
-        "state": np.array(x, dtype=np.float64),
-        "mode": mode,
-        "k": k,
-        "in_region": inside,
-        "constraint_values": values,
-        "violations": ~(values <= 0.0),
-        "cost": np.where(inside, 0.0, 1.0),
-    }
 
 
 def _check_render_mode(render_mode: Any) -> str | None:
@@ -438,14 +263,17 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
 
     * Truncation: after `horizon` steps. The environment truncates by itself (the ids register
       no `TimeLimit`), and `env.spec.max_episode_steps` reports the horizon. `gym.make(...,
-      max_episode_steps=M)` may only shorten episodes: `M <= horizon` adds Gymnasium's
-      `TimeLimit`, a larger `M` is a `ValueError` (pass `horizon=M` instead).
+      max_episode_steps=M)` adds Gymnasium's `TimeLimit(M)` outside the environment, which
+      only shortens episodes: with `M > horizon` they still end at the horizon while the
+      wrapper's spec reports `M` (Gymnasium adds the wrapper out of the environment's sight,
+      so this cannot be refused): pass `horizon=M` instead.
     * Termination: only on divergence, when `max |x_{k+1}| > divergence_bound`, when `x_{k+1}`
       is not finite, or when the stage cost overflows float64 (`info["diverged"] = True`).
       Rewards and observations stay finite. A step that overflows float64 reports the exact
       `x_{k+1}`, stage cost and constraint values rounded to float64 (±inf beyond its range,
-      never NaN: `SDJLSModel.exact_step_one`), the same as the vector environment.
-    * After the end, `step()` raises `ResetNeededError` (a `gymnasium.error.ResetNeeded` and a
+      never NaN: `SDJLSModel.exact_transition`), the same as the vector environment.
+    * After the end, `step()` raises `sdjls_gym.errors.ResetNeededError` (a
+      `gymnasium.error.ResetNeeded` and a
       `RuntimeError`): call `reset()`. The vector environment resets by itself instead.
 
     ## Arguments
@@ -497,13 +325,16 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         self._action_what = f"the input u_k, {self.model.m} finite number(s)"  # for step's errors
         self._high = self.action_space.high.astype(np.float64)
         self._low_list, self._high_list = self._low.tolist(), self._high.tolist()
-        self._may_overflow = may_overflow(
-            self.model, self._high, self.divergence_bound, self.horizon
+        self._params = EnvParams(
+            self.model,
+            self.horizon,
+            self.divergence_bound,
+            may_overflow(self.model, self._high, self.divergence_bound, self.horizon),
         )
         self._x: np.ndarray | None = None
         self._mode = 0
         self._k = 0
-        self._inside = True
+        self._inside = True  # the region test of the current state, reused by step()
         self._ended: str | None = None  # why the episode ended, until the next reset()
         self._history: list[tuple[np.ndarray, int]] = []
         self._renderer: Any = None  # the figure of render(), built on first use
@@ -512,14 +343,17 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
     @property
     def spec(self) -> EnvSpec | None:
         """The ``EnvSpec`` that ``gymnasium.make`` set, with ``max_episode_steps = horizon``
-        (the environment truncates by itself) and JSON-friendly kwargs (see :func:`own_spec`)."""
+        (the environment truncates by itself) and JSON-friendly kwargs (see :func:`own_spec`).
+
+        ``gymnasium.make(..., max_episode_steps=M)`` wraps the environment in its ``TimeLimit``
+        after setting this spec (with ``max_episode_steps=None``): the limit never reaches the
+        environment, so an ``M`` above the horizon cannot be refused here. Episodes still end
+        at the horizon; the ``TimeLimit``'s spec reports ``M``: pass ``horizon=M`` instead.
+        """
         return self._spec
 
     @spec.setter
     def spec(self, value: EnvSpec | None) -> None:
-        # gymnasium.make sets the spec just before it adds its TimeLimit: refuse one longer
-        # than the horizon here, at make time (see _check_time_limit_of_make)
-        _check_time_limit_of_make(sys._getframe(1), self.horizon)
         self._spec = own_spec(value, self.horizon)
 
     # ------------------------------------------------------------------ current state
@@ -540,45 +374,6 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         """The current time index ``k``."""
         return self._k
 
-    # ------------------------------------------------------------------ helpers
-    def _obs(self, diverged: bool) -> np.ndarray:
-        # encode_observation for one state, without its batch machinery (the hot path)
-        model, bound = self.model, self.divergence_bound
-        obs = np.zeros(model.n + model.N + 1, dtype=np.float32)
-        if diverged:  # clipped, NaN at +bound: inside the observation space (n is small)
-            obs[: model.n] = [
-                v if -bound <= v <= bound else -bound if v < 0 else bound for v in self._x.tolist()
-            ]
-        else:
-            obs[: model.n] = self._x
-        obs[model.n + self._mode] = 1.0
-        obs[-1] = self._k / self.horizon
-        return obs
-
-    def _info(
-        self, stage_cost: float, diverged: bool, values: np.ndarray | None = None
-    ) -> dict[str, Any]:
-        x = self._x
-        if values is None:
-            values = self.model.constraint_values_one(x, self._k)
-        if diverged:  # NaN values count as violated
-            violations = ~(values <= 0.0)
-            self._inside = not any(violations.tolist())
-        else:
-            violations = values > 0.0
-            self._inside = max(values.tolist()) <= 0.0  # x in C1: reused by the next step
-        return {
-            "state": x.copy(),
-            "mode": self._mode,
-            "k": self._k,
-            "in_region": self._inside,
-            "constraint_values": values,
-            "violations": violations,
-            "cost": 0.0 if self._inside else 1.0,
-            "stage_cost": stage_cost,
-            "diverged": diverged,
-        }
-
     # ------------------------------------------------------------------ Gymnasium API
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -586,15 +381,18 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         if seed is not None:  # Gymnasium takes a bool as a seed and refuses a numpy int
             seed = check_int("seed", seed, low=0, high=None)
         super().reset(seed=seed)
-        x0, mode0 = parse_reset_options(self.model, options, self.divergence_bound)
-        self._x = self.model.x0.copy() if x0 is None else x0
-        self._mode = self.model.sample_mode0(self.np_random) if mode0 is None else mode0
+        model = self.model
+        x0, mode0 = parse_reset_options(model, options, self.divergence_bound)
+        self._x = x = model.x0.copy() if x0 is None else x0
+        self._mode = mode = model.sample_mode0(self.np_random) if mode0 is None else mode0
         self._k = 0
         self._ended = None
-        self._history = [(self._x.copy(), self._mode)]
+        self._history = [(x.copy(), mode)]
         with np.errstate(over="ignore", invalid="ignore"):
-            info = self._info(0.0, False)
-        return self._obs(False), info
+            info = functional.step_info(model, x, mode, 0, 0.0, False)
+        self._inside = info["in_region"]
+        obs = encode_observation(model, x, mode, 0, self.horizon, self.divergence_bound)
+        return obs, info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._ended is not None or self._x is None:
@@ -604,7 +402,8 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
                 if self._ended is not None
                 else "call reset() before step()"
             )
-        m = self.model.m
+        model = self.model
+        m = model.m
         u = check_numbers("action", action, what=self._action_what)
         if u.shape != (m,):
             if u.size != m or u.ndim > 1:
@@ -619,41 +418,26 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         if not inside_box:
             u = np.clip(u, self._low, self._high)  # finite actions outside the Box are clipped
 
-        model, rng = self.model, self.np_random
-        w = model.sample_noise_one(rng)
-        if self._may_overflow:  # overflow is detected below; numpy's warnings are not needed
-            x, mode, k = self._x, self._mode, self._k
-            with np.errstate(over="ignore", invalid="ignore"):
-                self._x, self._mode, stage_cost, values = model.step_one(
-                    x, mode, u, k, w, rng.random(), self._inside
-                )
-            if not math.isfinite(stage_cost + sum(self._x.tolist()) + sum(values.tolist())):
-                # overflowed: the exact values rounded, as the vector env gives (never NaN)
-                self._x, stage_cost, values = model.exact_step_one(x, mode, u, k, w)
-        else:
-            self._x, self._mode, stage_cost, values = model.step_one(
-                self._x, self._mode, u, self._k, w, rng.random(), self._inside
-            )
-        self._k += 1
+        rng = self.np_random
+        w = model.sample_noise(rng)
+        x, mode, k, cost, values, diverged = functional.step(
+            self._params, self._x, self._mode, self._k, u, w, rng.random(), self._inside
+        )
+        self._x, self._mode, self._k = x, mode, k
         if self.render_mode is not None:
-            self._history.append((self._x, self._mode))
-
-        # outside the divergence box or not finite: max() may skip a NaN, which the sum does not
-        # (a sum of entries of at most 1e30 is finite)
-        xs = self._x.tolist()
-        diverged = not (max(map(abs, xs)) <= self.divergence_bound and math.isfinite(sum(xs)))
-        if not stage_cost <= MAX_STAGE_COST:  # inf or NaN: saturated, and the episode ends
-            stage_cost, diverged = MAX_STAGE_COST, True
-        info = self._info(stage_cost, diverged, values)
+            self._history.append((x, mode))
+        info = functional.step_info(model, x, mode, k, cost, diverged, values)
         info["u"] = u
-        truncated = self._k >= self.horizon
+        self._inside = info["in_region"]
+        truncated = k >= self.horizon
         if diverged or truncated:
             self._ended = (
-                f"terminated: diverged at k = {self._k}"
+                f"terminated: diverged at k = {k}"
                 if diverged
-                else f"truncated at k = {self._k} = horizon"
+                else f"truncated at k = {k} = horizon"
             )
-        return self._obs(diverged), -stage_cost, diverged, truncated, info
+        obs = encode_observation(model, x, mode, k, self.horizon, self.divergence_bound)
+        return obs, -cost, diverged, truncated, info
 
     def _get_renderer(self) -> Any:
         if self._renderer is None:

@@ -8,8 +8,8 @@ import os
 from pathlib import Path
 from typing import Any
 
-from sdjls_gym._model_checks import InvalidModelError
-from sdjls_gym._validate import a_type, describe
+from sdjls_gym.errors import InvalidModelError
+from sdjls_gym.messages import a_type, describe
 from sdjls_gym.model import SDJLSModel
 
 __all__ = ["load_model", "save_model"]
@@ -52,7 +52,7 @@ def load_model(path: str | os.PathLike) -> SDJLSModel:
             data = tomllib.loads(text)
         else:
             data = json.loads(text, object_pairs_hook=_unique_keys)
-    except _DuplicateKeyError as exc:
+    except InvalidModelError as exc:  # a key twice (before ValueError: it is one)
         raise InvalidModelError(f"model file {str(path)!r} {exc}") from None
     except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError, TOMLDecodeError
         raise InvalidModelError(
@@ -77,15 +77,13 @@ def load_model(path: str | os.PathLike) -> SDJLSModel:
         raise type(exc)(f"model file {str(path)!r}: {exc}") from None
 
 
-class _DuplicateKeyError(Exception):
-    """A JSON object with a key twice (JSON parsers keep the last silently; TOML refuses it)."""
-
-
 def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object as a dict, refusing a key twice (JSON parsers keep the last silently; TOML
+    refuses it); the message is completed with the file's name by :func:`load_model`."""
     out: dict[str, Any] = {}
     for key, value in pairs:
         if key in out:
-            raise _DuplicateKeyError(
+            raise InvalidModelError(
                 f"has the key {key!r} twice in one object; each field must appear once"
             )
         out[key] = value

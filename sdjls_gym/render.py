@@ -31,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from sdjls_gym._validate import check_array, check_int, check_positive
 from sdjls_gym.model import SDJLSModel
+from sdjls_gym.validation import check_array, check_int, check_positive
 
 __all__ = [
     "EpisodeRenderer",

@@ -9,24 +9,52 @@ from gymnasium.envs.registration import EnvSpec
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from sdjls_gym._validate import check_int, check_numbers
+from sdjls_gym import functional
 from sdjls_gym.env import (
-    MAX_STAGE_COST,
     action_space,
     check_divergence_bound,
-    check_max_episode_steps,
     check_model_x0,
-    encode_observation,
-    may_overflow,
-    observation_space,
     own_spec,
     parse_reset_options,
     resolve_model,
-    step_info,
 )
-from sdjls_gym.model import SDJLSModel, max_last
+from sdjls_gym.functional import EnvParams, Restart, may_overflow
+from sdjls_gym.model import SDJLSModel
+from sdjls_gym.observation import encode_observation, observation_space
+from sdjls_gym.validation import check_int, check_numbers, check_optional_int
 
-__all__ = ["SDJLSVectorEnv"]
+__all__ = ["SDJLSVectorEnv", "check_max_episode_steps"]
+
+
+def check_max_episode_steps(max_episode_steps: Any, horizon: int) -> int | None:
+    """``max_episode_steps`` as an int (or None), refused when it is larger than ``horizon``.
+
+    The environment ends its episodes at its ``horizon``: ``max_episode_steps`` may only end
+    them earlier. A larger value would make ``spec.max_episode_steps`` report more steps than an
+    episode has.
+
+    Parameters
+    ----------
+    max_episode_steps : int or None
+        The limit asked for; None for none.
+    horizon : int
+        The environment's horizon.
+
+    Raises
+    ------
+    TypeError
+        ``max_episode_steps`` is not an int.
+    ValueError
+        ``max_episode_steps`` is below 1 or above ``horizon``.
+    """
+    steps = check_optional_int("max_episode_steps", max_episode_steps, low=1)
+    if steps is not None and steps > horizon:
+        raise ValueError(
+            f"max_episode_steps = {steps} is larger than horizon = {horizon}: the "
+            f"environment ends its episodes at its horizon; pass horizon={steps} instead "
+            "(max_episode_steps may only shorten episodes)"
+        )
+    return steps
 
 
 class SDJLSVectorEnv(VectorEnv):
@@ -112,8 +140,11 @@ class SDJLSVectorEnv(VectorEnv):
         self._low = self.single_action_space.low.astype(np.float64)
         self._actions_what = f"a ({self.num_envs}, {self.model.m}) array of finite numbers"
         self._high = self.single_action_space.high.astype(np.float64)
-        self._may_overflow = may_overflow(
-            self.model, self._high, self.divergence_bound, self.horizon
+        self._params = EnvParams(
+            self.model,
+            self.horizon,
+            self.divergence_bound,
+            may_overflow(self.model, self._high, self.divergence_bound, self.horizon),
         )
 
         B, model = self.num_envs, self.model
@@ -135,41 +166,13 @@ class SDJLSVectorEnv(VectorEnv):
         self._spec = own_spec(value, self.episode_steps)
 
     # ------------------------------------------------------------------ helpers
-    def _exact_where_overflowed(
-        self,
-        x_new: np.ndarray,
-        stage_cost: np.ndarray,
-        k_new: np.ndarray,
-        u: np.ndarray,
-        w: np.ndarray,
-        reset: np.ndarray,
-    ) -> np.ndarray:
-        """The constraint values of the new states; the rows whose step overflowed float64
-        (not the ones reset) get :meth:`SDJLSModel.exact_step_one`'s answer instead, in place,
-        the one :class:`~sdjls_gym.env.SDJLSEnv` gives."""
-        model = self.model
-        with np.errstate(over="ignore", invalid="ignore"):
-            values = model.constraint_values(x_new, k_new)
-            ok = np.isfinite(stage_cost + x_new.sum(axis=1) + values.sum(axis=1))
-        for b in np.flatnonzero(~ok & ~reset).tolist():
-            x_new[b], stage_cost[b], values[b] = model.exact_step_one(
-                self._x[b], int(self._mode[b]), u[b], int(self._k[b]), w[b]
-            )
-        return values
-
-    def _infos(
-        self,
-        stage_cost: np.ndarray,
-        overflow: np.ndarray | None = None,
-        values: np.ndarray | None = None,
-    ) -> dict[str, Any]:
-        raw = step_info(self.model, self._x, self._mode.copy(), self._k.copy(), values)
+    def _infos(self, stage_cost: np.ndarray, diverged: np.ndarray, values: Any = None) -> dict:
+        """:func:`~sdjls_gym.functional.step_info` of the current states, each key ``key``
+        followed by its mask ``_key`` (all True)."""
+        raw = functional.step_info(
+            self.model, self._x, self._mode.copy(), self._k.copy(), stage_cost, diverged, values
+        )
         self._inside = raw["in_region"]  # region test of the current states, reused by step()
-        raw["stage_cost"] = stage_cost
-        # NaN-safe: max propagates a NaN, which fails the comparison
-        raw["diverged"] = ~(max_last(np.abs(self._x)) <= self.divergence_bound)
-        if overflow is not None:
-            raw["diverged"] |= overflow
         infos: dict[str, Any] = {}
         everyone = np.ones(self.num_envs, dtype=bool)
         for key, value in raw.items():
@@ -207,7 +210,7 @@ class SDJLSVectorEnv(VectorEnv):
             self.model, self._x, self._mode, self._k, self.horizon, self.divergence_bound
         )
         with np.errstate(over="ignore", invalid="ignore"):
-            return obs, self._infos(np.zeros(B))
+            return obs, self._infos(np.zeros(B), np.zeros(B, dtype=bool))
 
     def step(
         self, actions: np.ndarray
@@ -226,41 +229,25 @@ class SDJLSVectorEnv(VectorEnv):
         u = np.clip(u, self._low, self._high)
 
         reset = self._prev_done
-        if reset.any():  # these rows restart below; keep a diverged state out of the arithmetic
-            self._x[reset] = model.x0
         rng = self.np_random
-        with np.errstate(over="ignore", invalid="ignore"):  # overflow is detected below
-            stage_cost = model.stage_cost(self._x, self._mode, u)
-            w = model.sample_noise(rng, (B,))
-            x_new, mode_new = model.step(
-                self._x, self._mode, u, self._k, w, rng.random(B), inside=self._inside
-            )
-        k_new = self._k + 1
-
-        if np.any(reset):
-            count = int(reset.sum())
-            # autoreset starts from the model's x0 and mode0, as a reset without options
-            x_new[reset] = model.x0
-            mode_new[reset] = model.sample_mode0(self._reset_rng, count)
-            k_new[reset] = 0
-            stage_cost[reset] = 0.0
-        values = None
-        if self._may_overflow:
-            values = self._exact_where_overflowed(x_new, stage_cost, k_new, u, w, reset)
-        # an overflowed (inf) stage cost is saturated and ends the episode as diverged
-        overflow = ~(stage_cost <= MAX_STAGE_COST)
-        if overflow.any():
-            stage_cost[overflow] = MAX_STAGE_COST
-        self._x, self._mode, self._k = x_new, mode_new, k_new
-
+        w = model.sample_noise(rng, (B,))
+        uniform = rng.random(B)
+        restart = None
+        if reset.any():  # these rows restart from the model's x0 and mode0, as a plain reset()
+            modes0 = np.asarray(model.sample_mode0(self._reset_rng, int(reset.sum())))
+            restart = Restart(reset, model.x0, modes0)
+        x, mode, k, cost, values, diverged = functional.step(
+            self._params, self._x, self._mode, self._k, u, w, uniform, self._inside, restart
+        )
+        self._x, self._mode, self._k = x, mode, k
         with np.errstate(over="ignore", invalid="ignore"):
-            infos = self._infos(stage_cost, overflow, values)
+            infos = self._infos(cost, diverged, values)
         infos["u"] = u
         infos["_u"] = ~reset
-        terminated = infos["diverged"] & ~reset
-        truncated = (k_new >= self.episode_steps) & ~reset
+        terminated = diverged & ~reset
+        truncated = (k >= self.episode_steps) & ~reset
         self._prev_done = terminated | truncated
         obs = encode_observation(
             model, self._x, self._mode, self._k, self.horizon, self.divergence_bound
         )
-        return obs, -stage_cost, terminated, truncated, infos
+        return obs, -cost, terminated, truncated, infos

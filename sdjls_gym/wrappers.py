@@ -8,14 +8,14 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from sdjls_gym._validate import (
+from sdjls_gym.env import SDJLSEnv
+from sdjls_gym.validation import (
     check_array,
     check_choice,
     check_float32_bound,
     check_number,
     check_positive,
 )
-from sdjls_gym.env import SDJLSEnv
 
 __all__ = [
     "ViolationPenalty",

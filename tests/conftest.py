@@ -1,4 +1,13 @@
-"""Shared fixtures for the model, env, vector env and wrapper tests.
+"""Shared fixtures and helpers of the tests.
+
+* the paper's example (``paper``, ``paper_kwargs``, ``quiet_paper_model``, ``paper_policy``),
+  another model (``other_model``) and small hand-made models (``noiseless_model``,
+  ``doubling_model``);
+* ``raises_naming``: the one way the tests check an error (its type, the argument's name and
+  the offending value, never the whole sentence), and ``no_solver`` / ``raised_by_library``
+  for the error catalogues (``test_errors_*.py``).
+
+Test modules import the plain functions (``from conftest import raises_naming``).
 
 The numbers of the macroeconomic example are typed in from section 6 of the paper
 (``/work/shared/paper/sdjls-rhc-paper.tex``), never imported from ``sdjls_gym``, so that a
@@ -8,7 +17,13 @@ wrong number in the preset makes a test fail. Modes are 0-based here (the paper'
 
 from __future__ import annotations
 
+import contextlib
+import re
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -16,8 +31,10 @@ import pytest
 from sdjls_gym import SDJLSModel
 
 
-def _paper_numbers() -> SimpleNamespace:
-    """Section 6: A_1..A_3, B, lambda, mu, G, H_k, x_0, Q_i, R_i, K_i, horizon."""
+def paper_numbers() -> SimpleNamespace:
+    """The numbers of the paper's example (``paper`` fixture; importable for module constants).
+
+    Section 6: A_1..A_3, B, lambda, mu, G, H_k, x_0, Q_i, R_i, K_i, horizon."""
     return SimpleNamespace(
         A=np.array(
             [
@@ -44,11 +61,11 @@ def _paper_numbers() -> SimpleNamespace:
 @pytest.fixture
 def paper() -> SimpleNamespace:
     """The numbers of section 6 of the paper (a fresh copy per test)."""
-    return _paper_numbers()
+    return paper_numbers()
 
 
 def _paper_kwargs() -> dict:
-    p = _paper_numbers()
+    p = paper_numbers()
     return {
         "A": p.A,
         "B": p.B,
@@ -86,7 +103,7 @@ def paper_policy():
     ``A_i + B K_i = [[0, 1], [0, 0]]`` in every mode, so the income is ``x_{k+1}(2) = nu_k +
     w_k(2)``, half a unit under the middle of the band. Works on one state or on a batch.
     """
-    K = _paper_numbers().K
+    K = paper_numbers().K
 
     def policy(state, mode, k):
         state = np.asarray(state, dtype=np.float64)
@@ -94,6 +111,52 @@ def paper_policy():
         return np.einsum("...ij,...j->...i", K[np.asarray(mode)], state) + nu[..., None]
 
     return policy
+
+
+@pytest.fixture
+def info_policy(paper_policy):
+    """The paper's feedback, as a function of the info of the current state."""
+
+    def policy(info):
+        return paper_policy(info["state"], info["mode"], info["k"]).astype(np.float32)
+
+    return policy
+
+
+def run_episode(env, policy, seed=None, steps=None) -> dict:
+    """Run ``policy(info)`` from a reset; lists of observations, rewards, flags and infos."""
+    obs, info = env.reset(seed=seed)
+    out = {"obs": [obs], "reward": [], "flags": [], "info": [info]}
+    k = 0
+    while steps is None or k < steps:
+        obs, reward, terminated, truncated, info = env.step(policy(info))
+        out["obs"].append(obs)
+        out["reward"].append(reward)
+        out["flags"].append((terminated, truncated))
+        out["info"].append(info)
+        k += 1
+        if terminated or truncated:
+            break
+    return out
+
+
+def assert_same_info(a: dict, b: dict) -> None:
+    """The same keys, values and value types."""
+    assert a.keys() == b.keys()
+    for key in a:
+        assert np.array_equal(a[key], b[key]), key
+        assert type(a[key]) is type(b[key]), key
+
+
+def assert_same_episode(a: dict, b: dict) -> None:
+    """Two ``run_episode`` results are bit-identical."""
+    assert len(a["obs"]) == len(b["obs"])
+    for x, y in zip(a["obs"], b["obs"], strict=True):
+        assert x.dtype == y.dtype and np.array_equal(x, y)  # bit-identical
+    assert a["reward"] == b["reward"]
+    assert a["flags"] == b["flags"]
+    for x, y in zip(a["info"], b["info"], strict=True):
+        assert_same_info(x, y)
 
 
 def _other_model() -> SDJLSModel:
@@ -123,6 +186,164 @@ def _other_model() -> SDJLSModel:
 def other_model() -> SDJLSModel:
     """A second, structurally different model (every optional field set)."""
     return _other_model()
+
+
+def noiseless_model(
+    A,
+    *,
+    B=((0.0,), (1.0,)),
+    G=((0.0, 1.0),),
+    H0=None,
+    Q=None,
+    x0=(1e6, 1e6),
+) -> SDJLSModel:
+    """One mode, ``n = 2``, ``W = 0``: ``x_{k+1} = A x_k + B u_k`` exactly (no noise).
+
+    The model of the overflow tests (entries near 1e303 in ``A`` or ``Q``). ``H0`` is 1e9 per
+    row of ``G`` unless given: far from the states of the tests.
+    """
+    G = [list(row) for row in G]
+    return SDJLSModel(
+        A=[A], B=[list(row) for row in B], P_in=[[1.0]], P_out=[[1.0]], G=G,
+        H0=[1e9] * len(G) if H0 is None else H0, Q=np.eye(2) if Q is None else Q, R=[[1.0]],
+        x0=list(x0), W=np.zeros((2, 2)),
+    )  # fmt: skip
+
+
+def doubling_model() -> SDJLSModel:
+    """``x_{k+1} = 2 x_k + u_k`` from ``x_0 = 1``, one mode, ``n = m = 1``, no noise, band
+    ``x <= 100``: 2, 4, 8, 16 under ``u = 0``."""
+    return SDJLSModel(
+        A=[[[2.0]]], B=[[1.0]], P_in=[[1.0]], P_out=[[1.0]], G=[[1.0]], H0=[100.0],
+        Q=[[1.0]], R=[[1.0]], x0=[1.0], W=[[0.0]],
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------------ errors
+class _Unshown:
+    def __repr__(self) -> str:
+        return "UNSHOWN"
+
+
+UNSHOWN: Any = _Unshown()
+"""``raises_naming(..., value=UNSHOWN)``: the message does not show the offending value (a
+known gap of that message, listed where it is used); only the type and the name are checked."""
+
+_LONG = 60  # a value written with more characters is shown shortened: its start must appear
+
+
+def shown_as(value: Any) -> list[str]:
+    """The ways a message may write ``value``: its ``repr`` or ``str`` (a ``str`` value as it
+    is or quoted), an array as numpy writes it with ``", "`` between entries (4 to 8 digits) or
+    as a list; runs of white space count as one space."""
+    if isinstance(value, str):
+        texts = [value, repr(value)]
+    elif isinstance(value, np.ndarray):
+        texts = [np.array2string(value, separator=", ", precision=p) for p in range(4, 9)]
+        texts += [repr(value.tolist()), repr(value)]
+    else:
+        texts = [repr(value), str(value)]
+        if isinstance(value, float | np.floating) and "e" in format(value, "g"):
+            texts.append(format(value, "g"))  # 2e+06 for 2000000.0
+    return [" ".join(text.split()) for text in texts]
+
+
+_NEAR = 160  # the value starts at most this many characters after the name
+
+
+def _token(text: str) -> re.Pattern[str]:
+    """``text`` as a whole token: ``1`` is not found in ``-1``, ``1.5``, ``10`` or ``x1``, ``k``
+    not in ``rank``. A long text needs only its start (values are shown shortened)."""
+    if len(text) > _LONG:
+        text, end = text[:20], ""
+    else:
+        end = r"(?![\w]|\.\d)" if text[-1:].isalnum() or text.endswith("_") else ""
+    start = r"(?<![\w.+-])" if text[:1].isalnum() or text.startswith("_") else ""
+    return re.compile(start + re.escape(text) + end)
+
+
+def _appears(text: str, message: str) -> bool:
+    return _token(text).search(message) is not None
+
+
+def _shown_after(names: tuple[str, ...], texts: list[str], message: str) -> bool:
+    """One of ``texts`` follows one of the ``names`` within ``_NEAR`` characters: the value
+    belongs to the argument (``xi = 1.5``, ``K has shape (3, 2)``), not to the explanation
+    further on (``... xi = 1 cannot be met``) or to another argument."""
+    for name in names:
+        for found in _token(name).finditer(message):
+            for text in texts:
+                shown = _token(text).search(message, found.end())
+                if shown and shown.start() - found.end() <= _NEAR:
+                    return True
+    return False
+
+
+@contextlib.contextmanager
+def raises_naming(
+    exc_type: type[BaseException] | tuple[type[BaseException], ...],
+    name: str | tuple[str, ...],
+    value: Any,
+) -> Iterator[pytest.ExceptionInfo]:
+    """The block raises ``exc_type`` (or a subclass) whose message names the argument ``name``
+    (each of several names) and shows the offending ``value`` after it (see :func:`shown_as`).
+
+    The project's rule for errors (STYLE.md): a test asserts the type, the name and the value,
+    not the sentence around them, so messages may be reworded without touching the tests.
+    """
+    with pytest.raises(exc_type) as excinfo:
+        yield excinfo
+    message = " ".join(str(excinfo.value).split())
+    kind = type(excinfo.value).__name__
+    names = (name,) if isinstance(name, str) else name
+    for each in names:
+        assert _appears(each, message), f"{kind} does not name {each!r}: {message!r}"
+    if value is not UNSHOWN:
+        texts = shown_as(value)
+        assert _shown_after(names, texts, message), (
+            f"{kind} does not show the value ({' or '.join(texts)}) after "
+            f"{' or '.join(map(repr, names))}: {message!r}"
+        )
+
+
+class SolverCalled(BaseException):
+    """Raised by the trap of ``no_solver``; a BaseException, which no ``except Exception`` in
+    the library can hide."""
+
+
+@pytest.fixture
+def no_solver(monkeypatch):
+    """Every solver (OSQP, cvxpy) replaced by a trap: bad input must be refused before any."""
+    import cvxpy as cp
+    import osqp
+
+    def trap(*args, **kwargs):
+        raise SolverCalled("a solver was started before the bad input was rejected")
+
+    monkeypatch.setattr(osqp.OSQP, "solve", trap)
+    monkeypatch.setattr(cp.Problem, "solve", trap)
+
+
+def raised_by_library(excinfo: pytest.ExceptionInfo, dirs=("sdjls_gym", "controllers")) -> None:
+    """The innermost frame of the traceback is in the project's own code (one of ``dirs``):
+    a check of this project refused the input, not numpy, scipy or cvxpy deep inside."""
+    innermost = excinfo.traceback[-1]
+    parts = Path(str(innermost.path)).parts
+    assert "site-packages" not in parts and any(d in parts for d in dirs), (
+        f"{type(excinfo.value).__name__} raised from {innermost.path}:{innermost.lineno + 1}, "
+        f"not from a check in {' or '.join(d + '/' for d in dirs)}"
+    )
+
+
+def refused(error, name, value, call, dirs=("sdjls_gym", "controllers")) -> pytest.ExceptionInfo:
+    """``call()`` raises ``error`` naming ``name`` and showing ``value`` (:func:`raises_naming`),
+    with no warning on the way, from a check in the project's own code (``dirs``)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no warning on the way to the error either
+        with raises_naming(error, name, value) as excinfo:
+            call()
+    raised_by_library(excinfo, dirs)
+    return excinfo
 
 
 # Hypothesis (6.1xx) also seeds its examples with constants mined from the project's own modules

@@ -16,7 +16,7 @@ pytest.importorskip("stable_baselines3")
 from benchmarks import backends, compare_rl  # noqa: E402
 
 ARGS = [
-    "--quick", "--algos", "ppo", "td3", "--variants", "reward", "residual", "--seeds", "1",
+    "--quick", "--tasks", "SDJLS-Macro-v0", "--algos", "ppo", "td3", "--variants", "reward", "residual", "--seeds", "1",
     "--timesteps", "1050", "--eval-episodes", "50", "--no-progress",
 ]  # fmt: skip
 
@@ -96,9 +96,9 @@ def test_backends_and_worker_counts_give_the_same_runs(tmp_path):
         assert c["score"]["violation"] == a["score"]["violation"]
     # a run interrupted on one backend resumes on the other, both ways: nothing is trained again
     for out, backend in (("ray", ["--workers", "1"]), ("one", ["--backend", "ray"])):
-        stamps = {p.name: p.stat().st_mtime_ns for p in (tmp_path / out / "runs").iterdir()}
+        stamps = {p.name: p.stat().st_mtime_ns for p in (tmp_path / out / "runs").rglob("*")}
         compare_rl.main([*ARGS, *backend, "--out", str(tmp_path / out)])
-        after = {p.name: p.stat().st_mtime_ns for p in (tmp_path / out / "runs").iterdir()}
+        after = {p.name: p.stat().st_mtime_ns for p in (tmp_path / out / "runs").rglob("*")}
         assert after == stamps, backend
 
 

@@ -6,12 +6,9 @@ import numpy as np
 import pytest
 from scipy import linalg
 
-from controllers.baselines import (
-    LinearFeedbackController,
-    MJLSLQRController,
-    RiccatiConvergenceError,
-)
+from controllers.baselines import LinearFeedbackController, MJLSLQRController
 from sdjls_gym import SDJLSModel
+from sdjls_gym.errors import RiccatiConvergenceError
 from sdjls_gym.systems.macro import PAPER_K, macro
 
 

@@ -1,7 +1,8 @@
 """The batched paths agree with the single-state ones (issue: performance).
 
 * ``act_batch`` returns the same decisions as ``act`` (OSQP) on the same states;
-* ``SDJLSModel.step_one`` (the single env's hot path) equals the batched ``step``;
+* ``SDJLSModel.transition`` of one state (the single env's hot path) equals the batched one
+  (``tests/test_functional.py`` has more);
 * the vector env driven by ``act_batch`` gives the same trajectories as stepping one
   sub-environment alone, with ``act``, on the same noise (replayed through a recording RNG).
 """
@@ -106,7 +107,7 @@ def test_act_batch_of_the_other_controllers_equals_act():
         np.testing.assert_allclose(u_b[i], lqr.act(xm[i], int(mm[i]), int(km[i]))[0], atol=1e-9)
 
 
-def test_step_one_equals_the_batched_step():
+def test_one_state_transition_equals_the_batched_step():
     model, _, _ = random_system(11)
     rng = np.random.default_rng(0)
     for _ in range(200):
@@ -116,7 +117,7 @@ def test_step_one_equals_the_batched_step():
         k = int(rng.integers(0, 30))
         w = rng.normal(0, 1, model.p)
         v = float(rng.random())
-        x1, m1, cost1, values1 = model.step_one(x, mode, u, k, w, v)
+        x1, m1, cost1, values1 = model.transition(x, mode, u, k, w, v)
         x2, m2 = model.step(x[None], np.array([mode]), u[None], np.array([k]), w[None], [v])
         np.testing.assert_allclose(x1, x2[0], rtol=1e-12, atol=1e-12)
         assert m1 == m2[0]

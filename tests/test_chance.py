@@ -7,6 +7,7 @@ import math
 import cvxpy as cp
 import numpy as np
 import pytest
+from conftest import raises_naming
 from scipy import stats
 
 from controllers.chance import row_satisfaction_probability, tightened_set_empty, tightening
@@ -191,34 +192,28 @@ def test_row_probability_batched_shapes_and_tightened_mean():
 # ---------------------------------------------------------------------- bad inputs
 @pytest.mark.parametrize("xi", [0, 0.0, 1, 1.0, -0.1, 1.5, float("nan")])
 def test_bad_xi_is_rejected(xi):
-    with pytest.raises(ValueError, match=r"xi = .*expected a finite number in \(0, 1\)"):
+    with raises_naming(ValueError, "xi", xi):
         tightening(macro(), xi)
 
 
 @pytest.mark.parametrize("xi", ["high", "0.85", True, None])
 def test_xi_that_is_not_a_number_is_a_type_error(xi):
-    with pytest.raises(
-        TypeError, match=r"xi = .* is a(n)? .*; expected a finite number in \(0, 1\)"
-    ):
+    with raises_naming(TypeError, "xi", xi):
         tightening(macro(), xi)
 
 
 def test_bad_xi_message_names_value():
-    with pytest.raises(ValueError, match=r"xi = 1\.0 is out of range; .*xi = 1 cannot be met"):
+    with raises_naming(ValueError, "xi", 1.0):
         tightening(macro(), 1.0)
 
 
 def test_bad_constraint_is_rejected():
-    with pytest.raises(
-        ValueError, match=r"constraint = 'jiont'.*'individual', 'joint', 'bonferroni'"
-    ):
+    with raises_naming(ValueError, "constraint", "jiont"):
         tightening(macro(), 0.9, "jiont")
 
 
 def test_model_must_be_a_model():
-    with pytest.raises(
-        TypeError, match=r"model = \{'A': 1\} is a dict; expected an sdjls_gym.SDJLSModel"
-    ):
+    with raises_naming(TypeError, "model", {"A": 1}):
         tightening({"A": 1}, 0.9)
 
 
@@ -291,13 +286,8 @@ def test_rhc_ignores_xi_once_the_tightened_band_is_empty():
 
 
 @pytest.mark.parametrize(
-    ("k_next", "error", "match"),
-    [
-        (-1, ValueError, "k_next = -1 is out of range; expected an int >= 0"),
-        (1.5, TypeError, "k_next = 1.5 is a float; expected an int >= 0"),
-        (True, TypeError, "k_next = True is a bool; expected an int >= 0"),
-    ],
+    ("k_next", "error"), [(-1, ValueError), (1.5, TypeError), (True, TypeError)]
 )
-def test_tightened_set_empty_rejects_bad_k_next(k_next, error, match):
-    with pytest.raises(error, match=match):
+def test_tightened_set_empty_rejects_bad_k_next(k_next, error):
+    with raises_naming(error, "k_next", k_next):
         tightened_set_empty(macro(), 0.9, k_next)

@@ -33,6 +33,7 @@ from benchmarks.versions import PACKAGES  # noqa: E402
 
 ARGS = [
     "--quick",
+    "--tasks", "SDJLS-Macro-v0",
     "--algos", "ppo", "sac", "td3",
     "--variants", "reward", "beta1000", "residual", "lagrangian",
     "--seeds", "1",
@@ -87,7 +88,7 @@ def test_quick_run_writes_every_output(quick_run):
     out, _ = quick_run
     for name in ("summary.csv", "summary.json", "REPORT.md", *FIGURES):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
-    assert len(list((out / "runs").glob("*.json"))) == 3 * 4
+    assert len(list((out / "runs" / "SDJLS-Macro-v0").glob("*.json"))) == 3 * 4
     # small files only: no checkpoint ever lands in the output folder
     assert all(p.stat().st_size < 1_000_000 for p in out.rglob("*"))
     assert not list(out.rglob("*.zip")) and not list(out.rglob("*.pkl"))
@@ -197,9 +198,9 @@ def test_quick_run_csv_and_report(quick_run):
 @pytest.mark.slow  # reruns the --quick comparison (about 15 s)
 def test_rerun_reuses_finished_trainings(quick_run):
     out, first = quick_run
-    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*")}
+    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "runs").rglob("*")}
     again = compare_rl.main([*ARGS, "--out", str(out)])
-    assert {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*")} == stamps
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "runs").rglob("*")} == stamps
     assert [_numbers(r.score) for r in again.rl_runs] == [_numbers(r.score) for r in first.rl_runs]
 
 
@@ -207,11 +208,12 @@ def test_policies_are_kept_small_and_fit_their_architecture(quick_run):
     """Each run keeps its policy (tens of KB); it loads strictly into the rebuilt policy."""
     out, summary = quick_run
     opts = compare_rl.parse_args(ARGS)
-    specs = rl_train.run_specs(opts.algos, opts.variants, opts.seeds, opts.timesteps, opts.quick)
+    specs = compare_rl.specs_of(opts)
     assert {s.name for s in specs} == {r.name for r in summary.rl_runs}
     obs = np.random.default_rng(0).uniform(-1, 1, (64, 6)).astype(np.float32)
     for spec in specs:
-        path = rl_train.policy_path(rl_train.run_path(out / "runs", spec.name, spec.fingerprint()))
+        folder = out / "runs" / spec.task
+        path = rl_train.policy_path(rl_train.run_path(folder, spec.name, spec.fingerprint()))
         assert 0 < path.stat().st_size < 500_000, spec.name
         a, _ = rl_train.load_policy(spec, path).agent.predict(obs, deterministic=True)
         assert a.shape == (64, 1) and np.all(np.abs(a) <= 1.0), spec.name
@@ -246,10 +248,10 @@ def _copy(quick_run, tmp_path) -> Path:
 def test_rescoring_needs_no_training(quick_run, tmp_path):
     """More evaluation episodes: the kept runs are rescored, not trained again."""
     out, first = _copy(quick_run, tmp_path), quick_run[1]
-    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "runs").iterdir()}
+    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "runs").rglob("*")}
     args = [a if a != "200" else "300" for a in ARGS]  # --eval-episodes 300
     again = compare_rl.main([*args, "--out", str(out)])
-    assert {p.name: p.stat().st_mtime_ns for p in (out / "runs").iterdir()} == stamps
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "runs").rglob("*")} == stamps
     assert {r.score.episodes for r in again.rl_runs + again.model_based} == {300}
     for a, b in zip(first.rl_runs, again.rl_runs, strict=True):
         assert a.run.learning_curve == b.run.learning_curve
@@ -258,13 +260,13 @@ def test_rescoring_needs_no_training(quick_run, tmp_path):
 @pytest.mark.slow  # reruns the --quick comparison (about 15 s)
 def test_a_run_without_its_policy_is_trained_again(quick_run, tmp_path):
     out = _copy(quick_run, tmp_path)
-    (victim,) = (out / "runs").glob("td3_reward_s0-*.pt")
+    (victim,) = (out / "runs").rglob("td3_reward_s0-*.pt")
     victim.unlink()
-    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*.json")}
+    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "runs").rglob("*.json")}
     compare_rl.main([*ARGS, "--out", str(out)])
     assert victim.exists()
     changed = {
-        p.name for p in (out / "runs").glob("*.json") if p.stat().st_mtime_ns != stamps[p.name]
+        p.name for p in (out / "runs").rglob("*.json") if p.stat().st_mtime_ns != stamps[p.name]
     }
     assert changed == {victim.with_suffix(".json").name}
 
@@ -277,28 +279,34 @@ def test_old_run_files_without_cpu_time_still_load(tmp_path):
                                 spec.config(), 300, 1.0, 1.0, 1000.0, [], [])  # fmt: skip
     data = record.to_json()
     del data["cpu_time_s"], data["eval_time_s"]
-    path = rl_train.run_path(tmp_path, spec.name, spec.fingerprint())
+    path = rl_train.run_path(tmp_path / spec.task, spec.name, spec.fingerprint())
+    path.parent.mkdir()
     path.write_text(json.dumps(data))
     rl_train.policy_path(path).write_bytes(b"x")
     loaded = rl_train.load_run(tmp_path, spec)
     assert loaded.cpu_time_s is None and loaded.final_beta == 1000.0
     other = rl_train.RunSpec("ppo", "residual", 0, 301, 1, 5, 1)  # another budget
-    rl_train.run_path(tmp_path, other.name, spec.fingerprint()).write_text(json.dumps(data))
+    rl_train.run_path(tmp_path / spec.task, other.name, spec.fingerprint()).write_text(
+        json.dumps(data)
+    )
     assert rl_train.load_run(tmp_path, other) is None
 
 
 def test_committed_runs_match_the_current_configuration():
-    """Every kept policy of the committed comparison is reused by the default command (its
-    fingerprint matches): regenerating results/rl/ needs no training."""
-    opts = compare_rl.Options()
-    specs = rl_train.run_specs(opts.algos, opts.variants, opts.seeds, None, False)
+    """Every kept policy of the committed comparison is reused by its command (``--preset
+    macro``; its fingerprint before the suite matches): regenerating results/rl/ needs no
+    training."""
+    opts = compare_rl.parse_args(["--preset", "macro"])
+    assert opts.out == Path("results/rl") and opts.tasks == ["SDJLS-Macro-v0"]
+    specs = compare_rl.specs_of(opts)
     root = Path(compare_rl.__file__).resolve().parents[1]
     assert all(rl_train.load_run(root / "results/rl/runs", s) is not None for s in specs)
     # in the layout that names a run by its configuration (issue 28: a run of another
     # configuration must land beside a kept run, never in its place)
     for s in specs:
         path = rl_train.kept_run_path(root / "results/rl/runs", s)
-        assert path == rl_train.run_path(root / "results/rl/runs", s.name, s.fingerprint())
+        expected = rl_train.run_path(root / "results/rl/runs", s.name, s.legacy_fingerprint())
+        assert path == expected
     assert len(list((root / "results/rl/runs").iterdir())) == 2 * len(specs) == 108
 
 
@@ -336,14 +344,15 @@ def test_cost_violation_figure_marks_agents_still_learning(quick_run, tmp_path, 
 # ------------------------------------------------------------------ budgets and options
 def test_default_budgets_per_variant():
     """The per-variant budgets override the per-algorithm ones, and only where they are listed."""
-    specs = rl_train.run_specs(list(rl_train.ALGOS), list(rl_train.VARIANTS), 3, None, False)
+    pairs = [(a, v) for a in rl_train.ALGOS for v in rl_train.VARIANTS]
+    specs = rl_train.run_specs(pairs, 3, None, False, budgets="macro")
     assert len(specs) == 3 * 6 * 3
     for s in specs:
         assert s.timesteps == HP.TIMESTEPS_VARIANT.get((s.algo, s.variant), HP.TIMESTEPS[s.algo])
     for (algo, variant), n in HP.TIMESTEPS_VARIANT.items():
         assert algo in rl_train.ALGOS and variant in rl_train.VARIANTS
         assert n > HP.TIMESTEPS[algo], (algo, variant)  # an override only ever adds training
-    quick = rl_train.run_specs(["ppo"], ["reward"], 1, None, True)
+    quick = rl_train.run_specs([("ppo", "reward")], 1, None, True)
     assert {s.timesteps for s in quick} == {HP.QUICK_TIMESTEPS}
 
 
@@ -400,7 +409,8 @@ def test_trainings_start_longest_first(tmp_path, monkeypatch):
         return record, b"policy"
 
     monkeypatch.setattr(backends, "train_run", fake_train)
-    specs = rl_train.run_specs(list(rl_train.ALGOS), list(rl_train.VARIANTS), 1, None, False)
+    pairs = [(a, v) for a in rl_train.ALGOS for v in rl_train.VARIANTS]
+    specs = rl_train.run_specs(pairs, 1, None, False, budgets="macro")
     by_name = {s.name: s for s in specs}
     results = train_all(specs, tmp_path, workers=1, progress=False, log=lambda msg: None)
     assert sorted(order) == sorted(by_name)

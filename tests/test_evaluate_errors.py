@@ -9,13 +9,14 @@ import zipfile
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import raises_naming
 
 from benchmarks import compare_rl
 from benchmarks import evaluate as evaluate_module
 from benchmarks.evaluate import MAX_EPISODES, RawEnvPolicy, evaluate, main
 from controllers import LinearFeedbackController
 from sdjls_gym import SDJLSModel
-from sdjls_gym._validate import NotANumberError
+from sdjls_gym.errors import NotANumberError
 from sdjls_gym.systems.macro import PAPER_K, macro
 
 E = 30  # episodes per evaluation in these tests
@@ -44,7 +45,7 @@ def test_compare_rl_limits_are_evaluates_limits():
     )
     assert compare_rl.parse_args(["--seed", "0"]).seed == 0
     feedback = LinearFeedbackController(macro(), PAPER_K, horizon=20)
-    with pytest.raises(ValueError, match=f"episodes = {MAX_EPISODES + 1}"):
+    with raises_naming(ValueError, "episodes", MAX_EPISODES + 1):
         evaluate(feedback, episodes=MAX_EPISODES + 1)
 
 
@@ -57,7 +58,7 @@ def test_an_action_env_step_refuses_is_refused_by_evaluate(action):
     env.reset(seed=0)
     with pytest.raises(NotANumberError):
         env.step(action)
-    with pytest.raises(NotANumberError, match="the policy's action"):
+    with raises_naming(NotANumberError, "the policy's action", action):
         evaluate(lambda obs: action, episodes=E)
 
     class Agent:
@@ -69,7 +70,7 @@ def test_an_action_env_step_refuses_is_refused_by_evaluate(action):
 
 
 def test_a_policy_returning_none_is_named_so():
-    with pytest.raises(NotANumberError, match="returned None") as exc:
+    with raises_naming(NotANumberError, "policy", None) as exc:  # README: None is named
         evaluate(lambda obs: None, episodes=E)
     assert "non-finite" not in str(exc.value)
 
@@ -77,7 +78,7 @@ def test_a_policy_returning_none_is_named_so():
         def predict(self, obs, deterministic=True):
             return None, None
 
-    with pytest.raises(NotANumberError, match="returned None"):
+    with raises_naming(NotANumberError, "policy", None):
         evaluate(Agent(), episodes=E)
 
 
@@ -95,26 +96,28 @@ def test_an_episode_past_the_state_limit_in_one_step_is_a_diverged_episode():
 
 # ------------------------------------------------------------------ scoring the wrong way
 def test_a_class_instead_of_an_agent_is_named():
-    with pytest.raises(TypeError, match="is a class, not an agent") as exc:
+    def dotted(cls):  # how the message shows a class
+        return f"{cls.__module__}.{cls.__qualname__}"
+
+    with raises_naming(TypeError, "policy", dotted(LinearFeedbackController)):
         evaluate(LinearFeedbackController, episodes=E)
-    assert "LinearFeedbackController" in str(exc.value)
     sb3 = pytest.importorskip("stable_baselines3")
-    with pytest.raises(TypeError, match=r"policy = stable_baselines3.*PPO is a class"):
+    with raises_naming(TypeError, "policy", dotted(sb3.PPO)):
         evaluate(sb3.PPO, episodes=E)
-    with pytest.raises(TypeError, match=r"agent = .*PPO is a class"):
+    with raises_naming(TypeError, "agent", dotted(sb3.PPO)):
         RawEnvPolicy(sb3.PPO, gym.make("SDJLS-Macro-v0"))
 
 
 def test_max_episode_steps_alone_suggests_the_horizon():
     feedback = LinearFeedbackController(macro(), PAPER_K)
-    with pytest.raises(ValueError, match="max_episode_steps = 10") as exc:
+    with raises_naming(ValueError, ("max_episode_steps", "horizon"), 10) as exc:
         evaluate(feedback, episodes=E, env_kwargs={"max_episode_steps": 10})
     assert "horizon=10" in str(exc.value)
 
 
 def test_an_unknown_env_id_is_a_value_error_naming_it():
     feedback = LinearFeedbackController(macro(), PAPER_K)
-    with pytest.raises(ValueError, match="env_id = 'SDJLS-Macro-v9'"):
+    with raises_naming(ValueError, "env_id", "SDJLS-Macro-v9"):
         evaluate(feedback, episodes=E, env_id="SDJLS-Macro-v9")
 
 
@@ -132,15 +135,17 @@ def test_an_agent_of_other_spaces_is_refused_naming_raw_env_policy():
     """An agent trained behind wrappers (observations scaled, actions in [-1, 1]) scored on the
     raw environment: every episode would diverge without a word."""
     agent, train_env = _trained_behind_wrappers()
-    with pytest.raises(ValueError, match="RawEnvPolicy") as exc:
+    # README: the refusal names RawEnvPolicy and --train-env
+    names = ("agent's observation space", "RawEnvPolicy", "--train-env")
+    with raises_naming(ValueError, names, agent.observation_space):
         evaluate(agent, episodes=E)
-    assert "space" in str(exc.value) and "--train-env" in str(exc.value)
     # RawEnvPolicy with the wrong training env (the raw one, or other wrappers)
-    with pytest.raises(ValueError, match="RawEnvPolicy"):
+    with raises_naming(ValueError, names, agent.observation_space):
         RawEnvPolicy(agent, gym.make("SDJLS-Macro-v0"))
     from sdjls_gym.wrappers import ScaleObservationReward
 
-    with pytest.raises(ValueError, match="action space"):  # no RescaleAction: u in [-200, 200]
+    # no RescaleAction: u in [-200, 200]
+    with raises_naming(ValueError, ("agent's action space", "RawEnvPolicy"), agent.action_space):
         RawEnvPolicy(agent, ScaleObservationReward(gym.make("SDJLS-Macro-v0")))
     # the right one is accepted; and an agent on another action bound than the scored env
     assert evaluate(RawEnvPolicy(agent, train_env), episodes=E).episodes == E

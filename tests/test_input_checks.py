@@ -9,13 +9,11 @@ that promise "before any solver runs" replace the solvers by a trap.
 from __future__ import annotations
 
 import json
-import warnings
 
-import cvxpy as cp
 import gymnasium as gym
 import numpy as np
-import osqp
 import pytest
+from conftest import UNSHOWN, noiseless_model, refused
 from gymnasium.wrappers import (
     MaxAndSkipObservation,
     RecordEpisodeStatistics,
@@ -44,24 +42,10 @@ from sdjls_gym.wrappers import ScaleObservationReward, ViolationPenalty
 HUGE = 10**400  # a Python int beyond float64 (1.8e308)
 
 
-@pytest.fixture
-def no_solver(monkeypatch):
-    """Fail the test if OSQP or cvxpy is asked to solve anything."""
-
-    def trap(*args, **kwargs):
-        raise AssertionError("a solver ran before the input was checked")
-
-    monkeypatch.setattr(osqp.OSQP, "solve", trap)
-    monkeypatch.setattr(cp.Problem, "solve", trap)
-
-
-def raises(error, match, call):
-    """``call()`` raises ``error`` matching ``match``, with no warning on the way."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        with pytest.raises(error, match=match) as info:
-            call()
-    return info.value
+def raises(error, name, value, call):
+    """``call()`` raises ``error`` naming ``name`` and showing ``value``, with no warning on the
+    way, from a check of this project (``conftest.refused``); the exception."""
+    return refused(error, name, value, call).value
 
 
 # ------------------------------------------------------------------------- a. bools as indices
@@ -76,12 +60,12 @@ CONTROLLERS = {
     "tree": lambda: ScenarioTreeController(macro(), PAPER_K, **PAPER_RHC, steps=2),
 }
 
-BOOL_INDICES = {
-    "mode-list": ([0, True], 0, r"^mode\[1\] = True is a bool"),
-    "mode-tuple-numpy-bool": ((np.True_, 0), [1, 2], r"^mode\[0\] = np\.True_ is a bool"),
-    "k-list": ([0, 1], [True, 2], r"^k\[0\] = True is a bool"),
-    "k-scalar": ([0, 1], False, r"^k = False is a bool"),
-    "mode-float-in-list": ([0, 1.0], 0, r"^mode\[1\] = 1\.0 is a float"),
+BOOL_INDICES = {  # modes, k, the name and the value in the message
+    "mode-list": ([0, True], 0, "mode[1]", True),
+    "mode-tuple-numpy-bool": ((np.True_, 0), [1, 2], "mode[0]", np.True_),
+    "k-list": ([0, 1], [True, 2], "k[0]", True),
+    "k-scalar": ([0, 1], False, "k", False),
+    "mode-float-in-list": ([0, 1.0], 0, "mode[1]", 1.0),
 }
 
 
@@ -91,12 +75,12 @@ def test_act_batch_refuses_a_bool_among_modes_or_times(which, case, no_solver):
     """numpy reads ``[0, True]`` as ``[0, 1]``: every controller's act_batch refuses it, by
     entry, before any solver runs (README: a bool is never a number)."""
     ctrl = CONTROLLERS[which]()
-    modes, k, match = BOOL_INDICES[case]
-    raises(TypeError, match, lambda: ctrl.act_batch(np.ones((2, 2)), modes, k))
+    modes, k, name, value = BOOL_INDICES[case]
+    raises(TypeError, name, value, lambda: ctrl.act_batch(np.ones((2, 2)), modes, k))
 
 
 def test_model_band_refuses_a_bool_among_times():
-    raises(TypeError, r"^k\[0\] = True is a bool", lambda: macro().H([True, 2]))
+    raises(TypeError, "k[0]", True, lambda: macro().H([True, 2]))
     np.testing.assert_array_equal(macro().H([1, 2]), macro().H(np.array([1, 2])))
 
 
@@ -124,53 +108,35 @@ def _stepped_vector_env():
     return envs
 
 
-HUGE_INTS = {
-    "env-step": (lambda _: _stepped_env().step([HUGE]), r"^action has an entry 1000"),
-    "env-step-negative": (lambda _: _stepped_env().step([-HUGE]), r"^action has an entry -1000"),
-    "env-step-array": (
-        lambda _: _stepped_env().step(np.array([HUGE], dtype=object)),
-        r"^action has an entry 1000",
-    ),
-    "vector-step": (
-        lambda _: _stepped_vector_env().step([[0.0], [HUGE]]),
-        r"^actions has an entry 1000.* at index \(1, 0\)",
-    ),
+HUGE_INTS = {  # the call, the name in the message (its value: HUGE or -HUGE)
+    "env-step": (lambda _: _stepped_env().step([HUGE]), "action"),
+    "env-step-negative": (lambda _: _stepped_env().step([-HUGE]), "action"),
+    "env-step-array": (lambda _: _stepped_env().step(np.array([HUGE], dtype=object)), "action"),
+    "vector-step": (lambda _: _stepped_vector_env().step([[0.0], [HUGE]]), "actions"),
     "act": (
         lambda _: RecedingHorizonController(macro(), PAPER_K, **PAPER_RHC).act([0.0, HUGE], 0, 0),
-        r"^x has an entry 1000.* at index \(1,\)",
+        "x",
     ),
     "act-batch": (
         lambda _: LinearFeedbackController(macro(), PAPER_K).act_batch([[HUGE, 0.0]], [0], 0),
-        r"^x has an entry 1000.* at index \(0, 0\)",
+        "x",
     ),
     "predict": (
         lambda _: LinearFeedbackController(macro(), PAPER_K).predict([HUGE, 0, 1, 0, 0, 0]),
-        r"^observation has an entry 1000",
+        "observation",
     ),
-    "model-x0": (
-        lambda _: SDJLSModel(**{**macro().to_dict(), "x0": [HUGE, 0]}),
-        r"^x0 has an entry 1000",
-    ),
+    "model-x0": (lambda _: SDJLSModel(**{**macro().to_dict(), "x0": [HUGE, 0]}), "x0"),
     "model-A": (
         lambda _: SDJLSModel(**{**macro().to_dict(), "A": [[1.0, 0.0], [0.0, -HUGE]]}),
-        r"^A has an entry -1000.* at index \(1, 1\)",
+        "A",
     ),
     "reset-x0": (
         lambda _: gym.make("SDJLS-Macro-v0").reset(options={"x0": [0, HUGE]}),
-        r"^options\['x0'\] has an entry 1000",
+        "options['x0']",
     ),
-    "action-bound": (
-        lambda _: gym.make("SDJLS-Macro-v0", action_bound=[HUGE]),
-        r"^action_bound has an entry 1000",
-    ),
-    "json-file": (
-        lambda tmp: load_model(_model_file(tmp, ".json")),
-        r"^model file .*huge\.json': x0 has an entry 1000",
-    ),
-    "toml-file": (
-        lambda tmp: load_model(_model_file(tmp, ".toml")),
-        r"^model file .*huge\.toml': x0 has an entry 1000",
-    ),
+    "action-bound": (lambda _: gym.make("SDJLS-Macro-v0", action_bound=[HUGE]), "action_bound"),
+    "json-file": (lambda tmp: load_model(_model_file(tmp, ".json")), ("huge.json", "x0")),
+    "toml-file": (lambda tmp: load_model(_model_file(tmp, ".toml")), ("huge.toml", "x0")),
 }
 
 
@@ -178,20 +144,19 @@ HUGE_INTS = {
 def test_an_int_beyond_float64_is_a_value_error_naming_the_argument(case, tmp_path, no_solver):
     """``10**400`` is a ValueError naming the argument and showing the value, as ``1e400`` is,
     not numpy's bare OverflowError."""
-    call, match = HUGE_INTS[case]
-    error = raises(ValueError, match, lambda: call(tmp_path))
-    assert "beyond the range of float64" in str(error) and "about 10**400" in str(error)
+    call, name = HUGE_INTS[case]
+    raises(ValueError, name, -HUGE if "negative" in case or case == "model-A" else HUGE, lambda: (
+        call(tmp_path)
+    ))  # fmt: skip
 
 
 # ------------------------------------------------------------------------ c. LMI inputs
 def test_mean_square_bound_refuses_a_nu_bound_whose_square_overflows(no_solver):
     model = macro()
-    raises(
-        ValueError,
-        r"^nu_bound = 1e\+200 is out of range; expected a finite number in \[0, 1\.34078e\+154\]",
-        lambda: verify_mean_square_bound(model, PAPER_K, nu_bound=1e200),
-    )
-    raises(ValueError, r"^nu_bound = 1000.* is not finite", lambda: verify_mean_square_bound(
+    raises(ValueError, "nu_bound", 1e200, lambda: (
+        verify_mean_square_bound(model, PAPER_K, nu_bound=1e200)
+    ))  # fmt: skip
+    raises(ValueError, "nu_bound", HUGE, lambda: verify_mean_square_bound(
         model, PAPER_K, nu_bound=HUGE
     ))  # fmt: skip
 
@@ -203,56 +168,51 @@ def test_gains_whose_products_overflow_are_named_before_any_solver(scale, no_sol
     model = macro()
     K = np.full_like(PAPER_K, scale)
     for call in (verify_mean_square_bound, second_moment_spectral_radius):
-        raises(
-            ValueError,
-            rf"^K has entries up to {scale:.0e}".replace("+", r"\+"),
-            lambda c=call: c(model, K),
-        )
+        raises(ValueError, "K", scale, lambda c=call: c(model, K))
 
 
 def test_gains_that_are_clearly_not_mean_square_stable_are_infeasible_without_a_solver(no_solver):
     """K of 1e20 made Clarabel fail ("try another solver"); the second-moment operator of
     P_in alone has radius 1e40 > 1, which settles the LMIs' infeasibility without a solver."""
-    error = raises(
-        LMIInfeasibleError,
-        r"could not be certified \(no solver run\).*model\.P_in.*radius 1e\+40",
-        lambda: verify_mean_square_bound(macro(), np.full_like(PAPER_K, 1e20)),
-    )
+    error = raises(LMIInfeasibleError, "model.P_in", 1e40, lambda: (  # the radius, 1e+40
+        verify_mean_square_bound(macro(), np.full_like(PAPER_K, 1e20))
+    ))  # fmt: skip
     assert isinstance(error, ValueError)
+    assert "(no solver run)" in str(error)  # the words the README quotes
 
 
 def test_a_certificate_whose_bound_overflows_names_the_argument():
     """delta = 1e308 (or kappa = 1e-320) makes beta2 overflow: a ValueError naming them, not a
     certificate with beta2 = inf."""
     model = macro()
-    raises(ValueError, r"beta2 .* overflows float64 with delta = 1e\+308", lambda: (
+    raises(ValueError, ("beta2", "delta"), 1e308, lambda: (
         verify_mean_square_bound(model, PAPER_K, delta=1e308)
     ))  # fmt: skip
-    raises(ValueError, r"overflows float64 with delta = 1, kappa = 1e-320", lambda: (
+    raises(ValueError, ("beta2", "kappa"), 1e-320, lambda: (
         verify_mean_square_bound(model, PAPER_K, delta=1, kappa=1e-320)
     ))  # fmt: skip
 
 
 def test_proposition2_names_X_and_Y_when_their_products_overflow():
     scale = 1e308 / np.max(np.abs(PAPER_X))
-    raises(ValueError, r"^X and Y are too large: A_0 X_0 \+ B_0 Y_0 overflows", lambda: (
+    raises(ValueError, ("X", "Y"), 1e308, lambda: (  # X has entries up to 1e+308
         check_proposition2(macro(), PAPER_X * scale, PAPER_Y)
     ))  # fmt: skip
 
 
 def test_lmi_flags_and_the_bound_follow_the_argument_rules(no_solver):
     model = macro()
-    raises(TypeError, r"^verbose = 'yes' is a str", lambda: synthesize_gains(model, verbose="yes"))
-    raises(TypeError, r"^objective = \['max_margin'\] is a list", lambda: synthesize_gains(
+    raises(TypeError, "verbose", "yes", lambda: synthesize_gains(model, verbose="yes"))
+    raises(TypeError, "objective", ["max_margin"], lambda: synthesize_gains(
         model, objective=["max_margin"]
     ))  # fmt: skip
 
 
 def test_certificate_bound_checks_k_and_x0():
     cert = verify_mean_square_bound(macro(), PAPER_K)
-    raises(TypeError, r"^k = True is a bool", lambda: cert.bound(True, [1.0, 1.0]))
-    raises(TypeError, r"^k\[1\] = True is a bool", lambda: cert.bound([0, True], [1.0, 1.0]))
-    raises(ValueError, r"^x0 has an entry 1000", lambda: cert.bound(1, [HUGE, 0]))
+    raises(TypeError, "k", True, lambda: cert.bound(True, [1.0, 1.0]))
+    raises(TypeError, "k[1]", True, lambda: cert.bound([0, True], [1.0, 1.0]))
+    raises(ValueError, "x0", HUGE, lambda: cert.bound(1, [HUGE, 0]))
     assert cert.bound(2, [1.0, 1.0]) == pytest.approx(cert.bound(np.array([2]), [1, 1])[0])
 
 
@@ -277,7 +237,7 @@ def test_policy_for_refuses_a_wrapper_it_does_not_know_by_name(name):
     env = REFUSED_WRAPPERS[name]()
     assert env.observation_space == env.unwrapped.observation_space
     ctrl = RecedingHorizonController(macro(), PAPER_K, **PAPER_RHC)
-    raises(ValueError, rf"^env has a {name} ", lambda: policy_for(ctrl, env))
+    raises(ValueError, "env", name, lambda: policy_for(ctrl, env))
 
 
 def test_policy_for_acts_through_the_known_wrappers():
@@ -319,35 +279,33 @@ def test_policy_for_predict_checks_time_and_the_one_hot_mode(make):
     argmax); now time must be a multiple of 1 / horizon in [0, 1], for every controller, and the
     mode part one-hot."""
     policy = policy_for(make(), gym.make("SDJLS-Macro-v0"))
-    raises(ValueError, r"time entry k / horizon = 7\.3 does not decode", lambda: (
-        policy.predict(_obs(tau=7.3))
-    ))  # fmt: skip
-    raises(ValueError, r"time entry k / horizon = 0\.33 ", lambda: policy.predict(_obs(tau=0.33)))
+    time = "observation's time entry k / horizon"
+    raises(ValueError, time, 7.3, lambda: policy.predict(_obs(tau=7.3)))
+    raises(ValueError, time, 0.33, lambda: policy.predict(_obs(tau=0.33)))
     for bad in ((1.0, 1.0, 0.0), (0.0, 0.0, 0.0), (0.5, 0.5, 0.0), (2.0, -1.0, 0.0)):
-        shown = r"\[\s*" + r",\s*".join(rf"{v:g}\.?" for v in bad)
-        raises(ValueError, rf"^observation's mode part {shown}.*is not one-hot", lambda b=bad: (
+        raises(ValueError, "observation's mode part", np.array(bad), lambda b=bad: (
             policy.predict(_obs(one_hot=b))
         ))  # fmt: skip
     batch = np.stack([_obs(), _obs(one_hot=(0.0, 1.0, 1.0))])
-    raises(ValueError, r"^observation\[1\]'s mode part", lambda: policy.predict(batch))
+    raises(ValueError, "observation[1]'s mode part", np.array([0.0, 1.0, 1.0]), lambda: (
+        policy.predict(batch)
+    ))  # fmt: skip
     action, _ = policy.predict(_obs(one_hot=(0.0, 1.0, 0.0), tau=0.05))
     assert action.shape == (1,)
 
 
 def test_controller_predict_refuses_a_mode_part_that_is_not_one_hot():
     ctrl = LinearFeedbackController(macro(), PAPER_K)
-    raises(ValueError, r"mode part \[0\.5, 0\.5, 0\. \] is not one-hot", lambda: (
+    raises(ValueError, "mode part", np.array([0.5, 0.5, 0.0]), lambda: (
         ctrl.predict(_obs(one_hot=(0.5, 0.5, 0.0)))
     ))  # fmt: skip
 
 
 # ------------------------------------------------------------------- e. an overflowing step
 def _overflow_model(A, B=((0.0,), (1.0,)), G=((0.0, 1.0),), x0=(1e10, 1e10)):
-    """One mode, n = 2, W = 0 (no noise): both envs step x_1 = A x_0 + B u_0 exactly alike."""
-    return SDJLSModel(
-        A=[A], B=[list(b) for b in B], P_in=[[1.0]], P_out=[[1.0]], G=[list(g) for g in G],
-        H0=[1.0] * len(G), Q=np.eye(2), R=[[1.0]], x0=list(x0), W=np.zeros((2, 2)),
-    )  # fmt: skip
+    """conftest's noiseless model (both envs step x_1 = A x_0 + B u_0 exactly alike), with the
+    band at 1 and the state at 1e10."""
+    return noiseless_model(A, B=B, G=G, H0=[1.0] * len(G), x0=x0)
 
 
 def _both_steps(model, action, divergence_bound=1e30):
@@ -440,31 +398,37 @@ def test_random_overflowing_steps_agree_between_the_envs():
 # ------------------------------------------------------------- found by the hostile round
 ODD_ACTIONS = {
     # numpy casts dates to numbers of days: not a number
-    "datetime64": (np.array(["2020-01-01"], dtype="datetime64[D]"), TypeError, r"datetime64"),
-    "timedelta64": (np.array([3], dtype="timedelta64[s]"), TypeError, r"timedelta64"),
-    # the data under a mask is not the user's value
-    "masked": (np.ma.masked_array([0.5], mask=[True]), ValueError, r"masked \(missing\) entry"),
+    "datetime64": (np.array(["2020-01-01"], dtype="datetime64[D]"), TypeError),
+    "timedelta64": (np.array([3], dtype="timedelta64[s]"), TypeError),
+    # the data under a mask is not the user's value (the message shows no value: there is none)
+    "masked": (np.ma.masked_array([0.5], mask=[True]), ValueError),
     # a longdouble beyond float64: numpy's cast warned "overflow" before the error
-    "longdouble-1e400": (np.array([np.longdouble("1e400")]), ValueError, r"inf"),
+    "longdouble-1e400": (np.array([np.longdouble("1e400")]), ValueError),
 }
 
 
 @pytest.mark.parametrize("case", list(ODD_ACTIONS))
 def test_odd_arrays_are_refused_by_name_without_a_warning(case):
-    value, error, match = ODD_ACTIONS[case]
-    raises(error, rf"^action.*{match}", lambda: _stepped_env().step(value))
-    raises(error, rf"^actions.*{match}", lambda: _stepped_vector_env().step(
-        value.reshape(1, 1).repeat(2, axis=0) if case != "masked" else
+    value, error = ODD_ACTIONS[case]
+    masked = case == "masked"
+    actions = (
         np.ma.masked_array([[0.5], [0.5]], mask=[[False], [True]])
-    ))  # fmt: skip
-    raises(error, rf"^x.*{match}", lambda: LinearFeedbackController(macro(), PAPER_K).act(
-        np.concatenate([value, value]) if case != "masked" else
-        np.ma.masked_array([0.5, 0.5], mask=[False, True]), 0, 0
-    ))  # fmt: skip
-    if case != "masked":
-        raises(error, rf"^x0.*{match}", lambda: SDJLSModel(
-            **{**macro().to_dict(), "x0": np.concatenate([value, value])}
-        ))  # fmt: skip
+        if masked
+        else value.reshape(1, 1).repeat(2, axis=0)
+    )
+    x = (
+        np.ma.masked_array([0.5, 0.5], mask=[False, True])
+        if masked
+        else np.concatenate([value] * 2)
+    )
+    # known gap: a longdouble beyond float64 is shown as its float64 cast (inf), not as 1e+400;
+    # the vector env's "actions contain NaN or inf" shows no value at all
+    shown = (lambda v: UNSHOWN) if masked or case == "longdouble-1e400" else (lambda v: v)
+    raises(error, "action", shown(value), lambda: _stepped_env().step(value))
+    raises(error, "actions", shown(actions), lambda: _stepped_vector_env().step(actions))
+    raises(error, "x", shown(x), lambda: LinearFeedbackController(macro(), PAPER_K).act(x, 0, 0))
+    if not masked:
+        raises(error, "x0", shown(x), lambda: SDJLSModel(**{**macro().to_dict(), "x0": x}))
 
 
 @pytest.mark.parametrize(
@@ -480,14 +444,15 @@ def test_predict_checks_the_observation_before_reading_its_shape(make):
     observation); a state part above MAX_STATE was named 'x[0]'; a time entry of 1e308 made
     numpy warn of an overflow before the error."""
     policy = make()
-    raises(ValueError, r"^observation = .* could not be read", lambda: policy.predict(
+    raises(ValueError, "observation", [0.5, [0.5], 1, 0, 0, 0], lambda: policy.predict(
         [0.5, [0.5], 1, 0, 0, 0]
     ))  # fmt: skip
-    raises(ValueError, r"^observation's state part \[5\.e-0+1, 1\.e\+200\] has an entry of "
-           r"magnitude above 1e\+100", lambda: policy.predict([0.5, 1e200, 1, 0, 0, 0]))  # fmt: skip
+    raises(ValueError, "observation's state part", np.array([0.5, 1e200]), lambda: (
+        policy.predict([0.5, 1e200, 1, 0, 0, 0])
+    ))  # fmt: skip
     if isinstance(policy, LinearFeedbackController):
         return  # its decision does not read k
-    raises(ValueError, r"time entry k / horizon = 1e\+308", lambda: policy.predict(
+    raises(ValueError, "observation's time entry k / horizon", 1e308, lambda: policy.predict(
         [0.5, 0.5, 1, 0, 0, 1e308]
     ))  # fmt: skip
 
@@ -498,9 +463,9 @@ def test_reset_seed_follows_the_int_rule(vector):
     make = (lambda: SDJLSVectorEnv(2, model=macro())) if vector else (
         lambda: gym.make("SDJLS-Macro-v0")
     )  # fmt: skip
-    raises(TypeError, r"^seed = True is a bool", lambda: make().reset(seed=True))
-    raises(TypeError, r"^seed = 1\.0 is a float", lambda: make().reset(seed=1.0))
-    raises(ValueError, r"^seed = -1 is out of range", lambda: make().reset(seed=-1))
+    raises(TypeError, "seed", True, lambda: make().reset(seed=True))
+    raises(TypeError, "seed", 1.0, lambda: make().reset(seed=1.0))
+    raises(ValueError, "seed", -1, lambda: make().reset(seed=-1))
     a, b = make(), make()
     a.reset(seed=np.int8(3))
     b.reset(seed=3)
@@ -514,6 +479,19 @@ def test_a_json_model_file_with_a_key_twice_is_refused(tmp_path):
     text = json.dumps(macro().to_dict())[:-1] + ', "x0": [1.0, 1.0]}'
     path = tmp_path / "twice.json"
     path.write_text(text, encoding="utf-8")
-    raises(ValueError, r"^model file .*twice\.json' has the key 'x0' twice", lambda: load_model(
-        path
-    ))  # fmt: skip
+    raises(ValueError, "model file", "twice.json", lambda: load_model(path))  # the key 'x0' twice
+
+
+@pytest.mark.parametrize("action", [[None], np.array([None], dtype=object)])
+def test_a_none_entry_in_an_action_is_not_a_number(action):
+    """A None entry is named as such, as the README says, not read as NaN ('non-finite')."""
+    from sdjls_gym.errors import NotANumberError
+
+    env = gym.make("SDJLS-Macro-v0")
+    env.reset(seed=0)
+    with pytest.raises(NotANumberError, match="None"):
+        env.step(action)
+    venv = gym.make_vec("SDJLS-Macro-v0", num_envs=1, vectorization_mode="vector_entry_point")
+    venv.reset(seed=0)
+    with pytest.raises(NotANumberError, match="None"):
+        venv.step(np.array([action], dtype=object))

@@ -14,6 +14,7 @@ import warnings
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import UNSHOWN, raises_naming
 
 import sdjls_gym  # noqa: F401  (registers the ids)
 from sdjls_gym import SDJLSEnv
@@ -293,12 +294,13 @@ def test_without_a_band_the_view_follows_the_data(other_model):
 @pytest.mark.parametrize("make", ["gym.make", "class"])
 def test_human_render_mode_is_rejected_at_construction(make):
     """Before: gym.make accepted "human" (adding pygame's HumanRendering) and failed at reset."""
-    with pytest.raises(ValueError, match="render_mode") as err:
+    with raises_naming(
+        ValueError, ("render_mode", "rgb_array", "gymnasium.wrappers.RecordVideo"), "human"
+    ):
         if make == "gym.make":
             gym.make("SDJLS-Macro-v0", render_mode="human")
         else:
             SDJLSEnv("macro", render_mode="human")
-    assert "rgb_array" in str(err.value) and "RecordVideo" in str(err.value)
 
 
 @pytest.mark.parametrize(
@@ -312,7 +314,7 @@ def test_human_render_mode_is_rejected_at_construction(make):
     ],
 )
 def test_other_render_modes_are_rejected(render_mode, error):
-    with pytest.raises(error, match="render_mode"):
+    with raises_naming(error, "render_mode", render_mode):
         gym.make("SDJLS-Macro-v0", render_mode=render_mode)
 
 
@@ -322,33 +324,33 @@ def test_render_before_reset_raises():
 
 
 @pytest.mark.parametrize(
-    ("xs", "modes", "error", "name"),
+    ("xs", "modes", "error", "name", "value"),
     [
-        ([[2.0, 2.0, 2.0]], [0], ValueError, "xs"),
-        ([[2.0, "a"]], [0], TypeError, "xs"),
-        (np.zeros((0, 2)), [], ValueError, "xs"),
-        ([[2.0, 2.0]], [3], ValueError, "modes"),
-        ([[2.0, 2.0]], [0.0], TypeError, "modes"),
-        ([[2.0, 2.0]], [True], TypeError, "modes"),
-        ([[2.0, 2.0], [1.0, 1.0]], [0], ValueError, "modes"),
+        ([[2.0, 2.0, 2.0]], [0], ValueError, "xs", (1, 3)),
+        ([[2.0, "a"]], [0], TypeError, "xs", [[2.0, "a"]]),
+        (np.zeros((0, 2)), [], ValueError, "xs", UNSHOWN),  # "xs has no rows"
+        ([[2.0, 2.0]], [3], ValueError, "modes", [3]),
+        ([[2.0, 2.0]], [0.0], TypeError, "modes", np.dtype("float64")),
+        ([[2.0, 2.0]], [True], TypeError, "modes", np.dtype("bool")),
+        ([[2.0, 2.0], [1.0, 1.0]], [0], ValueError, "modes", (1,)),
     ],
 )
-def test_bad_history_names_the_argument(xs, modes, error, name):
-    with pytest.raises(error, match=name):
+def test_bad_history_names_the_argument(xs, modes, error, name, value):
+    with raises_naming(error, name, value):
         EpisodeRenderer(macro(), HORIZON).frame(xs, modes)
 
 
 @pytest.mark.parametrize(
-    ("kwargs", "error", "name"),
+    ("kwargs", "error", "name", "value"),
     [
-        ({"horizon": 0}, ValueError, "horizon"),
-        ({"horizon": 2.0}, TypeError, "horizon"),
-        ({"horizon": 5, "divergence_bound": -1.0}, ValueError, "divergence_bound"),
-        ({"horizon": 5, "divergence_bound": True}, TypeError, "divergence_bound"),
+        ({"horizon": 0}, ValueError, "horizon", 0),
+        ({"horizon": 2.0}, TypeError, "horizon", 2.0),
+        ({"horizon": 5, "divergence_bound": -1.0}, ValueError, "divergence_bound", -1.0),
+        ({"horizon": 5, "divergence_bound": True}, TypeError, "divergence_bound", True),
     ],
 )
-def test_bad_renderer_arguments_name_the_argument(kwargs, error, name):
-    with pytest.raises(error, match=name):
+def test_bad_renderer_arguments_name_the_argument(kwargs, error, name, value):
+    with raises_naming(error, name, value):
         EpisodeRenderer(macro(), **kwargs)
 
 

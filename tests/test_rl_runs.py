@@ -31,7 +31,9 @@ def _fake_train(spec, report=None, should_stop=None):
 
 
 def _snapshot(folder: Path) -> dict[str, bytes]:
-    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+    """Every file under ``folder`` (the runs of a task are in ``<task>/``), by relative path."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file()}  # fmt: skip
 
 
 def test_a_run_of_another_configuration_never_replaces_a_kept_run(tmp_path, monkeypatch):
@@ -49,8 +51,8 @@ def test_a_run_of_another_configuration_never_replaces_a_kept_run(tmp_path, monk
     after = _snapshot(tmp_path)
     assert {name: after[name] for name in before} == before  # byte-identical
     assert len(after) == 4
-    assert set(before) == {f"ppo_reward_s0-{kept.fingerprint()}.json",
-                           f"ppo_reward_s0-{kept.fingerprint()}.pt"}  # fmt: skip
+    assert set(before) == {f"SDJLS-Macro-v0/ppo_reward_s0-{kept.fingerprint()}.json",
+                           f"SDJLS-Macro-v0/ppo_reward_s0-{kept.fingerprint()}.pt"}  # fmt: skip
     assert rl_train.load_run(tmp_path, kept).timesteps == 8_000_000
     assert rl_train.load_run(tmp_path, smoke).timesteps == 64
     # --retrain replaces only the run of the same configuration
@@ -78,7 +80,8 @@ def test_quick_writes_outside_the_committed_results_by_default(capsys):
     opts = compare_rl.parse_args(["--quick"])
     assert opts.out == compare_rl.QUICK_OUT
     assert ROOT not in opts.out.resolve().parents
-    assert compare_rl.parse_args([]).out == Path("results/rl")
+    assert compare_rl.parse_args([]).out == Path("results/rl_suite")
+    assert compare_rl.parse_args(["--preset", "macro"]).out == Path("results/rl")
     # a smoke test into a folder that holds a full comparison's report is refused by name
     with pytest.raises(SystemExit):
         compare_rl.parse_args(["--quick", "--out", str(ROOT / "results" / "rl")])
@@ -104,10 +107,10 @@ def test_write_atomic_leaves_the_old_file_when_interrupted(tmp_path, monkeypatch
 def test_compare_rl_keeps_a_run_of_another_budget_beside_the_kept_one(tmp_path, monkeypatch):
     """The command end to end: ``--timesteps`` changed, the kept run's files are byte-identical;
     the report's files are written through write_atomic (write, then rename)."""
-    args = ["--quick", "--algos", "ppo", "--variants", "residual", "--seeds", "1",
+    args = ["--quick", "--tasks", "SDJLS-Macro-v0", "--configs", "ppo_residual", "--seeds", "1",
             "--eval-episodes", "20", "--workers", "1", "--no-progress", "--out", str(tmp_path)]  # fmt: skip
     compare_rl.main([*args, "--timesteps", "1050"])
-    runs = tmp_path / "runs"
+    runs = tmp_path / "runs" / "SDJLS-Macro-v0"
     before = _snapshot(runs)
     written = []
     real = compare_rl.write_atomic

@@ -334,6 +334,12 @@ def test_no_global_random_generator_in_the_sources():
     )
     assert len(files) >= 10
     uses = {str(p.relative_to(ROOT)): global_rng_uses(p) for p in files}
+    # the one exception: rliable draws from the legacy generator, so aggregate.py seeds it for
+    # the call and restores the caller's state (test_suite_benchmark.py checks both)
+    scoped = [f"np.random.{name}" for name in ("get_state", "seed", "set_state")]
+    uses["benchmarks/aggregate.py"] = [
+        u for u in uses["benchmarks/aggregate.py"] if not any(u.endswith(s) for s in scoped)
+    ]
     assert {p: u for p, u in uses.items() if u} == {}
 
 

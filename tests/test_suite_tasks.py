@@ -32,8 +32,8 @@ from controllers import (
     verify_mean_square_bound,
 )
 from sdjls_gym import SDJLSVectorEnv
+from sdjls_gym.registration import make_random_env
 from sdjls_gym.systems import TASKS, Task, random_task
-from sdjls_gym.systems.random_system import make_random_env
 
 SUITE = sdjls_gym.SUITE
 NEW_FIXED = ("SDJLS-Solar-v0", "SDJLS-VTOL-v0", "SDJLS-ThreeState-v0", "SDJLS-Degradation-v0")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import raises_naming
 
 from sdjls_gym import wrappers as W
 
@@ -34,25 +35,26 @@ def test_scale_observation_reward_defaults_are_the_comparisons_and_log_the_cost(
 
 
 @pytest.mark.parametrize(
-    ("kwargs", "error", "match"),
+    ("kwargs", "error"),
     [
-        ({"x_scale": 0.0}, ValueError, "x_scale = 0.0 is out of range"),
-        ({"obs_clip": float("nan")}, ValueError, "obs_clip = nan is not finite"),
-        ({"reward_scale": "100"}, TypeError, "reward_scale = '100' is a str"),
-        ({"reward_clip": True}, TypeError, "reward_clip = True is a bool"),
-        ({"reward_transform": "exp"}, ValueError, "reward_transform = 'exp' is not known"),
+        ({"x_scale": 0.0}, ValueError),
+        ({"obs_clip": float("nan")}, ValueError),
+        ({"reward_scale": "100"}, TypeError),
+        ({"reward_clip": True}, TypeError),
+        ({"reward_transform": "exp"}, ValueError),
     ],
 )
-def test_scale_observation_reward_rejects_bad_arguments(kwargs, error, match):
-    with pytest.raises(error, match=match):
+def test_scale_observation_reward_rejects_bad_arguments(kwargs, error):
+    [(name, value)] = kwargs.items()
+    with raises_naming(error, name, value):
         W.ScaleObservationReward(gym.make("SDJLS-Macro-v0"), **kwargs)
 
 
 def test_training_wrappers_need_an_sdjls_env():
     for wrapper in (W.ScaleObservationReward, W.TerminateOutside):
-        with pytest.raises(TypeError, match="needs an SDJLSEnv"):
+        with raises_naming(TypeError, (wrapper.__name__, "SDJLSEnv"), "PendulumEnv"):
             wrapper(gym.make("Pendulum-v1"))
-    with pytest.raises(ValueError, match="bound = -1"):
+    with raises_naming(ValueError, "bound", -1.0):
         W.TerminateOutside(gym.make("SDJLS-Macro-v0"), -1.0)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import raises_naming
 
 from sdjls_gym.wrappers import ResidualAction, ViolationPenalty
 
@@ -51,10 +52,10 @@ def test_violation_penalty_beta_can_change(quiet_paper_model):
 
 @pytest.mark.parametrize("beta", [-1.0, -1e-12, float("nan"), float("inf")])
 def test_violation_penalty_rejects_bad_beta(beta):
-    with pytest.raises(ValueError, match="beta"):
+    with raises_naming(ValueError, "beta", beta):
         ViolationPenalty(gym.make("SDJLS-Macro-v0"), beta)
     env = ViolationPenalty(gym.make("SDJLS-Macro-v0"), 1.0)
-    with pytest.raises(ValueError, match="beta"):
+    with raises_naming(ValueError, "beta", beta):
         env.beta = beta
     assert env.beta == 1.0
 
@@ -88,32 +89,28 @@ def test_residual_action_applies_K_theta_x_plus_nu(quiet_paper_model, paper):
 
 def test_residual_action_errors(paper):
     env = gym.make("SDJLS-Macro-v0")
-    with pytest.raises(ValueError, match="K"):
+    with raises_naming(ValueError, "K", (2, 1, 2)):
         ResidualAction(env, paper.K[:2])
-    with pytest.raises(ValueError, match="K"):
+    with raises_naming(ValueError, "K", np.nan):
         ResidualAction(env, np.full((3, 1, 2), np.nan))
-    with pytest.raises(ValueError, match="nu_bound"):
+    with raises_naming(ValueError, "nu_bound", -1.0):
         ResidualAction(env, paper.K, nu_bound=-1.0)
     with pytest.raises(TypeError):
         ResidualAction(gym.make("Pendulum-v1"), paper.K)
     wrapped = ResidualAction(env, paper.K)
     wrapped.reset(seed=0)
-    with pytest.raises(ValueError, match="nu"):
-        wrapped.step(np.array([np.nan], dtype=np.float32))
+    nan_action = np.array([np.nan], dtype=np.float32)
+    with raises_naming(ValueError, "action (nu)", nan_action):
+        wrapped.step(nan_action)
 
 
 @pytest.mark.parametrize(
-    ("beta", "error", "message"),
-    [
-        (10**400, ValueError, r"^beta = 1000.* is not finite; expected a finite number >= 0"),
-        (True, TypeError, r"^beta = True is a bool"),
-        ("10", TypeError, r"^beta = '10' is a str"),
-        (None, TypeError, r"^beta = None is a NoneType"),
-    ],
+    ("beta", "error"),
+    [(10**400, ValueError), (True, TypeError), ("10", TypeError), (None, TypeError)],
     ids=["int-beyond-float64", "bool", "str", "none"],
 )
-def test_violation_penalty_beta_follows_the_number_rule(beta, error, message):
-    with pytest.raises(error, match=message):
+def test_violation_penalty_beta_follows_the_number_rule(beta, error):
+    with raises_naming(error, "beta", beta):
         ViolationPenalty(gym.make("SDJLS-Macro-v0"), beta)
     env = ViolationPenalty(gym.make("SDJLS-Macro-v0"), 10**3)
     assert env.beta == 1000.0 and type(env.beta) is float
@@ -141,13 +138,11 @@ def _rescaled(env):
 )
 def test_residual_action_refuses_wrappers_that_change_the_action_below_it(paper, below, name):
     """``ResidualAction(RescaleAction(env), K)`` would apply ``u = K x + nu`` through the rescaling
-    (``u = +-200`` at ``nu = 0``): it is refused with a message saying where to put it."""
-    message = (
-        rf"must wrap the SDJLS environment directly: {name}.*"
-        r"RescaleAction\(ResidualAction\(env, K\), -1\.0, 1\.0\)"
-    )
-    with pytest.raises(ValueError, match=message):
+    (``u = +-200`` at ``nu = 0``): it is refused with a message naming the wrapper and saying
+    where to put it, in the words of the README."""
+    with raises_naming(ValueError, "ResidualAction", name) as excinfo:
         ResidualAction(below(gym.make("SDJLS-Macro-v0")), paper.K)
+    assert "RescaleAction(ResidualAction(env, K), -1.0, 1.0)" in str(excinfo.value)
 
 
 def test_rescale_on_top_of_residual_action_applies_K_x_at_zero(quiet_paper_model, paper):
@@ -162,14 +157,14 @@ def test_rescale_on_top_of_residual_action_applies_K_x_at_zero(quiet_paper_model
 
 
 @pytest.mark.parametrize(
-    ("kwargs", "error", "message"),
+    ("kwargs", "error", "name", "value"),
     [
-        ({"nu_bound": 1e300}, ValueError, r"^nu_bound = 1e\+300 does not fit in float32"),
-        ({"nu_bound": True}, TypeError, r"^nu_bound = True is a bool"),
-        ({"K": "abc"}, TypeError, r"^K = 'abc' is a str"),
-        ({"K": np.full((3, 1, 2), np.inf)}, ValueError, r"^K has a non-finite entry inf"),
+        ({"nu_bound": 1e300}, ValueError, "nu_bound", 1e300),
+        ({"nu_bound": True}, TypeError, "nu_bound", True),
+        ({"K": "abc"}, TypeError, "K", "abc"),
+        ({"K": np.full((3, 1, 2), np.inf)}, ValueError, "K", np.inf),
     ],
 )
-def test_residual_action_arguments(paper, kwargs, error, message):
-    with pytest.raises(error, match=message):
+def test_residual_action_arguments(paper, kwargs, error, name, value):
+    with raises_naming(error, name, value):
         ResidualAction(gym.make("SDJLS-Macro-v0"), **{"K": paper.K, **kwargs})

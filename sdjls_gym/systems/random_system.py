@@ -55,14 +55,12 @@ from typing import Any
 
 import numpy as np
 
-from sdjls_gym._validate import check_int, check_number
 from sdjls_gym.model import SDJLSModel
 from sdjls_gym.systems.task import Task
+from sdjls_gym.validation import check_int, check_number
 
 __all__ = [
     "random_task",
-    "make_random_env",
-    "make_random_vector_env",
     "ENV_ID",
     "HORIZON",
     "ACTION_BOUND",
@@ -231,69 +229,4 @@ def _random_task(n: int, m: int, N: int, r: int, seed: int, rho: float) -> Task:
         },
         source=SOURCE,
         env_kwargs=env_kwargs,
-    )
-
-
-def _refuse_seed(kwargs: dict[str, Any]) -> None:
-    if "seed" in kwargs:
-        raise TypeError(
-            f"seed = {kwargs['seed']!r} is not an argument of SDJLS-Random-v0: system_seed=... "
-            "chooses the system, and env.reset(seed=...) seeds the noise and the initial mode"
-        )
-    if kwargs:
-        raise TypeError(
-            f"unexpected argument(s) {sorted(kwargs)} of SDJLS-Random-v0; expected n, m, N, r, "
-            "system_seed, spectral_radius and the environment's arguments"
-        )
-
-
-def make_random_env(
-    n: int = 3,
-    m: int = 1,
-    N: int = 2,
-    r: int = 2,
-    system_seed: int = 0,
-    spectral_radius: float = 1.2,
-    horizon: int = HORIZON,
-    action_bound: float = ACTION_BOUND,
-    **env_kwargs: Any,
-) -> Any:
-    """The entry point of ``SDJLS-Random-v0``: an ``SDJLSEnv`` of :func:`random_task`.
-
-    ``env_kwargs`` may hold ``divergence_bound`` and ``render_mode``; ``seed`` is refused
-    (``system_seed`` chooses the system, ``reset(seed=...)`` the noise).
-    """
-    from sdjls_gym.env import make_env
-
-    extra = {
-        key: env_kwargs.pop(key) for key in ("divergence_bound", "render_mode") if key in env_kwargs
-    }
-    _refuse_seed(env_kwargs)
-    task = random_task(n, m, N, r, system_seed, spectral_radius=spectral_radius)
-    return make_env(model=task.model, horizon=horizon, action_bound=action_bound, **extra)
-
-
-def make_random_vector_env(
-    num_envs: int = 1,
-    n: int = 3,
-    m: int = 1,
-    N: int = 2,
-    r: int = 2,
-    system_seed: int = 0,
-    spectral_radius: float = 1.2,
-    horizon: int = HORIZON,
-    action_bound: float = ACTION_BOUND,
-    **env_kwargs: Any,
-) -> Any:
-    """The vector entry point of ``SDJLS-Random-v0``: an ``SDJLSVectorEnv`` of
-    :func:`random_task` (``env_kwargs``: ``divergence_bound``, ``max_episode_steps``,
-    ``render_mode``)."""
-    from sdjls_gym.vector_env import SDJLSVectorEnv
-
-    names = ("divergence_bound", "max_episode_steps", "render_mode")
-    extra = {key: env_kwargs.pop(key) for key in names if key in env_kwargs}
-    _refuse_seed(env_kwargs)
-    task = random_task(n, m, N, r, system_seed, spectral_radius=spectral_radius)
-    return SDJLSVectorEnv(
-        num_envs=num_envs, model=task.model, horizon=horizon, action_bound=action_bound, **extra
     )

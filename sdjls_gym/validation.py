@@ -1,4 +1,5 @@
-"""Argument checks shared by the model, the environments, the wrappers and the controllers.
+"""Argument checks shared by the model, the environments, the wrappers, the controllers and the
+benchmarks: the project's public rules for arguments.
 
 One rule per kind of argument, so that the same mistake gets the same kind of error everywhere:
 
@@ -6,7 +7,8 @@ One rule per kind of argument, so that the same mistake gets the same kind of er
   scalar, or a 0-d real numpy array. ``bool`` (Python or numpy) is never a number, nor is a
   string (``"0.85"``), ``None`` or a complex number: those are :class:`TypeError`.
 * an **int** is a Python ``int`` or a numpy integer (never a ``bool``: :class:`TypeError`).
-  A float where an int is expected (``steps = 2.0`` or ``2.5``) raises :class:`NotAnIntError`,
+  A float where an int is expected (``steps = 2.0`` or ``2.5``) raises
+  :class:`~sdjls_gym.errors.NotAnIntError`,
   which is both a :class:`TypeError` (the rule above) and a :class:`ValueError` (a count that is
   not a whole number is also a bad value), so either ``except`` catches it. Its range is checked
   on the exact integer, before any conversion to a fixed-width type, so ``2**70`` or
@@ -20,7 +22,19 @@ Every message names the argument, shows the bad value and says what is expected:
     horizon = 2.0 is a float; expected an int >= 1
 
 The functions return the value converted to the canonical Python type (``float``, ``int``,
-``bool``, ``str``).
+``bool``, ``str``) or a new float64 / int64 array. Values are shown in messages by
+:mod:`sdjls_gym.messages`.
+
+Public names (``__all__``):
+
+* scalars: :func:`check_number`, :func:`check_positive`, :func:`check_probability`,
+  :func:`check_int`, :func:`check_optional_int`, :func:`check_bool`, :func:`check_choice`;
+* containers: :func:`check_mapping`, :func:`check_str_sequence`;
+* arrays: :func:`check_array`, :func:`check_numbers` (an action: no finiteness test,
+  :class:`~sdjls_gym.errors.NotANumberError` for a non-number), :func:`check_int_array`,
+  :func:`check_float32_bound`;
+* limits: :data:`MAX_INDEX` (the largest count or time index), :data:`FLOAT32_TINY` and
+  :data:`FLOAT32_MAX` (the normal float32 range of a ``Box`` bound).
 """
 
 from __future__ import annotations
@@ -33,11 +47,13 @@ from typing import Any
 
 import numpy as np
 
+from sdjls_gym.errors import NotAnIntError, NotANumberError
+from sdjls_gym.messages import a_type, describe, type_name
+
 __all__ = [
+    "FLOAT32_MAX",
+    "FLOAT32_TINY",
     "MAX_INDEX",
-    "NotANumberError",
-    "NotAnIntError",
-    "a_type",
     "check_array",
     "check_bool",
     "check_choice",
@@ -46,12 +62,11 @@ __all__ = [
     "check_int_array",
     "check_mapping",
     "check_number",
+    "check_numbers",
     "check_optional_int",
     "check_positive",
     "check_probability",
     "check_str_sequence",
-    "describe",
-    "type_name",
 ]
 
 #: Largest time index ``k`` (and any other count) accepted: integers up to 2**53 are exact in
@@ -68,20 +83,6 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 _EXACT_IN_FLOAT64 = frozenset("efdbhilqpnBHILQPN")
 
 
-class NotAnIntError(TypeError, ValueError):
-    """A float (or other real non-integer number) given where an int is expected.
-
-    Both a :class:`TypeError` (the project's rule: a float is not an int) and a
-    :class:`ValueError` (``steps = 2.5`` is also a bad value for a count).
-    """
-
-
-class NotANumberError(TypeError, ValueError):
-    """An entry that is not a real number (a string, a bool, None) where numbers are expected,
-    in a call that has always reported bad input as :class:`ValueError` (the environments'
-    ``step``): both a :class:`TypeError` (the project's rule) and a :class:`ValueError`."""
-
-
 def check_numbers(name: str, value: Any, what: str = "") -> np.ndarray:
     """:func:`check_array` without the finiteness test, whose type errors are
     :class:`NotANumberError` (an action ``["1"]`` or ``[True]`` is not silently 1.0). A float or
@@ -92,32 +93,6 @@ def check_numbers(name: str, value: Any, what: str = "") -> np.ndarray:
         return check_array(name, value, finite=False, what=what)
     except TypeError as exc:
         raise NotANumberError(str(exc)) from None
-
-
-def type_name(value: Any) -> str:
-    """The type of ``value`` as a user reads it (``'numpy.float32'``, ``'str'``)."""
-    t = type(value)
-    module = t.__module__
-    return t.__qualname__ if module == "builtins" else f"{module.split('.')[0]}.{t.__qualname__}"
-
-
-def a_type(value: Any) -> str:
-    """``'a str'``, ``'an int'``, ``'a numpy.float32'``: the type of ``value`` with its article."""
-    name = type_name(value)
-    return ("an " if name[0].lower() in "aeiou" else "a ") + name
-
-
-def describe(value: Any, width: int = 80) -> str:
-    """A short ``repr`` of ``value`` for an error message (one line, at most ``width`` chars)."""
-    try:
-        if isinstance(value, np.ndarray):
-            text = np.array2string(value, precision=6, threshold=12, separator=", ")
-        else:
-            text = repr(value)
-    except Exception:  # noqa: BLE001 - a broken __repr__ must not hide the real error
-        text = f"<{type_name(value)} object>"
-    text = " ".join(text.split())
-    return text if len(text) <= width else text[: width - 3] + "..."
 
 
 def _is_bool(value: Any) -> bool:
@@ -236,7 +211,7 @@ def check_int(
     >>> check_int("horizon", 2.0, low=1)
     Traceback (most recent call last):
     ...
-    sdjls_gym._validate.NotAnIntError: horizon = 2.0 is a float; expected an int >= 1
+    sdjls_gym.errors.NotAnIntError: horizon = 2.0 is a float; expected an int >= 1
     """
     # the default upper bound is a technical limit, named only when it is exceeded
     shown_high = None if high == MAX_INDEX else high
@@ -404,17 +379,15 @@ def check_array(
         )
     if raw is not None and (raw.dtype.kind in "bcSUO" or raw.dtype == np.bool_):
         if raw.dtype.kind == "O":
-            bad = next(
-                (
-                    v
-                    for v in raw.ravel()
-                    if _is_bool(v) or not isinstance(v, (numbers.Real, np.integer, np.floating))
-                ),
-                None,
-            )
-            if bad is None and raw.size:
+            bad_entries = [
+                v
+                for v in raw.ravel()
+                if _is_bool(v) or not isinstance(v, (numbers.Real, np.integer, np.floating))
+            ]  # a list, not next(..., None): a None entry is itself what must be reported
+            if not bad_entries and raw.size:
                 value = raw = _objects_as_float(name, raw, suffix)
             else:
+                bad = bad_entries[0] if bad_entries else None
                 raise TypeError(
                     f"{name} has an entry {describe(bad)} of type {type_name(bad)}; expected an "
                     f"array of real numbers{suffix}"

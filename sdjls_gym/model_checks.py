@@ -4,7 +4,7 @@ Every check names the field, shows the bad value and says what is expected. Type
 (a string, a bool or ``None`` where numbers belong, a generator of names) raise
 :class:`InvalidModelTypeError`, bad values :class:`InvalidModelError`; the first is a subclass
 of the second, so ``except InvalidModelError`` catches every model error. The argument rules
-are those of :mod:`sdjls_gym._validate`.
+are those of :mod:`sdjls_gym.validation`; the exceptions live in :mod:`sdjls_gym.errors`.
 
 Thresholds on matrices are relative to each matrix's scale (its largest entry): a matrix
 multiplied by ``1e-12`` or ``1e12`` gets the same verdict as the original.
@@ -18,15 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from sdjls_gym._validate import check_array, check_int, check_str_sequence
+from sdjls_gym.errors import InvalidModelError, InvalidModelTypeError
+from sdjls_gym.validation import check_array, check_int, check_str_sequence
 
-__all__ = [
-    "InvalidModelError",
-    "InvalidModelTypeError",
-    "validate_fields",
-    "_check_psd",
-    "_fmt",
-]
+__all__ = ["PD_RTOL", "ROW_SUM_TOL", "SYM_RTOL", "validate_fields"]
 
 #: Tolerance on the sum of a row of a transition matrix (and of a mode0 vector).
 ROW_SUM_TOL = 1e-9
@@ -37,20 +32,9 @@ PD_RTOL = 1e-12
 SYM_RTOL = 1e-9
 
 
-class InvalidModelError(ValueError):
-    """A model (or a model file) is malformed. Subclass of :class:`ValueError`."""
-
-
-class InvalidModelTypeError(InvalidModelError, TypeError):
-    """A model field has the wrong type (e.g. a string where numbers belong).
-
-    Both an :class:`InvalidModelError` (so a :class:`ValueError`) and a :class:`TypeError`.
-    """
-
-
 @contextlib.contextmanager
 def model_errors(field: str) -> Iterator[None]:
-    """Turn the TypeError / ValueError of a :mod:`~sdjls_gym._validate` check of ``field`` into
+    """Turn the TypeError / ValueError of a :mod:`~sdjls_gym.validation` check of ``field`` into
     model errors (and a RecursionError on a deeply nested value into one naming the field)."""
     try:
         yield
