@@ -11,7 +11,7 @@ candidates are ordered with the largest active sets first, the usual optima of t
 receding-horizon problems. Ties (degenerate problems) are broken by that order, so the answer
 does not depend on earlier calls.
 
-The KKT test is that of :class:`controllers.kkt.ActiveSetMaps`: each row, at the returned
+The KKT test is that of :class:`controllers.kkt_maps.ActiveSetMaps`: each row, at the returned
 solution, at most :data:`controllers.kkt.KKT_TOL` times its own terms, and each negated
 multiplier at most that fraction of the magnitude of its terms. Residuals that are ``<= 0`` pass
 outright; only the rare borderline ones get the tolerance computed; the winner's rows are
@@ -29,7 +29,8 @@ from itertools import combinations
 
 import numpy as np
 
-from .kkt import KKT_TOL, ActiveSetMaps, active_set_maps
+from .kkt import KKT_TOL
+from .kkt_maps import ActiveSetMaps, active_set_maps
 
 __all__ = ["ActiveSetQP", "candidate_maps"]
 
@@ -39,7 +40,7 @@ _MAX_RANGES = 2
 
 def candidate_maps(P: np.ndarray, C: np.ndarray) -> list[ActiveSetMaps]:
     """The exact maps of every candidate active set of ``min 1/2 z'Pz + q'z  s.t.  C z <= h``
-    (sets of at most ``d`` rows that pass :func:`controllers.kkt.active_set_maps`), largest
+    (sets of at most ``d`` rows that pass :func:`controllers.kkt_maps.active_set_maps`), largest
     sets first, then in lexicographic order."""
     P = np.asarray(P, dtype=np.float64)
     C = np.asarray(C, dtype=np.float64)

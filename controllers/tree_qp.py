@@ -143,10 +143,10 @@ class TreeQP(QPFamily):
     ) -> list[float] | None:
         """``z`` if the active set ``rows`` gives the optimum of instance ``w``, else None: the
         engine's one KKT test (:func:`controllers.kkt.check_active_set`, the numbers of
-        :meth:`controllers.kkt.ActiveSetMaps.check`) for the one instance. ``report``: see
+        :meth:`controllers.kkt_maps.ActiveSetMaps.check`) for the one instance. ``report``: see
         :func:`controllers.kkt.check_active_set`."""
         if report is not None:
-            report.update(add=[], drop=[], near=[])
+            report.update(add=[], drop=[])
         if len(rows) > self.d:
             return None
         fac = self._factor(rows)
