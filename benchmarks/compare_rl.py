@@ -172,7 +172,7 @@ SINGLE_CONTROLLERS: tuple[tuple[str, str, Callable[[Any], Any]], ...] = (
         lambda m: UnconstrainedRecedingHorizonController(
             m,
             PAPER_K,
-            PAPER_RHC["Psi"],
+            Psi=PAPER_RHC["Psi"],
             alpha=PAPER_RHC["alpha"],
             nu_bound=PAPER_RHC["nu_bound"],
             horizon=HORIZON,

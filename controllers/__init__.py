@@ -8,12 +8,15 @@ from controllers.base import Controller
 from controllers.baselines import LinearFeedbackController, MJLSLQRController
 from controllers.chance import row_satisfaction_probability, tightened_set_empty, tightening
 from controllers.env_policy import ControllerPolicy, policy_for
+from controllers.horizon import Status
 from controllers.lmi import (
     GainSynthesisResult,
-    MeanSquareCertificate,
     check_proposition2,
-    second_moment_spectral_radius,
     synthesize_gains,
+)
+from controllers.mean_square import (
+    MeanSquareCertificate,
+    second_moment_spectral_radius,
     verify_mean_square_bound,
 )
 from controllers.rhc import RecedingHorizonController, UnconstrainedRecedingHorizonController
@@ -39,6 +42,7 @@ __all__ += [
     "MJLSLQRController",
     "RecedingHorizonController",
     "ScenarioTreeController",
+    "Status",
     "UnconstrainedRecedingHorizonController",
     "policy_for",
     "row_satisfaction_probability",

@@ -11,7 +11,7 @@ candidates are ordered with the largest active sets first, the usual optima of t
 receding-horizon problems. Ties (degenerate problems) are broken by that order, so the answer
 does not depend on earlier calls.
 
-The KKT test is that of :class:`controllers.kkt.ActiveSetMaps`: each row, at the returned
+The KKT test is that of :class:`controllers.kkt_maps.ActiveSetMaps`: each row, at the returned
 solution, at most :data:`controllers.kkt.KKT_TOL` times its own terms, and each negated
 multiplier at most that fraction of the magnitude of its terms. Residuals that are ``<= 0`` pass
 outright; only the rare borderline ones get the tolerance computed; the winner's rows are
@@ -29,21 +29,42 @@ from itertools import combinations
 
 import numpy as np
 
-from .kkt import KKT_TOL, active_set_maps
+from .kkt import KKT_TOL
+from .kkt_maps import ActiveSetMaps, active_set_maps
 
-__all__ = ["ActiveSetQP"]
+__all__ = ["ActiveSetQP", "candidate_maps"]
 
 #: Candidate ranges whose stacked maps are kept (the two ranges of :meth:`ActiveSetQP.solve`).
 _MAX_RANGES = 2
 
 
+def candidate_maps(P: np.ndarray, C: np.ndarray) -> list[ActiveSetMaps]:
+    """The exact maps of every candidate active set of ``min 1/2 z'Pz + q'z  s.t.  C z <= h``
+    (sets of at most ``d`` rows that pass :func:`controllers.kkt_maps.active_set_maps`), largest
+    sets first, then in lexicographic order."""
+    P = np.asarray(P, dtype=np.float64)
+    C = np.asarray(C, dtype=np.float64)
+    d, c = P.shape[0], C.shape[0]
+    pivots = ~P.any(axis=1)  # the slacks without curvature
+    maps = []
+    for size in range(min(d, c), -1, -1):  # largest active sets first
+        for rows in combinations(range(c), size):
+            m = active_set_maps(P, C, rows, pivots=pivots)
+            if m is not None:
+                maps.append(m)
+    return maps
+
+
 class ActiveSetQP:
-    """Every candidate active set of ``min 1/2 z'Pz + q'z  s.t.  C z <= h``, for batches.
+    """Candidate active sets of ``min 1/2 z'Pz + q'z  s.t.  C z <= h``, tested on batches.
 
     Parameters
     ----------
-    P : (d, d) symmetric positive semidefinite
     C : (c, d) one-sided constraint rows
+    maps : list of ActiveSetMaps
+        The candidates, in the order of the lowest-index rule: every candidate
+        (:func:`candidate_maps`, an enumeration) or some of them (the active sets a family has
+        met, :meth:`controllers.qp.QPFamily.seen`).
 
     Attributes
     ----------
@@ -53,17 +74,10 @@ class ActiveSetQP:
         Candidate index of each active set.
     """
 
-    def __init__(self, P: np.ndarray, C: np.ndarray) -> None:
-        P = np.asarray(P, dtype=np.float64)
+    def __init__(self, C: np.ndarray, maps: list[ActiveSetMaps]) -> None:
         C = np.asarray(C, dtype=np.float64)
-        d, c = P.shape[0], C.shape[0]
+        d, c = C.shape[1], C.shape[0]
         self.d, self.c = d, c
-        maps = []
-        for size in range(min(d, c), -1, -1):  # largest active sets first
-            for rows in combinations(range(c), size):
-                m = active_set_maps(P, C, rows)
-                if m is not None:
-                    maps.append(m)
         self._maps = maps
         self.C, self.absC = C, np.abs(C)
         # the active bounds of each candidate (kkt.snap_bounds): row and coefficient per variable

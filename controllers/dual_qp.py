@@ -10,16 +10,19 @@ are scaled by a Ruiz equilibration of the KKT matrix ``[[P, A'], [A, 0]]`` (:fun
 and the objective by its largest entry. The rows of ``A`` that are the identity (one per
 variable, in order: the box on ``nu`` and ``rho >= 0`` of the receding-horizon QPs) are passed
 as DAQP's simple bounds. A singular ``P`` (the slacks have no curvature) is handled by DAQP's
-proximal-point iterations. A working set can be given as a warm start.
+proximal-point iterations (its default ``eps_prox < 0``: automatic). A working set can be
+given as a warm start; a family with a fixed Hessian keeps DAQP's workspace
+(:class:`DaqpWorkspace`), set up once and only updated.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-__all__ = ["REGULARIZE", "DaqpData", "daqp_data", "kkt_scaling", "run_daqp"]
+__all__ = ["REGULARIZE", "DaqpData", "DaqpWorkspace", "daqp_data", "kkt_scaling", "run_daqp"]
 
 #: DAQP's infinity: bounds beyond it are treated as absent.
 DAQP_INF = 1e30
@@ -63,7 +66,8 @@ class DaqpData:
 
     ``H = cs D P D``; the general rows ``E_g A_g D`` (rows ``general`` of ``A``); with
     ``simple``, the last ``d`` rows of ``A`` are the identity and become simple bounds on the
-    scaled variables ``x = z / D``.
+    scaled variables ``x = z / D``. ``order`` lists the rows of ``A`` in DAQP's order (simple
+    bounds first) and ``scale`` the factor of each row's bounds in that order.
     """
 
     D: np.ndarray
@@ -74,12 +78,23 @@ class DaqpData:
     general: np.ndarray  # rows of A passed as general constraints
     simple: bool
     index: np.ndarray  # DAQP's constraint index of each row of A
+    order: np.ndarray  # the row of A of each DAQP constraint (the inverse of index)
+    scale: np.ndarray  # the scaling of each DAQP constraint's bounds
+    f_scale: np.ndarray  # cs D: the scaling of the linear term
+    y_scale: np.ndarray  # the scaling of the multiplier of each row of A (scale[index])
 
 
-def daqp_data(P: np.ndarray, A: np.ndarray, simple: bool) -> DaqpData:
-    """:class:`DaqpData` of a family (``simple``: its last ``d`` rows of ``A`` are the identity)."""
+def daqp_data(
+    P: np.ndarray,
+    A: np.ndarray,
+    simple: bool,
+    scaling: tuple[np.ndarray, np.ndarray] | None = None,
+) -> DaqpData:
+    """:class:`DaqpData` of a family (``simple``: its last ``d`` rows of ``A`` are the
+    identity). ``scaling``: ``(D, E)`` to use instead of :func:`kkt_scaling` of ``P`` (the
+    scaling of an earlier Hessian of the same family: only a hint's quality depends on it)."""
     d, c = P.shape[0], A.shape[0]
-    D, E = kkt_scaling(P, A)
+    D, E = kkt_scaling(P, A) if scaling is None else scaling
     H = P * D[:, None] * D[None, :]
     top = float(np.max(np.abs(H), initial=0.0))
     cs = 1.0 / top if top > 0.0 else 1.0
@@ -90,7 +105,67 @@ def daqp_data(P: np.ndarray, A: np.ndarray, simple: bool) -> DaqpData:
         general = np.arange(c)
         index = general.copy()
     A_gen = np.ascontiguousarray(A[general] * E[general, None] * D[None, :])
-    return DaqpData(D, E, cs, np.ascontiguousarray(H * cs), A_gen, general, simple, index)
+    order = np.argsort(index)
+    row_scale = E.copy()
+    if simple:
+        row_scale[c - d :] = 1.0 / D
+    return DaqpData(
+        D,
+        E,
+        cs,
+        np.ascontiguousarray(H * cs),
+        A_gen,
+        general,
+        simple,
+        index,
+        order,
+        row_scale[order],
+        D * cs,
+        row_scale,
+    )
+
+
+class DaqpWorkspace:
+    """DAQP's workspace (``daqp.Model``) for a family with a fixed Hessian: set up on first use,
+    then only updated (``f`` and the bounds). DAQP starts each solve from the working set of the
+    last one, the warm start of the family. Not thread-safe (the controller's lock covers it);
+    not picklable (the family drops it and sets it up again on use).
+    """
+
+    def __init__(self, data: DaqpData) -> None:
+        self.data = data
+        self._model: Any = None
+
+    def solve(
+        self, q: np.ndarray, lo: np.ndarray, hi: np.ndarray, cold: bool = False
+    ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+        """DAQP on ``min 1/2 z'Pz + q'z  s.t.  lo <= A z <= hi`` (``lo``, ``hi`` per row of
+        ``A``); ``cold`` starts from an empty working set. Returns ``(z, y, status)`` as
+        :func:`run_daqp`."""
+        import daqp
+
+        data = self.data
+        f = q * data.f_scale
+        with np.errstate(invalid="ignore", over="ignore"):
+            bu = np.minimum(hi[data.order] * data.scale, DAQP_INF)
+            bl = np.maximum(lo[data.order] * data.scale, -DAQP_INF)
+        try:
+            model = self._model
+            if model is None:
+                model = daqp.Model()
+                flag, _ = model.setup(data.H, f, data.A_gen, bu, bl)
+                if flag < 0:
+                    return None, None, f"setup exit flag {flag}"
+                self._model = model
+            elif cold:
+                model.update(f=f, bupper=bu, blower=bl, sense=np.zeros(bu.size, dtype=np.int32))
+            else:
+                model.update(f=f, bupper=bu, blower=bl)
+            x, _, flag, info = model.solve()
+        except Exception as exc:  # noqa: BLE001 - an episode must not crash on a solver error
+            self._model = None
+            return None, None, f"error {type(exc).__name__}: {exc}"
+        return _answer(data, x, flag, info)
 
 
 def run_daqp(
@@ -100,8 +175,12 @@ def run_daqp(
     hi: np.ndarray,
     warm: list[tuple[int, bool]] | None = None,
     regularize: float = 0.0,
+    subset: np.ndarray | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
     """DAQP on ``min 1/2 z'Pz + q'z  s.t.  lo <= A z <= hi`` (the rows of :func:`daqp_data`).
+
+    ``subset``: the general rows DAQP sees (sorted indices into ``data.general``; the simple
+    bounds always), None for all; the omitted rows get multiplier 0 in ``y``.
 
     ``warm``: ``(row of A, at its lower side)`` pairs to start from. ``regularize``: 0 for the
     QP itself; else the objective is normalized by its largest linear coefficient and
@@ -114,7 +193,7 @@ def run_daqp(
     """
     import daqp
 
-    D, E, cs = data.D, data.E, data.cs
+    D, cs = data.D, data.cs
     d = D.size
     f = np.ascontiguousarray(q * D * cs)
     H = data.H
@@ -124,28 +203,41 @@ def run_daqp(
         f = f / top
         H = H / top + regularize * np.eye(d)
         settings = {"eps_prox": 0.0, "fval_bound": 1e300}
-    scale = np.empty_like(lo)
-    scale[data.general] = E[data.general]
-    if data.simple:
-        scale[lo.size - d :] = 1.0 / D
     m = data.index.size
-    bu, bl = np.empty(m), np.empty(m)
     with np.errstate(invalid="ignore", over="ignore"):
-        bu[data.index] = np.clip(hi * scale, -DAQP_INF, DAQP_INF)
-        bl[data.index] = np.clip(lo * scale, -DAQP_INF, DAQP_INF)
+        bu = np.clip(hi[data.order] * data.scale, -DAQP_INF, DAQP_INF)
+        bl = np.clip(lo[data.order] * data.scale, -DAQP_INF, DAQP_INF)
     sense = np.zeros(m, dtype=np.int32)
     for a, lower in warm or ():
         sense[data.index[a]] = _ACTIVE | (_LOWER if lower else 0)
+    A_gen = data.A_gen
+    if subset is not None:  # DAQP's constraints: the simple bounds, then the general rows
+        first = d if data.simple else 0
+        keep = np.concatenate([np.arange(first), first + subset])
+        A_gen, bu, bl, sense = A_gen[subset], bu[keep], bl[keep], sense[keep]
+        m = keep.size
     try:
         x, _, flag, info = daqp.solve(
-            H, f, data.A_gen, bu, bl, sense, iter_limit=max(1000, 20 * m), **settings
+            H, f, A_gen, bu, bl, sense, iter_limit=max(1000, 20 * m), **settings
         )
     except Exception as exc:  # noqa: BLE001 - an episode must not crash on a solver error
         return None, None, f"error {type(exc).__name__}: {exc}"
+    if subset is not None and flag == 1:
+        lam = np.zeros(data.index.size)
+        lam[keep] = info["lam"]
+        info = {**info, "lam": lam}
+    return _answer(data, x, flag, info)
+
+
+def _answer(
+    data: DaqpData, x: Any, flag: int, info: dict
+) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+    """``(z, y, status)`` of a DAQP run: the unscaled solution and the multipliers in OSQP's
+    form (one per row of ``A``), or ``None, None`` and the reason."""
     if flag != 1:
         return None, None, f"exit flag {flag}"
-    z = np.asarray(x, dtype=np.float64) * D
-    lam = np.asarray(info["lam"], dtype=np.float64)[data.index]
-    if not (np.all(np.isfinite(z)) and np.all(np.isfinite(lam))):
+    z = x * data.D
+    y = info["lam"][data.index] * data.y_scale
+    if not (np.isfinite(z).all() and np.isfinite(y).all()):
         return None, None, "non-finite answer"
-    return z, lam * scale, "solved"
+    return z, y, "solved"

@@ -6,42 +6,48 @@ of ``C``) the solution and the multipliers are linear in ``w``. Whatever found `
 start, OSQP, DAQP, an enumeration, cvxpy), the answer is accepted only through this module, by
 one test, for problem P3 and for the scenario tree alike:
 
-* the active rows and the variables are equilibrated (Ruiz scaling of ``C_S``; a variable in no
-  active row by its curvature), and ``S`` is a candidate only if its scaled, row-normalized rows
-  are linearly independent and the reduced Hessian on their null space is positive definite,
-  relative to its own scale;
-* the solution is computed by the null-space method on the scaled rows: ``C_S' = Q R``,
-  ``z = Q1 R1^{-T} h_S + Q2 y`` with ``(Q2' P Q2) y = -Q2'(q + P z_p)``, and the multipliers
-  from stationarity;
+* an active row on a single variable (a *bound*: the box on ``nu``, ``rho >= 0``) fixes that
+  variable exactly, ``z_j = h_i / C_ij``; the other active rows (the *general* ones) act on the
+  remaining free variables, with the fixed ones moved to their right side. Eliminating the
+  bounds exactly keeps a huge linear term of a fixed variable (a penalty ``alpha`` of 1e9 on a
+  slack at its bound) out of the free variables' solution, where a round-off in the null-space
+  basis would multiply it;
+* the general rows and the free variables are equilibrated (Ruiz scaling; a free variable in no
+  general row by its curvature), and ``S`` is a candidate only if its scaled, row-normalized
+  general rows are linearly independent and the reduced Hessian on their null space is positive
+  definite, relative to its own scale;
+* the free variables are computed by the null-space method on the scaled rows:
+  ``C_g' = Q R``, ``z = Q1 R1^{-T} r_g + Q2 y`` with ``(Q2' P Q2) y = -Q2'(q + P z_p)``
+  (``r_g`` the general rows' right side less the fixed variables' part); the general rows'
+  multipliers from the free variables' stationarity, the bounds' from the fixed ones';
 * the KKT test accepts ``S`` when every primal residual ``C_i z - h_i`` of an inactive row and
   every negated multiplier is at most :data:`KKT_TOL` times the magnitude of the terms summed to
   compute it. The magnitudes are carried through every product with absolute values (so a
   cancellation is not mistaken for a small term), in the equilibrated variables, which makes
   the test invariant under a scaling of the rows, of the variables or of the objective.
 
-Two forms compute the same numbers: :func:`active_set_maps` (the maps as matrices over the
+Two forms compute the same numbers: :func:`controllers.kkt_maps.active_set_maps` (the maps as matrices over the
 whole ``w``, for families with a fixed Hessian that solve many instances, e.g. P3 and its
 enumeration) and :func:`check_active_set` (one instance, for the scenario tree, whose Hessian
 changes at every solve and whose maps would be large). Both are built from one
 :class:`ActiveSetFactor` (the part that depends only on ``C`` and ``S``) and one
-:func:`_columns` (the part that depends on ``P``).
+:func:`reduce_hessian` (the part that depends on ``P``).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from operator import mul
 
 import numpy as np
 
 __all__ = [
     "KKT_TOL",
     "ActiveSetFactor",
-    "ActiveSetMaps",
     "active_set_factor",
-    "active_set_maps",
     "check_active_set",
+    "reduce_hessian",
+    "solve_stacked",
     "snap_bounds",
 ]
 
@@ -55,9 +61,9 @@ _PD_TOL = 1e-12
 
 
 def _ruiz(CS: np.ndarray, d: int, sweeps: int = 30) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(Dc, Dr, used)``: Ruiz equilibration of the active rows ``CS`` (every row and every
-    column of ``Dr CS Dc`` then has its largest entry near 1); ``Dc = 1`` for a variable in no
-    active row (``used`` False), which :func:`_free_scaling` scales by its curvature."""
+    """``(Dc, Dr, used)``: Ruiz equilibration of the rows ``CS`` (every row and every column of
+    ``Dr CS Dc`` then has its largest entry near 1); ``Dc = 1`` for a variable in no row
+    (``used`` False), which :func:`_free_scaling` scales by its curvature."""
     s = CS.shape[0]
     absC = np.abs(CS)
     Dc, Dr = np.ones(d), np.ones(s)
@@ -74,50 +80,153 @@ def _ruiz(CS: np.ndarray, d: int, sweeps: int = 30) -> tuple[np.ndarray, np.ndar
     return Dc, Dr, used
 
 
+def _blocks(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """The block-diagonal ``[[A, 0], [0, B]]``."""
+    out = np.zeros((A.shape[0] + B.shape[0], A.shape[1] + B.shape[1]))
+    out[: A.shape[0], : A.shape[1]] = A
+    out[A.shape[0] :, A.shape[1] :] = B
+    return out
+
+
+def _two(index: np.ndarray, offset: int) -> np.ndarray:
+    """``index`` and ``index + offset``: rows of both halves of a stacked array."""
+    return np.concatenate([index, index + offset])
+
+
 @dataclass(frozen=True, eq=False)
 class ActiveSetFactor:
     """The part of an active set's exact solve that depends only on ``C`` and the rows.
 
-    In the scaled variables ``z = Dc z~`` (``Dc`` is :attr:`Dc_used` for the variables in an
-    active row and the curvature scaling of :func:`_free_scaling` for the others) and with the
-    active rows scaled by ``Dn`` and normalized, ``Chat' = [Q1 Q2] [R1; 0]``.
+    The active rows split into bounds (one nonzero: they fix a variable exactly), pivot rows
+    and the other general rows. A *pivot row* is a general row whose only nonzero among the
+    family's pivot variables (slacks without curvature, e.g. ``rho``) is on a slack that no
+    other pivot row uses: the row gives that slack exactly, ``z_s = (r_a - C_aN z_N) / c``, so
+    a huge right side (a band ``H_k`` at ``k = 1e15``) goes into the slack alone instead of
+    cancelling in the null-space solution of the other variables. The other general rows, with
+    the pivot slacks substituted (``C_u - E C_a``, ``E = C_uS / c``), act on the remaining free
+    variables ``N``; those are scaled, ``z_N = Dc z~``, with :attr:`Dc_used` for the variables
+    in a reduced row and the curvature scaling of :func:`_free_scaling` for the others, and
+    with the reduced rows scaled by ``Dn`` and normalized, ``Chat' = [Q1 Q2] [R1; 0]``.
 
     Attributes
     ----------
     rows : tuple of int
-    idx : (s,) int array
-    used : (d,) bool
-        Variables in an active row.
-    Dc_used : (d,) float
-        Their Ruiz scaling (1 for the others).
-    Q1 : (d, s), Q2 : (d, d - s)
-    Lmap : (s, d)
-        ``R1^{-1} Q1'``: the multipliers from the stationarity residual.
-    Zp : (d, s)
-        The particular solution ``z~_p = Zp h_S`` (``Q1 R1^{-T} Dn``).
-    Tp : (d, s)
-        The magnitude of its terms, per datum (``|Q1| |R1^{-T}| Dn``).
+        The active rows (sorted); ``idx`` the same as an array.
     bounds : tuple of (int, int, float)
-        ``(i, j, C_ij)`` for each active row ``i`` on a single variable ``j`` (a bound): the
-        solution has ``z_j = h_i / C_ij`` exactly, and :func:`snap_bounds` sets it so.
+        ``(i, j, C_ij)`` for each active row ``i`` on a single variable ``j``: the solution has
+        ``z_j = h_i / C_ij`` exactly. ``b_rows``, ``b_vars``, ``b_coef``: the same as arrays.
+    gen : (s_g,) int array
+        The general active rows; ``ia`` and ``iu`` index the pivot rows and the others in it.
+    S, c : (s_a,)
+        The pivot rows' slacks and their coefficients.
+    N : (d_n,) int array
+        The remaining free variables.
+    used, Dc_used : (d_n,)
+        Variables in a reduced row, and their Ruiz scaling (1 for the others).
+    Dn : (s_u,)
+        The full scaling of the reduced rows (Ruiz, then unit norm).
+    CgB : (s_g, s_b)
+        The general rows on the fixed variables.
+    CaN, CuS, E : (s_a, d_n), (s_u, s_a), (s_u, s_a)
+        The pivot rows on ``N``, the other rows on the slacks, ``CuS / c``.
+    Q1 : (d_n, s_u), Q2 : (d_n, d_n - s_u)
+    Lmap : (s_u, d_n)
+        ``R1^{-1} Q1'``: the reduced rows' scaled multipliers from the stationarity residual.
+    Zp : (d_n, s_u)
+        The particular solution ``z~_p = Zp r_u`` (``Q1 R1^{-T} Dn``); ``Tp`` the magnitude of
+        its terms, per datum (``|Q1| |R1^{-T}| Dn``).
     """
 
     rows: tuple[int, ...]
     idx: np.ndarray
+    bounds: tuple
+    b_rows: np.ndarray
+    b_vars: np.ndarray
+    b_coef: np.ndarray
+    gen: np.ndarray
+    ia: np.ndarray
+    iu: np.ndarray
+    S: np.ndarray
+    c: np.ndarray
+    N: np.ndarray
     used: np.ndarray
     Dc_used: np.ndarray
+    Dn: np.ndarray
+    CgB: np.ndarray
+    CaN: np.ndarray
+    CuS: np.ndarray
+    E: np.ndarray
     Q1: np.ndarray
     Q2: np.ndarray
     Lmap: np.ndarray
     Zp: np.ndarray
     Tp: np.ndarray
-    bounds: tuple  # (row, variable, coefficient) of the active rows on one variable
+    n_rows: int  # rows of C (the instance has d + n_rows entries)
     absQ2: np.ndarray = field(init=False, repr=False)
     absLmap: np.ndarray = field(init=False, repr=False)
+    consts: dict = field(init=False, repr=False)  # derived arrays used by every solve
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "absQ2", np.abs(self.Q2))
         object.__setattr__(self, "absLmap", np.abs(self.Lmap))
+        coef = self.b_coef[:, None]
+        d = self.used.size + self.b_vars.size + self.S.size
+        N, bv = self.N, self.b_vars
+        consts = {
+            # flat indices of P's blocks: P[N, N], P[N, bv] and P's diagonal at N
+            "NN": (N[:, None] * d + N[None, :]).ravel(),
+            "NB": (N[:, None] * d + bv[None, :]).ravel(),
+            "BP": (bv[:, None] * d + np.arange(d)[None, :]).ravel(),
+            "diagN": N * (d + 1),
+            "inv_b": 1.0 / coef,
+            "unit_b": bool(np.all(np.abs(self.b_coef) == 1.0)),
+            "abs_inv_b": 1.0 / np.abs(coef),
+            "absCgB": np.abs(self.CgB),
+            "absE": np.abs(self.E),
+            "absCaN": np.abs(self.CaN),
+            "absCuS": np.abs(self.CuS),
+            "abs_inv_c": 1.0 / np.abs(self.c[:, None]),
+            # where each multiplier goes in the order of the rows
+            "at_u": np.searchsorted(self.idx, self.gen[self.iu]),
+            "at_a": np.searchsorted(self.idx, self.gen[self.ia]),
+            "at_b": np.searchsorted(self.idx, self.b_rows),
+        }
+        # the products of solve_stacked act on [values; magnitudes] stacked: one product per step with
+        # the block-diagonal operator [[A, 0], [0, +-|A|]] (the sign makes the magnitudes add)
+        consts.update(
+            CgB2=_blocks(self.CgB, -np.abs(self.CgB)),
+            E2=_blocks(self.E, -np.abs(self.E)),
+            CaN2=_blocks(self.CaN, -np.abs(self.CaN)),
+            CaNT2=_blocks(self.CaN.T, -np.abs(self.CaN.T)),
+            CuST2=_blocks(self.CuS.T, np.abs(self.CuS.T)),
+            CgBT2=_blocks(self.CgB.T, np.abs(self.CgB.T)),
+            Zp2=_blocks(self.Zp, self.Tp),
+            Q22=_blocks(self.Q2, np.abs(self.Q2)),
+            Lmap2=_blocks(-self.Lmap, np.abs(self.Lmap)),
+            Dn2=np.concatenate([self.Dn, self.Dn])[:, None],
+            inv_b2=np.concatenate([1.0 / self.b_coef, 1.0 / np.abs(self.b_coef)])[:, None],
+            lam_b2=np.concatenate([-1.0 / self.b_coef, 1.0 / np.abs(self.b_coef)])[:, None],
+            inv_c2=np.concatenate([1.0 / self.c, 1.0 / np.abs(self.c)])[:, None],
+            lam_c2=np.concatenate([-1.0 / self.c, 1.0 / np.abs(self.c)])[:, None],
+        )
+        # the rows of both halves of the stacked arrays (see _two)
+        width, s_all, g_n = d + self.n_rows, self.idx.size, self.gen.size
+        consts.update(
+            hb2=_two(d + self.b_rows, width),
+            gen2=_two(d + self.gen, width),
+            ia2=_two(self.ia, g_n),
+            iu2=_two(self.iu, g_n),
+            qN2=_two(N, width),
+            qS2=_two(self.S, width),
+            qB2=_two(bv, width),
+            zN2=_two(N, d),
+            zS2=_two(self.S, d),
+            zB2=_two(bv, d),
+            at_u2=_two(consts["at_u"], s_all),
+            at_a2=_two(consts["at_a"], s_all),
+            at_b2=_two(consts["at_b"], s_all),
+        )
+        object.__setattr__(self, "consts", consts)
 
     @property
     def floats(self) -> int:
@@ -125,26 +234,68 @@ class ActiveSetFactor:
         return sum(
             a.size
             for a in (self.Q1, self.Q2, self.Lmap, self.Zp, self.Tp, self.absQ2, self.absLmap)
-        )
+        ) + 2 * (self.CgB.size + self.CaN.size + self.CuS.size)
 
 
-def active_set_factor(C: np.ndarray, rows: tuple[int, ...]) -> ActiveSetFactor | None:
-    """The :class:`ActiveSetFactor` of ``rows`` of ``C``, or None when the scaled,
-    row-normalized rows are linearly dependent (or more than ``d``)."""
+def active_set_factor(
+    C: np.ndarray, rows: tuple[int, ...], pivots: np.ndarray | None = None
+) -> ActiveSetFactor | None:
+    """The :class:`ActiveSetFactor` of ``rows`` of ``C``, or None when the active rows are not
+    a candidate: two bounds on one variable, more active rows than variables, or reduced rows
+    whose scaled, normalized forms are linearly dependent. ``pivots`` (d,) bool: the variables
+    that may be pivot slacks (their rows of ``P`` must be zero: the slacks of the
+    receding-horizon QPs); None for none."""
     d = C.shape[1]
-    s = len(rows)
-    if s > d:
+    if len(rows) > d:
         return None
     idx = np.array(rows, dtype=np.int64)
     CS = C[idx]
-    Dc, Dr, used = _ruiz(CS, d)
+    nonzero = CS != 0.0
+    single = nonzero.sum(axis=1) == 1
+    b_rows = idx[single]
+    b_vars = np.argmax(nonzero[single], axis=1).astype(np.int64)
+    if np.unique(b_vars).size != b_vars.size:
+        return None  # two bounds on one variable
+    b_coef = CS[single, b_vars] if b_vars.size else np.zeros(0)
+    gen = idx[~single]
+    fixed = np.zeros(d, dtype=bool)
+    fixed[b_vars] = True
+    # pivot rows: a general row with one nonzero among the free pivot slacks, on a slack that
+    # no earlier pivot row took
+    ia_list, S_list = [], []
+    if pivots is not None and gen.size:
+        cand = pivots & ~fixed
+        taken = np.zeros(d, dtype=bool)
+        on = (C[gen] != 0.0) & cand[None, :]
+        for n in np.flatnonzero(on.sum(axis=1) == 1).tolist():
+            j = int(np.flatnonzero(on[n])[0])
+            if not taken[j]:
+                taken[j] = True
+                ia_list.append(n)
+                S_list.append(j)
+    ia = np.array(ia_list, dtype=np.int64)
+    S = np.array(S_list, dtype=np.int64)
+    iu = np.setdiff1d(np.arange(gen.size), ia)
+    rest = ~fixed
+    rest[S] = False
+    N = np.flatnonzero(rest)
+    Cg = C[gen]
+    c_piv = Cg[ia, S] if S.size else np.zeros(0)
+    CaN = Cg[ia][:, N]
+    CuS = Cg[iu][:, S]
+    E = CuS / c_piv[None, :] if S.size else np.zeros((iu.size, 0))
+    Cr = Cg[iu][:, N] - E @ CaN  # the other rows with the pivot slacks substituted
+    s, d_n = iu.size, N.size
+    if s > d_n:
+        return None
+    Dc, Dr, used = _ruiz(Cr, d_n)
     if s:
-        Ct = CS * Dr[:, None] * Dc[None, :]
+        Ct = Cr * Dr[:, None] * Dc[None, :]
         norms = np.sqrt(np.einsum("ij,ij->i", Ct, Ct))
         if not np.all(norms > 0.0):
             return None
-        Dn = Dr / norms  # the full row scaling of the active rows
-        Chat = CS * Dn[:, None] * Dc[None, :]
+        Dn = Dr / norms  # the full row scaling of the reduced rows
+        Chat = Cr * Dn[:, None] * Dc[None, :]
         Q, Rfull = np.linalg.qr(Chat.T, mode="complete")
         R1 = Rfull[:s, :s]
         if not np.all(np.abs(np.diag(R1)) > _RANK_TOL):  # normalized rows: a scale-free test
@@ -157,24 +308,41 @@ def active_set_factor(C: np.ndarray, rows: tuple[int, ...]) -> ActiveSetFactor |
         Tp = np.abs(Q1) @ (np.abs(R1inv_T) * Dn[None, :])
         Lmap = np.linalg.solve(R1, Q1.T)
     else:
-        Q1, Q2 = np.zeros((d, 0)), np.eye(d)
-        Zp, Tp, Lmap = np.zeros((d, 0)), np.zeros((d, 0)), np.zeros((0, d))
-    if not (np.all(np.isfinite(Zp)) and np.all(np.isfinite(Lmap))):
+        Dn = np.zeros(0)
+        Q1, Q2 = np.zeros((d_n, 0)), np.eye(d_n)
+        Zp, Tp, Lmap = np.zeros((d_n, 0)), np.zeros((d_n, 0)), np.zeros((0, d_n))
+    if not (np.all(np.isfinite(Zp)) and np.all(np.isfinite(Lmap)) and np.all(np.isfinite(E))):
         return None
-    return ActiveSetFactor(
-        tuple(int(i) for i in rows), idx, used, Dc, Q1, Q2, Lmap, Zp, Tp, _bounds(CS, idx)
+    bounds = tuple(
+        (int(i), int(j), float(a)) for i, j, a in zip(b_rows, b_vars, b_coef, strict=True)
     )
-
-
-def _bounds(CS: np.ndarray, idx: np.ndarray) -> tuple:
-    """``(i, j, C_ij)`` of the rows of ``CS`` (rows ``idx`` of ``C``) with one nonzero entry."""
-    out = []
-    for row, i in zip(CS, idx.tolist(), strict=True):
-        nz = np.flatnonzero(row)
-        if nz.size == 1:
-            j = int(nz[0])
-            out.append((i, j, float(row[j])))
-    return tuple(out)
+    return ActiveSetFactor(
+        rows=tuple(int(i) for i in rows),
+        idx=idx,
+        bounds=bounds,
+        b_rows=b_rows,
+        b_vars=b_vars,
+        b_coef=b_coef,
+        gen=gen,
+        ia=ia,
+        iu=iu,
+        S=S,
+        c=c_piv,
+        N=N,
+        used=used,
+        Dc_used=Dc,
+        Dn=Dn,
+        CgB=Cg[:, b_vars],
+        CaN=CaN,
+        CuS=CuS,
+        E=E,
+        Q1=Q1,
+        Q2=Q2,
+        Lmap=Lmap,
+        Zp=Zp,
+        Tp=Tp,
+        n_rows=C.shape[0],
+    )
 
 
 def snap_bounds(z: list[float], bounds: tuple, w: np.ndarray) -> list[float]:
@@ -188,173 +356,147 @@ def snap_bounds(z: list[float], bounds: tuple, w: np.ndarray) -> list[float]:
     return z
 
 
-def _free_scaling(fac: ActiveSetFactor, P: np.ndarray) -> np.ndarray:
-    """``Dc``: the Ruiz scaling of the variables in an active row; a variable in no active row
-    is scaled by its curvature, ``1 / sqrt(P_ii)`` (1 where ``P_ii = 0``). Variables of very
-    different sizes (an offset of 1 next to a slack of 1e12, rows scaled by 1e-11) then get
-    comparable scaled sizes, and rank and conditioning are judged in them."""
-    diag = np.abs(np.diag(P))
-    free = ~fac.used & (diag > 0.0)
-    if not free.any():
+def _free_scaling(fac: ActiveSetFactor, flat: np.ndarray) -> np.ndarray:
+    """``Dc`` of the variables ``N``: the Ruiz scaling of those in a reduced row; one in no
+    reduced row is scaled by its curvature, ``1 / sqrt(P_jj)`` (1 where ``P_jj = 0``).
+    Variables of very different sizes (an offset of 1 next to a slack of 1e12, rows scaled by
+    1e-11) then get comparable scaled sizes, and rank and conditioning are judged in them.
+    ``flat``: ``P`` raveled."""
+    if fac.used.all():
+        return fac.Dc_used
+    diag = np.abs(flat[fac.consts["diagN"]])
+    loose = ~fac.used & (diag > 0.0)
+    if not loose.any():
         return fac.Dc_used
     Dc = fac.Dc_used.copy()
-    Dc[free] = 1.0 / np.sqrt(diag[free])
+    Dc[loose] = 1.0 / np.sqrt(diag[loose])
     return Dc
 
 
-def _columns(fac: ActiveSetFactor, P: np.ndarray):
-    """The solution's maps in the scaled variables, on the data they depend on (``q`` and
-    ``h_S``), and the magnitudes of their terms: ``(Dc, Pt, Zq, ZS, Tq, TS)`` with
-    ``z~ = Zq q + ZS h_S`` and term magnitudes ``Tq |q| + TS |h_S|``; None when the reduced
-    Hessian is not positive definite (the minimizer is not unique), relative to its scale."""
-    d, s = P.shape[0], fac.idx.size
-    Dc = _free_scaling(fac, P)
-    Pt = P * Dc[:, None] * Dc[None, :]
-    if d - s:
+def reduce_hessian(fac: ActiveSetFactor, P: np.ndarray):
+    """The part of the solve that depends on ``P``: ``(Dc, Pt, Y, P_NB, ops)`` with ``Pt`` the
+    scaled Hessian of the variables ``N``, ``Y = -(Q2' Pt Q2)^{-1} Q2'`` (d_n - s_u, d_n), so
+    that ``y = Y (q~ + Pt z~_p)``, ``P_NB`` the coupling of ``N`` to the fixed variables (None
+    where it is zero) and ``ops`` the block-diagonal forms of :func:`solve_stacked`; None when the
+    reduced Hessian is not positive definite (the minimizer is not unique), relative to its
+    scale, or when a pivot slack has curvature."""
+    if fac.S.size and np.any(P[fac.S]):
+        return None
+    N = fac.N
+    flat = P.ravel()
+    Dc = _free_scaling(fac, flat)
+    dn = N.size
+    Pt = flat[fac.consts["NN"]].reshape(dn, dn) * Dc[:, None] * Dc[None, :]
+    P_NB = None
+    if fac.b_vars.size:
+        P_NB = flat[fac.consts["NB"]].reshape(dn, fac.b_vars.size)
+        if not P_NB.any():
+            P_NB = None
+    if fac.Q2.shape[1]:
         Q2 = fac.Q2
         M = Q2.T @ Pt @ Q2
         M = 0.5 * (M + M.T)
         eig, vecs = np.linalg.eigh(M)
         if not (eig[-1] > 0.0 and eig[0] > _PD_TOL * eig[-1]):
             return None
-        Y = -((vecs / eig) @ (vecs.T @ Q2.T))  # y = Y (q~ + P~ z~_p)
-        Zq = Q2 @ (Y * Dc[None, :])
-        ZS = fac.Zp + Q2 @ (Y @ (Pt @ fac.Zp))
-        absQ2Y = fac.absQ2 @ np.abs(Y)
-        Tq = absQ2Y * Dc[None, :]
-        TS = fac.Tp + absQ2Y @ (np.abs(Pt) @ fac.Tp)
+        Y = -((vecs / eig) @ (vecs.T @ Q2.T))
     else:
-        Zq, ZS = np.zeros((d, d)), fac.Zp
-        Tq, TS = np.zeros((d, d)), fac.Tp
-    return Dc, Pt, Zq, ZS, Tq, TS
+        Y = np.zeros((0, dn))
+    absPt = np.abs(Pt)
+    ops = {"Pt2": _blocks(Pt, absPt), "Dc2": np.concatenate([Dc, Dc])[:, None]}
+    if Y.shape[0]:
+        ops["Y2"] = _blocks(Y, np.abs(Y))
+    if P_NB is not None:
+        ops["PNB2"] = _blocks(P_NB, np.abs(P_NB))
+    if fac.b_vars.size:
+        Pb = flat[fac.consts["BP"]].reshape(fac.b_vars.size, P.shape[0])
+        ops["Pb2"] = _blocks(Pb, np.abs(Pb))
+    return Dc, Pt, Y, P_NB, ops
 
 
-@dataclass(frozen=True, eq=False)
-class ActiveSetMaps:
-    """Exact solution of one active set as linear maps of the instance ``w = [q; h]``.
+def solve_stacked(fac: ActiveSetFactor, red: tuple, P: np.ndarray, W2: np.ndarray):
+    """The exact solution of the active set for the instances ``W`` (d + c, k) given stacked
+    with the magnitudes of their entries, ``W2 = [W; |W|]`` (``|W|``: the identity for the
+    maps), and the magnitude of the terms of every quantity.
 
-    Attributes
-    ----------
-    rows : tuple of int
-        The active rows of ``C`` (sorted).
-    Z : (d, d + c)
-        ``z = Z w``.
-    R : (c + s, d + c)
-        KKT residuals ``[C z - h; -lambda_S] = R w``: all ``<= 0`` at a KKT point (``s = len(rows)``).
-    T : (c + s, d + c)
-        Nonnegative: ``T |w|`` bounds the tolerance terms of each residual (for the primal rows,
-        ``|C| |Z| + |E_h|`` bounds the row's own terms ``|C_i| |z| + |h_i|``; for the multipliers,
-        the magnitude of the terms summed to compute them).
-    C, absC : (c, d)
-        The rows and their absolute values (the primal test is made at the returned ``z``).
-    """
-
-    rows: tuple[int, ...]
-    Z: np.ndarray
-    R: np.ndarray
-    T: np.ndarray
-    C: np.ndarray
-    absC: np.ndarray
-    bounds: tuple = ()  # see ActiveSetFactor.bounds
-    RZ: np.ndarray = field(init=False, repr=False)  # [R; Z]: residuals and z in one product
-    active: list = field(init=False, repr=False)  # (C_i as a list, index of h_i in w) per row
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "RZ", np.vstack([self.R, self.Z]))
-        d = self.Z.shape[0]
-        on_bound = {i for i, _, _ in self.bounds}
-        active = [(self.C[i].tolist(), d + i) for i in self.rows if i not in on_bound]
-        object.__setattr__(self, "active", active)
-
-    def check(self, w: np.ndarray) -> list[float] | None:
-        """``z`` (a list of d floats) if the active set passes the KKT test at ``w``, else None."""
-        v = (self.RZ @ w).tolist()
-        nr = self.R.shape[0]
-        worst = max(v[:nr], default=-math.inf)
-        z = snap_bounds(v[nr:], self.bounds, w)
-        if not math.isfinite(worst + sum(z)):  # NaN or inf anywhere
-            return None
-        if not self._active_hold(z, w):  # one step of iterative refinement, then again
-            z = self._refine(z, w)
-            if not self._active_hold(z, w):
-                return None
-        if worst > 0.0:  # a residual above 0: within round-off of its terms?
-            c = self.C.shape[0]
-            za = np.asarray(z)
-            h = w[w.shape[0] - c :]
-            primal = self.C @ za - h  # at the returned z
-            tol = KKT_TOL * (self.absC @ np.abs(za) + np.abs(h))
-            if not np.all(primal <= tol):
-                return None
-            lam_tol = KKT_TOL * (self.T[c:] @ np.abs(w))
-            if not np.all(np.asarray(v[c:nr]) <= lam_tol):
-                return None
-        return z
-
-    def _active_hold(self, z: list[float], w: np.ndarray) -> bool:
-        """Whether the active rows that are not bounds hold at ``z`` to :data:`KKT_TOL` of
-        their own terms (both ways: they are equalities)."""
-        for row, j in self.active:
-            hj = float(w[j])
-            if abs(sum(map(mul, row, z)) - hj) > KKT_TOL * (
-                sum(abs(a * b) for a, b in zip(row, z, strict=True)) + abs(hj)
-            ):
-                return False
-        return True
-
-    def _refine(self, z: list[float], w: np.ndarray) -> list[float]:
-        """``z - Z_S r_S`` with ``r_S = C_S z - h_S`` the active rows' residuals at ``z``: the
-        solution of the active set for the corrected bounds (stationarity is kept)."""
-        d = len(z)
-        za = np.asarray(z)
-        idx = np.array(self.rows, dtype=np.int64)
-        r = self.C[idx] @ za - w[d + idx]
-        return snap_bounds((za - self.Z[:, d + idx] @ r).tolist(), self.bounds, w)
-
-
-def active_set_maps(
-    P: np.ndarray, C: np.ndarray, rows: tuple[int, ...], factor: ActiveSetFactor | None = None
-) -> ActiveSetMaps | None:
-    """The maps of :class:`ActiveSetMaps` for ``min 1/2 z'Pz + q'z  s.t.  C_S z = h_S``, or
-    None when the active set is not a candidate (see the module docstring). ``factor``: the
-    :func:`active_set_factor` of ``rows``, when the caller has it."""
-    d, c = P.shape[0], C.shape[0]
-    fac = active_set_factor(C, rows) if factor is None else factor
-    if fac is None:
-        return None
-    cols = _columns(fac, P)
-    if cols is None:
-        return None
-    Dc, Pt, Zq, ZS, Tq, TS = cols
-    idx, s = fac.idx, fac.idx.size
-    Zt = np.zeros((d, d + c))  # z~ = Zt w
-    Zt[:, :d] = Zq
-    Zt[:, d + idx] = ZS
-    Tz = np.zeros((d, d + c))
-    Tz[:, :d] = Tq
-    Tz[:, d + idx] = TS
-    eye_q = np.hstack([np.diag(Dc), np.zeros((d, c))])  # q~ = Dc q
-    eye_h = np.hstack([np.zeros((c, d)), np.eye(c)])
-    Z = Zt * Dc[:, None]  # z = Dc z~
-    absC = np.abs(C)
-    # every row, active ones included, is tested at the returned z against its own terms
-    # |C_i| |z| + |h_i|, bounded here linearly in |w| (a quick pre-test of the batched solve)
-    primal = C @ Z - eye_h
-    primal_T = absC @ np.abs(Z) + eye_h
-    # an active row holds with equality up to round-off: it is tested at the returned z only
-    primal[idx] = 0.0
-    if s:
-        # stationarity P~ z~ + q~ + Chat' lam_hat = 0  =>  lam_hat = -R1^{-1} Q1'(P~ z~ + q~);
-        # lam_hat has the sign of the multiplier of the unscaled row
-        lam = -fac.Lmap @ (Pt @ Zt + eye_q)
-        lam_T = fac.absLmap @ (np.abs(Pt) @ Tz + np.abs(eye_q))
-        R = np.vstack([primal, -lam])
-        T = np.vstack([primal_T, lam_T])
+    Returns ``(z2, lam2)``: ``[z; T_z]`` (2 d, k) and ``[lam; T_lam]`` (2 s, k), the
+    multipliers in the order of ``fac.rows`` (of the sign of each row's multiplier; scaled for
+    the reduced rows) and the magnitudes of the terms summed to compute them. Each step is one
+    product with a block-diagonal operator (:attr:`ActiveSetFactor.consts`) on the stacked
+    values and magnitudes. The same products serve the maps (:func:`active_set_maps`) and one
+    instance (:func:`check_active_set`); the parts that are empty for this active set (no
+    bound, no pivot row, no null space) are skipped."""
+    Dc, Pt, Y, P_NB, ops = red
+    d = P.shape[0]
+    k = W2.shape[1]
+    nb, ns, nu = fac.b_vars.size, fac.S.size, fac.iu.size
+    cache = fac.consts
+    if nb:  # the fixed variables, exactly: h / C_ij (a product by 1 / C_ij when it is +-1)
+        zB = W2[cache["hb2"]]
+        if cache["unit_b"]:
+            zB = zB * cache["inv_b2"]
+        else:
+            zB[:nb] /= fac.b_coef[:, None]
+            zB[nb:] *= cache["abs_inv_b"]
+    # the general rows' right side, less the fixed part; the pivot slacks substituted
+    rg = W2[cache["gen2"]]
+    if nb and fac.gen.size:
+        rg = rg - cache["CgB2"] @ zB
+    if ns:
+        ra = rg[cache["ia2"]]
+        ru = rg[cache["iu2"]] - cache["E2"] @ ra
     else:
-        R, T = primal, primal_T
-    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(T)) and np.all(np.isfinite(Z))):
-        return None
-    return ActiveSetMaps(fac.rows, Z, R, T, C, absC, fac.bounds)
+        ru = rg
+    # the scaled linear term on N
+    qN = W2[cache["qN2"]]
+    if P_NB is not None:
+        qN = qN + ops["PNB2"] @ zB
+    if ns:
+        qN = qN - cache["CaNT2"] @ (W2[cache["qS2"]] * cache["inv_c2"])
+    qt = ops["Dc2"] * qN
+    if nu:
+        zt = cache["Zp2"] @ ru  # the particular solution (scaled variables N)
+        if Y.shape[0]:
+            zt = zt + cache["Q22"] @ (ops["Y2"] @ (qt + ops["Pt2"] @ zt))
+    elif Y.shape[0]:  # no reduced row: the minimizer of the scaled objective on N
+        zt = ops["Y2"] @ qt
+    else:  # no variable left
+        zt = np.zeros((0, k))
+    zN = ops["Dc2"] * zt
+    z2 = np.empty((2 * d, k))
+    z2[cache["zN2"]] = zN
+    if nb:
+        z2[cache["zB2"]] = zB
+    if ns:  # the pivot slacks, from their rows
+        z2[cache["zS2"]] = (ra - cache["CaN2"] @ zN) * cache["inv_c2"]
+    # multipliers: the reduced rows' from stationarity on N (scaled: Pt z~ + q~ + Chat' lam^ = 0,
+    # lam^ of the sign of the row's multiplier), the pivot rows' from their slacks',
+    # q_s + c lam_a + C_uS' lam_u = 0, the bounds' from the fixed variables',
+    # (P z + q + C_g' lam_g)_j + C_ij lam_i = 0
+    s_all = fac.idx.size
+    lam2 = np.empty((2 * s_all, k))
+    if nu:
+        lam_hat = cache["Lmap2"] @ (ops["Pt2"] @ zt + qt)
+        lam2[cache["at_u2"]] = lam_hat
+        if ns or nb:
+            lam_u = cache["Dn2"] * lam_hat
+    if ns:
+        q_s = W2[cache["qS2"]]
+        if nu:
+            q_s = q_s + cache["CuST2"] @ lam_u
+        lam_a = q_s * cache["lam_c2"]
+        lam2[cache["at_a2"]] = lam_a
+    if nb:
+        stat = ops["Pb2"] @ z2 + W2[cache["qB2"]]
+        if fac.gen.size:
+            lam_g = np.empty((2 * fac.gen.size, k))
+            if nu:
+                lam_g[cache["iu2"]] = lam_u
+            if ns:
+                lam_g[cache["ia2"]] = lam_a
+            stat = stat + cache["CgBT2"] @ lam_g
+        lam2[cache["at_b2"]] = stat * cache["lam_b2"]
+    return z2, lam2
 
 
 def check_active_set(
@@ -369,42 +511,40 @@ def check_active_set(
     instance ``w`` of ``min 1/2 z'Pz + q'z  s.t.  C z <= h``, else None.
 
     The test of :meth:`ActiveSetMaps.check` of :func:`active_set_maps`, computed for the one
-    instance (the maps only on the data ``q`` and ``h_S`` the solution depends on). ``absC``:
-    ``|C|``, when the caller keeps it. ``report``: a dict that receives, when the test fails,
-    ``"add"`` (the inactive rows violated beyond their tolerance, most violated first, relative
-    to it) and ``"drop"`` (the active rows whose multipliers are negative beyond their
-    tolerance); both empty when the set is not a candidate.
+    instance (the same products, applied to ``w``). ``absC``: ``|C|``, when the caller keeps
+    it. ``report``: a dict that receives, when the test fails, ``"add"`` (the inactive rows
+    violated beyond their tolerance, most violated first, relative to it) and ``"drop"`` (the
+    active rows whose multipliers are negative beyond their tolerance); both empty when the set
+    is not a candidate.
     """
     if report is not None:
         report.update(add=[], drop=[])
-    cols = _columns(fac, P)
-    if cols is None:
+    red = reduce_hessian(fac, P)
+    if red is None:
         return None
-    Dc, Pt, Zq, ZS, Tq, TS = cols
     d = P.shape[0]
-    idx = fac.idx
-    q, h = w[:d], w[d:]
-    hS = h[idx]
-    zt = Zq @ q + ZS @ hS
-    z = Dc * zt
-    for i, j, a in fac.bounds:  # snap_bounds
-        z[j] = h[i] / a
-    if idx.size:  # one step of iterative refinement on the active rows (see ActiveSetMaps)
-        z = z - Dc * (ZS @ (C[idx] @ z - hS))
-        for i, j, a in fac.bounds:
-            z[j] = h[i] / a
+    s_all = fac.idx.size
+    with np.errstate(over="ignore", invalid="ignore"):
+        z2, lam2 = solve_stacked(fac, red, P, np.concatenate([w, np.abs(w)])[:, None])
+    z, lam, lam_T = z2[:d, 0], lam2[:s_all, 0], lam2[s_all:, 0]
+    h = w[d:]
+    gen = fac.gen
     absC = np.abs(C) if absC is None else absC
     primal = C @ z - h  # every row, at the returned z, against its own terms
     primal_T = absC @ np.abs(z) + np.abs(h)
-    primal[idx] = np.abs(primal[idx])  # the active rows are equalities
-    if idx.size:
-        tz = Tq @ np.abs(q) + TS @ np.abs(hS)  # the magnitude of the terms of each component
-        lam = -fac.Lmap @ (Pt @ zt + Dc * q)
-        lam_T = fac.absLmap @ (np.abs(Pt) @ tz + Dc * np.abs(q))
-        resid = np.concatenate([primal, -lam])
-        terms = np.concatenate([primal_T, lam_T])
-    else:
-        resid, terms = primal, primal_T
+    if gen.size and np.any(np.abs(primal[gen]) > KKT_TOL * primal_T[gen]):
+        # one step of iterative refinement on the general rows (see ActiveSetMaps)
+        r = np.zeros_like(w)
+        r[d + gen] = primal[gen]
+        with np.errstate(over="ignore", invalid="ignore"):
+            dz = solve_stacked(fac, red, P, np.concatenate([r, np.abs(r)])[:, None])[0][:d, 0]
+        z = z - dz
+        z[fac.b_vars] = h[fac.b_rows] / fac.b_coef
+        primal = C @ z - h
+        primal_T = absC @ np.abs(z) + np.abs(h)
+    primal[fac.idx] = np.abs(primal[fac.idx])  # the active rows are equalities
+    resid = np.concatenate([primal, -lam])
+    terms = np.concatenate([primal_T, lam_T])
     worst = float(resid.max(initial=-math.inf))
     if not (math.isfinite(worst + float(z.sum())) and np.all(np.isfinite(terms))):
         return None
@@ -414,9 +554,9 @@ def check_active_set(
                 excess = np.where(resid > KKT_TOL * terms, resid / np.maximum(terms, 1e-300), 0.0)
             c = C.shape[0]
             inactive = excess[:c].copy()
-            inactive[idx] = 0.0
+            inactive[fac.idx] = 0.0
             add = np.flatnonzero(inactive > 0.0)
             report["add"] = add[np.argsort(-inactive[add], kind="stable")].tolist()
-            report["drop"] = idx[excess[c:] > 0.0].tolist()
+            report["drop"] = fac.idx[excess[c:] > 0.0].tolist()
         return None
     return z.tolist()

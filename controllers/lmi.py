@@ -10,14 +10,15 @@ Section 3 of the paper pre-stabilizes the SDJLS with a mode-dependent state feed
   the Proposition-1 conditions (eqs. LMI1, LMI2) in float64 with ``P_i = X_i^{-1}``.
 * :func:`check_proposition2` evaluates the Proposition-2 matrices for given ``X``, ``Y``.
 * :func:`verify_mean_square_bound` and :func:`second_moment_spectral_radius` (Proposition 1, the
-  certificate of given gains) live in :mod:`controllers.mean_square` and are re-exported here.
+  certificate of given gains) live in :mod:`controllers.mean_square`, which imports the helpers
+  below (this module does not import it: no cycle).
 
 The helpers without a leading underscore (``check_eps``, ``pick_solver``, ``solve``, ...) are
 shared with :mod:`controllers.mean_square`; they are not part of the public API.
 
 Modes are numbered ``0 .. N-1`` (the paper numbers them ``1 .. N``). The paper uses ``mu`` both
 for the transition matrix used outside ``C1`` (here ``model.P_out``) and for the decay margin of
-Appendix A (here :attr:`MeanSquareCertificate.mu`).
+Appendix A (here :attr:`controllers.mean_square.MeanSquareCertificate.mu`).
 """
 
 from __future__ import annotations
@@ -39,11 +40,8 @@ from .base import check_model, frozen
 
 __all__ = [
     "GainSynthesisResult",
-    "MeanSquareCertificate",
     "check_proposition2",
-    "second_moment_spectral_radius",
     "synthesize_gains",
-    "verify_mean_square_bound",
 ]
 
 _OBJECTIVES = ("feasibility", "max_margin")
@@ -394,11 +392,3 @@ def synthesize_gains(
         solver=solver,
         margin=margin,
     )
-
-
-# Proposition 1 (the certificate of given gains), re-exported: ``from controllers.lmi import ...``
-from .mean_square import (  # noqa: E402
-    MeanSquareCertificate,
-    second_moment_spectral_radius,
-    verify_mean_square_bound,
-)

@@ -1,4 +1,4 @@
-"""The data of problem P3 for one (mode, region) family, and its cvxpy reference.
+"""The data of problem P3 for one (mode, region) family, its answers, and its cvxpy reference.
 
 With ``u = K x + nu`` the objective of P3 expands to (eq. eq:exp_noise, Lemma 1)::
 
@@ -9,23 +9,46 @@ and the constraint rows are ``G Atilde x + G B nu - rho <= H_{k+1} - t`` (eq.
 constraint:feasibility). In ``z = (nu, rho)`` this is a QP whose matrices depend only on the mode
 and on whether ``x_k`` is in C1; its data ``w = [q; h]`` (linear term and one-sided bounds, see
 :class:`controllers.qp.QPFamily`) are affine in ``x``: ``w = W x + w0(k)``.
+
+Everything here is a function of a :class:`Family` (and of the model's band ``H_k``), built
+from the controller's checked parameters (:class:`controllers.horizon.HorizonSettings`):
+the instance of a state, the smallest feasible slack of an offset, the cost of an answer
+(computed from ``u`` and the next mean themselves where the expansion would cancel), the exact
+answer of a verified active set, and P3 written plainly in cvxpy.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any
+from operator import mul
+from typing import Any
 
 import numpy as np
 
+from sdjls_gym.dynamics import max_last
+from sdjls_gym.model import SDJLSModel
+
 from .base import frozen
-from .qp import EnumerationBudget, QPFamily
+from .horizon import HorizonSettings
+from .kkt import KKT_TOL
+from .qp import EnumerationBudget, QPFamily, Solution
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .rhc import RecedingHorizonController
+__all__ = [
+    "Family",
+    "build_family",
+    "check_magnitudes",
+    "exact_answer",
+    "hbar",
+    "instance",
+    "min_rho",
+    "objective",
+    "project_nu",
+    "solve_p3_cvxpy",
+]
 
-__all__ = ["Family", "build_family", "check_magnitudes", "solve_p3_cvxpy"]
+#: Cached offsets ``w0(k)`` per family before the cache is cleared (k is unbounded).
+_MAX_OFFSETS = 4096
 
 #: Clarabel settings of the cvxpy reference.
 CLARABEL_SETTINGS: dict[str, Any] = {
@@ -49,6 +72,9 @@ class Family:
 
     mode: int
     inside: bool
+    chance: bool  # the chance rows are imposed
+    alpha: float  # the slack's penalty (0 without chance rows)
+    tight: np.ndarray  # (r,) the tightening t[mode] (zeros without chance rows)
     Pi: np.ndarray  # (n, n)
     K: np.ndarray  # (m, n)
     GA: np.ndarray  # (r, n)  G Atilde
@@ -77,16 +103,21 @@ class Family:
 
 
 def build_family(
-    ctrl: RecedingHorizonController, mode: int, inside: bool, budget: EnumerationBudget
+    s: HorizonSettings,
+    tight: np.ndarray | None,
+    mode: int,
+    inside: bool,
+    budget: EnumerationBudget,
 ) -> Family:
-    """The family ``(mode, inside)`` of the controller's P3 (its QP engine is set up lazily)."""
-    model, m, r, n = ctrl.model, ctrl.model.m, ctrl.model.r, ctrl.model.n
-    chance = ctrl._chance_constrained
+    """The family ``(mode, inside)`` of P3 for the checked parameters ``s`` and the tightening
+    ``tight`` (N, r) (None without chance rows); its QP engine is set up lazily."""
+    model, m, r, n = s.model, s.model.m, s.model.r, s.model.n
+    chance = s.chance
     with np.errstate(over="ignore", invalid="ignore"):  # magnitudes are checked afterwards
         P_row = (model.P_in if inside else model.P_out)[mode]  # eq. (eq:p_tran)
-        Pi = np.einsum("j,jab->ab", P_row, ctrl.Psi)  # eq. (eq:exp_noise)
+        Pi = np.einsum("j,jab->ab", P_row, s.Psi)  # eq. (eq:exp_noise)
         Pi = 0.5 * (Pi + Pi.T)
-        K, At, Bm, R = ctrl.K[mode], ctrl.A_tilde[mode], model.B[mode], model.R[mode]
+        K, At, Bm, R = s.K[mode], s.A_tilde[mode], model.B[mode], model.R[mode]
         H_nu = R + Bm.T @ Pi @ Bm
         H_nu = 0.5 * (H_nu + H_nu.T)
         C = model.Q[mode] + K.T @ R @ K + At.T @ Pi @ At
@@ -105,8 +136,10 @@ def build_family(
     nr = r if chance else 0
     upper = np.concatenate([np.ones(nr, bool), np.ones(m, bool), [not chance]])
     lower = np.concatenate([np.zeros(nr, bool), np.ones(m, bool), [True]])
-    engine = QPFamily(P, A, lower, upper, ctrl.osqp_settings, budget=budget)
-    nb, alpha = ctrl.nu_bound, (ctrl.alpha if chance else 0.0)
+    engine = QPFamily(
+        P, A, lower, upper, s.osqp_settings, budget=budget, use_daqp=s.solver == "daqp"
+    )
+    nb, alpha = s.nu_bound, (s.alpha if chance else 0.0)
     lo = np.concatenate([np.full(nr, -np.inf), np.full(m, -nb), [0.0]])
     hi = np.concatenate([np.zeros(nr), np.full(m, nb), [np.inf if chance else 0.0]])
     h0 = engine.one_sided_bounds(lo, hi)
@@ -118,6 +151,9 @@ def build_family(
     fam = Family(
         mode=mode,
         inside=inside,
+        chance=chance,
+        alpha=alpha,
+        tight=frozen(tight[mode] if chance and tight is not None else np.zeros(r)),
         Pi=frozen(Pi),
         K=frozen(K),
         GA=frozen(GA),
@@ -172,9 +208,7 @@ def cost_condition(fam: Family) -> float:
     return np.inf if small == 0.0 else big / small
 
 
-def check_magnitudes(
-    ctrl: RecedingHorizonController, families: Iterable[Family], limit: float
-) -> None:
+def check_magnitudes(s: HorizonSettings, families: Iterable[Family], limit: float) -> None:
     """ValueError unless every matrix of every family is finite and at most ``limit`` in
     magnitude (beyond, the costs of states up to ``MAX_STATE`` overflow float64 and the exact
     solves lose every digit); the message names the inputs and their sizes."""
@@ -187,7 +221,7 @@ def check_magnitudes(
                 worst, where = (np.inf if not np.isfinite(v) else v), (fam.mode, name)
         if not np.isfinite(fam.noise_term):
             worst, where = np.inf, (fam.mode, "noise_term")
-    model = ctrl.model
+    model = s.model
     if worst <= limit:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             cond = max(cost_condition(fam) for fam in families)
@@ -195,15 +229,15 @@ def check_magnitudes(
             return
         raise ValueError(
             f"the costs of the receding-horizon QP would lose their digits: terms about "
-            f"{cond:.1e} times the cost cancel (Psi up to {float(np.max(np.abs(ctrl.Psi))):.3g}, "
+            f"{cond:.1e} times the cost cancel (Psi up to {float(np.max(np.abs(s.Psi))):.3g}, "
             f"model.R up to {float(np.max(np.abs(model.R))):.3g}, model.Q up to "
             f"{float(np.max(np.abs(model.Q))):.3g}); the ratio must be at most "
             f"{MAX_COST_CONDITION:.0e}: bring the input weight R and the terminal weights Psi "
             "closer to the state weight Q"
         )
     sizes = {
-        "Psi": ctrl.Psi,
-        "K": ctrl.K,
+        "Psi": s.Psi,
+        "K": s.K,
         "model.Q": model.Q,
         "model.R": model.R,
         "model.G": model.G,
@@ -217,17 +251,147 @@ def check_magnitudes(
     )
 
 
+# ---------------------------------------------------------------------------------- answers
+def offset(fam: Family, model: SDJLSModel, k: int) -> np.ndarray:
+    """``w0(k)`` of the family at time ``k`` (cached)."""
+    cache = fam.offsets
+    if len(cache) >= _MAX_OFFSETS:
+        cache.clear()
+    w0 = fam.w0.copy()
+    if fam.chance:
+        r, d = model.r, fam.engine.d
+        # eq. (constraint:feasibility): the constraint is on x_{k+1}, band H_{k+1}
+        w0[d : d + r] += model.H(k + 1) - fam.tight
+    w0.setflags(write=False)
+    cache[k] = w0
+    return w0
+
+
+def instance(
+    fam: Family, model: SDJLSModel, x: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(y, w)``: ``y = [K x; W x; C x; Atilde x; Q x]`` and the instance ``w = [q; h]``."""
+    m = model.m
+    y = fam.lin @ x
+    w0 = fam.offsets.get(k)
+    if w0 is None:
+        w0 = offset(fam, model, k)
+    return y, y[m : m + w0.shape[0]] + w0
+
+
+def hbar(fam: Family, model: SDJLSModel, k: np.ndarray) -> np.ndarray:
+    """``H_{k+1} - t[theta]`` (B, r): the right side of the rows at times ``k`` (B,)."""
+    return model.H(k + 1) - fam.tight
+
+
+def project_nu(s: HorizonSettings, nu: np.ndarray) -> np.ndarray:
+    """Remove solver round-off outside ``U``; ``nu`` (..., m)."""
+    if s.nu_set == "ball" and s.model.m > 1:
+        norm = np.linalg.norm(nu, axis=-1, keepdims=True)
+        return nu * np.minimum(1.0, s.nu_bound / np.maximum(norm, 1e-300))
+    return np.clip(nu, -s.nu_bound, s.nu_bound)
+
+
+def min_rho(fam: Family, x: np.ndarray, nu: np.ndarray, hb: np.ndarray) -> np.ndarray:
+    """Smallest ``rho >= 0`` (B,) that makes ``nu`` (B, m) feasible in eq.
+    (constraint:feasibility) at states ``x`` (B, n) with right sides ``hb`` (B, r) (see
+    :func:`hbar`); an excess within round-off of its row's terms is 0."""
+    if not fam.chance:
+        return np.zeros(nu.shape[0])
+    GAx, GBnu = x @ fam.GA.T, nu @ fam.GB.T
+    excess = GAx + GBnu - hb
+    # round-off of a row's terms is not a use of the slack: a cheap first test with the
+    # sizes of the partial sums, then, for the few excesses above it, the terms themselves
+    real = excess > KKT_TOL * (np.abs(GAx) + np.abs(GBnu) + np.abs(hb))
+    if real.any():
+        i, j = np.nonzero(real)
+        terms = (
+            np.abs(x[i]) @ np.abs(fam.GA).T + np.abs(nu[i]) @ np.abs(fam.GB).T + np.abs(hb[i])
+        )[np.arange(i.size), j]
+        real[i, j] = excess[i, j] > KKT_TOL * terms
+    excess = np.where(real, excess, 0.0)
+    return np.maximum(max_last(excess), 0.0)
+
+
+def objective(fam: Family, x: np.ndarray, nu: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """``J_k`` (B,) of P3 at ``(nu, rho)``, every constant term included (see
+    :func:`cost_one` for the two ways of writing it)."""
+    if fam.expand_cost:
+        return (
+            np.sum((x @ fam.C) * x, axis=1)
+            + fam.noise_term
+            + np.sum((nu @ fam.H_nu) * nu, axis=1)
+            + np.sum((x @ fam.grad.T) * nu, axis=1)
+            + fam.alpha * rho
+        )
+    u = x @ fam.K.T + nu
+    mean = x @ fam.A_tilde.T + nu @ fam.B.T
+    return (
+        np.sum((x @ fam.Q) * x, axis=1)
+        + np.sum((u @ fam.R) * u, axis=1)
+        + np.sum((mean @ fam.Pi) * mean, axis=1)
+        + fam.noise_term
+        + fam.alpha * rho
+    )
+
+
+def cost_one(fam: Family, x: list, y: list, nu: list, rho: float) -> float:
+    """``J_k`` of P3 for one state, in plain floats from ``y = [K x; W x; C x; Atilde x; Q x]``:
+    ``x'Qx + u'Ru + mean'Pi mean + tr(Pi E W E') + alpha rho`` with ``u = K x + nu`` and
+    ``mean = Atilde x + B nu``. Expanded in ``nu`` (``x'Cx + nu'H nu + g'nu + ...``, cheaper)
+    where the family's terms do not cancel (``fam.expand_cost``), else written with ``u`` and
+    ``mean`` themselves, so that large weights do not cancel (a dominant R makes u small)."""
+    m, n = len(nu), len(x)
+    start = len(y) - 2 * n
+    if fam.expand_cost:
+        xCx = sum(map(mul, x, y[start - n : start]))
+        nuHnu = sum(v * sum(map(mul, row, nu)) for v, row in zip(nu, fam.H_list, strict=True))
+        g = y[m : 2 * m]  # the first m entries of W x are the gradient
+        return xCx + fam.noise_term + nuHnu + sum(map(mul, g, nu)) + fam.alpha * rho
+    u = [a + b for a, b in zip(y[:m], nu, strict=True)]
+    mean = [
+        a + sum(map(mul, row, nu)) for a, row in zip(y[start : start + n], fam.B_list, strict=True)
+    ]
+    xQx = sum(map(mul, x, y[start + n :]))
+    uRu = sum(v * sum(map(mul, row, u)) for v, row in zip(u, fam.R_list, strict=True))
+    mPm = sum(v * sum(map(mul, row, mean)) for v, row in zip(mean, fam.Pi_list, strict=True))
+    return xQx + uRu + mPm + fam.noise_term + fam.alpha * rho
+
+
+def exact_answer(
+    fam: Family, nu_bound: float, x: np.ndarray, y: list[float], w: np.ndarray, sol: Solution
+) -> tuple[list[float], float, float]:
+    """``(nu, rho, cost)`` from the exact solution of a verified active set.
+
+    A function of ``(x, k, active set)`` and the family only (plain float arithmetic on the
+    data of the single-state path), so the answer does not depend on which path found it.
+    ``rho`` is 0 when the bound ``rho >= 0`` is in the active set (the rows then hold to the
+    tolerance of the KKT test, relative to each row), else the largest excess of a row
+    (eq. constraint:feasibility). The cost ``J_k`` has every constant term.
+    """
+    m = fam.K.shape[0]
+    nu = [min(max(v, -nu_bound), nu_bound) for v in sol.z[:m]]  # round-off outside U
+    rho = 0.0
+    if fam.chance and fam.rho_row not in sol.rows:
+        wl = w.tolist()
+        d = m + 1
+        h = wl[d : d + len(fam.GB_list)]  # H_{k+1} - t - G Atilde x
+        excess = max(sum(map(mul, row, nu)) - hj for row, hj in zip(fam.GB_list, h, strict=True))
+        rho = max(excess, 0.0)
+    return nu, rho, cost_one(fam, x.tolist(), y, nu, rho)
+
+
 def solve_p3_cvxpy(
-    ctrl: RecedingHorizonController, fam: Family, x: np.ndarray, k: int
+    s: HorizonSettings, fam: Family, x: np.ndarray, k: int
 ) -> tuple[np.ndarray | None, float, float, str]:
     """P3 written plainly with cvxpy, solved by Clarabel; ``(nu, rho, value, status)``, with
     ``nu = None`` unless Clarabel reports an optimal, finite answer."""
     import cvxpy as cp
 
-    model, mode = ctrl.model, fam.mode
+    model, mode = s.model, fam.mode
     nu = cp.Variable(model.m)
     u = fam.K @ x + nu  # eq. (eq:stabilization_input)
-    mean_next = ctrl.A_tilde[mode] @ x + model.B[mode] @ nu  # eq. (sys:stabilized_input)
+    mean_next = s.A_tilde[mode] @ x + model.B[mode] @ nu  # eq. (sys:stabilized_input)
     objective = (
         float(x @ model.Q[mode] @ x)
         + cp.quad_form(u, model.R[mode])
@@ -235,16 +399,16 @@ def solve_p3_cvxpy(
         + fam.noise_term
     )
     constraints = []
-    if ctrl.nu_set == "ball":
-        constraints.append(cp.norm(nu, 2) <= ctrl.nu_bound)
+    if s.nu_set == "ball":
+        constraints.append(cp.norm(nu, 2) <= s.nu_bound)
     else:
-        constraints.append(cp.abs(nu) <= ctrl.nu_bound)
+        constraints.append(cp.abs(nu) <= s.nu_bound)
     rho = None
-    if ctrl._chance_constrained:
+    if fam.chance:
         rho = cp.Variable(nonneg=True)
-        objective = objective + ctrl.alpha * rho
-        hbar = model.H(k + 1) - ctrl.tightening[mode]
-        constraints.append(model.G @ mean_next <= hbar + rho)  # eq. (constraint:feasibility)
+        objective = objective + s.alpha * rho
+        right = model.H(k + 1) - fam.tight
+        constraints.append(model.G @ mean_next <= right + rho)  # eq. (constraint:feasibility)
     problem = cp.Problem(cp.Minimize(objective), constraints)
     try:
         problem.solve(solver=cp.CLARABEL, **CLARABEL_SETTINGS)

@@ -37,7 +37,7 @@ rows and the variables are equilibrated, the null-space method solves the active
 answer is accepted when every row holds at the returned ``z`` to :data:`KKT_TOL` of its own
 terms and every multiplier is nonnegative to :data:`KKT_TOL` of the magnitude of its terms. A
 family with a fixed Hessian keeps the solution's maps per active set
-(:func:`controllers.kkt.active_set_maps`); the scenario tree, whose Hessian changes at every
+(:func:`controllers.kkt_maps.active_set_maps`); the scenario tree, whose Hessian changes at every
 solve, solves each instance (:func:`controllers.kkt.check_active_set`) with the same numbers.
 
 Thread safety
@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
-from dataclasses import dataclass
 from functools import lru_cache
 from itertools import chain, combinations
 from typing import Any
@@ -63,8 +62,11 @@ import scipy.sparse as sp
 from sdjls_gym.messages import describe
 from sdjls_gym.validation import check_mapping
 
-from .dual_qp import REGULARIZE, DaqpData, daqp_data, run_daqp
-from .kkt import KKT_TOL, ActiveSetMaps, active_set_maps
+from .active_set import ActiveSetQP, candidate_maps
+from .dual_qp import DaqpData, DaqpWorkspace
+from .kkt import KKT_TOL
+from .kkt_maps import ActiveSetMaps, active_set_maps
+from .qp_daqp import NEAR_ACTIVE_TOL, SCREEN_RATIO, DaqpSolving, Solution
 
 __all__ = [
     "DEFAULT_OSQP_SETTINGS",
@@ -96,9 +98,9 @@ MAX_LOCAL_CANDIDATES = 256
 #: Exact active-set maps kept per family (least recently used are dropped).
 MAX_CACHED_MAPS = 512
 
-#: A row whose residual at OSQP's solution is within this fraction of its terms counts as nearly
-#: active (OSQP's polished solutions are accurate to ~1e-10 relative).
-NEAR_ACTIVE_TOL = 1e-6
+#: Active sets of a family tested at once on a batch (:meth:`QPFamily.seen`): the most recently
+#: used of its cached maps.
+SEEN_SETS = 64
 
 #: OSQP's infinity: bounds beyond it are clipped by OSQP.
 OSQP_INFTY = float(osqp.constant("OSQP_INFTY"))
@@ -181,16 +183,7 @@ class EnumerationBudget:
             self._total -= s
 
 
-@dataclass(frozen=True)
-class Solution:
-    """An exact, verified solution of one instance: ``z`` and its active set ``rows``."""
-
-    z: list[float]
-    rows: tuple[int, ...]
-    path: str  # "warm", "osqp", "osqp_retry", "enumeration"
-
-
-class QPFamily:
+class QPFamily(DaqpSolving):
     """A QP family ``min 1/2 z'Pz + q'z  s.t.  l <= A z <= u`` with fixed ``P`` and ``A``.
 
     Parameters
@@ -261,18 +254,50 @@ class QPFamily:
         self._daqp_simple = bool(
             self.A.shape[0] >= d and np.array_equal(self.A[self.A.shape[0] - d :], np.eye(d))
         )
+        # the one-sided index of each row's upper and lower side (-1: absent), and the gathers
+        # that give OSQP's bounds l, u from [h; inf]
+        rows_A, n_up = self.A.shape[0], self.upper_idx.size
+        self._upper_of = np.full(rows_A, -1, dtype=np.int64)
+        self._lower_of = np.full(rows_A, -1, dtype=np.int64)
+        self._upper_of[self.upper_idx] = np.arange(n_up)
+        self._lower_of[self.lower_idx] = n_up + np.arange(self.lower_idx.size)
+        self._hi_gather = np.where(self._upper_of >= 0, self._upper_of, self.c)
+        self._lo_gather = np.where(self._lower_of >= 0, self._lower_of, self.c)
+        #: whether P has kept its first value (update_P not called): DAQP's workspace is kept
+        self._fixed_P = True
+        #: whether DAQP first sees a subset of the general rows (see _solve_screened): for
+        #: families with more than SCREEN_RATIO rows per variable
+        self.screen = bool(self.c > SCREEN_RATIO * d)
+        self._general_pos: np.ndarray | None = None
+        self._pool: np.ndarray | None = None  # the subset of the last screened solve
+        #: the variables without curvature (zero rows of P: the slacks), which the exact solve
+        #: of an active set takes from their rows (see controllers.kkt.active_set_factor)
+        self.pivots = ~self.P.any(axis=1)
         self._reset_state()
 
     def _reset_state(self) -> None:
-        self._maps: dict[tuple[int, ...], ActiveSetMaps | None] = {}
+        self._maps: OrderedDict[tuple[int, ...], ActiveSetMaps | None] = OrderedDict()
+        self._seen: tuple[tuple, ActiveSetQP] | None = None  # seen(): its key and its stack
         self._osqp: osqp.OSQP | None = None
         self._enum: Any = None  # the ActiveSetQP of a full enumeration, built on first use
         self._daqp: DaqpData | None = None  # DAQP's scaled data for the current P
+        #: the scaling of DAQP's data for an earlier P, reused after update_P (None: compute)
+        self._daqp_scaling: tuple[np.ndarray, np.ndarray] | None = None
+        self._daqp_ws: DaqpWorkspace | None = None  # DAQP's workspace (fixed P only)
         self.warm: tuple[int, ...] | None = None
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
-        for key in ("_maps", "_osqp", "_enum", "_daqp", "warm"):
+        for key in (
+            "_maps",
+            "_seen",
+            "_osqp",
+            "_enum",
+            "_daqp",
+            "_daqp_ws",
+            "_daqp_scaling",
+            "warm",
+        ):
             state.pop(key, None)
         return state
 
@@ -317,9 +342,15 @@ class QPFamily:
             else:
                 self._osqp = None
         self.P = P
+        self.pivots = ~P.any(axis=1)
         self._maps.clear()
+        self._seen = None
         self._enum = None
+        if self._daqp is not None:  # DAQP's scaling is kept (kkt_scaling costs ~1 ms)
+            self._daqp_scaling = (self._daqp.D, self._daqp.E)
         self._daqp = None
+        self._daqp_ws = None
+        self._fixed_P = False
         self.can_enumerate = False
 
     # ------------------------------------------------------------------ data
@@ -329,26 +360,54 @@ class QPFamily:
 
     def bounds(self, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Bounds ``l, u`` (c,) of OSQP's form from ``h`` (infinite where a side is absent)."""
-        lo = np.full(self.A.shape[0], -np.inf)
-        hi = np.full(self.A.shape[0], np.inf)
-        nu = self.upper_idx.size
-        hi[self.upper_idx] = h[:nu]
-        lo[self.lower_idx] = -h[nu:]
-        return lo, hi
+        padded = np.append(h, np.inf)
+        return -padded[self._lo_gather], padded[self._hi_gather]
+
+    def rows_of_multipliers(self, y: np.ndarray) -> tuple[int, ...] | None:
+        """The active set (one-sided rows, sorted) of multipliers ``y`` in OSQP's form (one per
+        row of ``A``: positive where its upper side is active, negative for the lower, 0 where
+        inactive, as DAQP reports them); None when a side that does not exist is active or
+        there are more than ``d`` rows."""
+        nz = np.flatnonzero(y)
+        if nz.size > self.d:
+            return None
+        rows = np.where(y[nz] > 0.0, self._upper_of[nz], self._lower_of[nz])
+        if nz.size and int(rows.min()) < 0:
+            return None
+        return tuple(sorted(rows.tolist()))
 
     # ------------------------------------------------------------------ exact solves
     def maps(self, rows: tuple[int, ...]) -> ActiveSetMaps | None:
-        """The exact maps of an active set (cached; the cache is emptied when it is full)."""
+        """The exact maps of an active set (cached, least recently used dropped first)."""
         cache = self._maps
         out = cache.get(rows, False)
         if out is False:
             if len(cache) >= MAX_CACHED_MAPS:
-                cache.clear()
-            out = cache[rows] = active_set_maps(self.P, self.C, rows)
+                cache.popitem(last=False)
+            out = cache[rows] = active_set_maps(self.P, self.C, rows, pivots=self.pivots)
+        else:
+            cache.move_to_end(rows)
         return out
 
-    def verify(self, rows: tuple[int, ...], w: np.ndarray) -> list[float] | None:
-        """``z`` if the active set ``rows`` gives the optimum of instance ``w``, else None."""
+    def seen(self) -> ActiveSetQP | None:
+        """The active sets this family has met (the :data:`SEEN_SETS` most recently used of
+        the cached exact maps) as an :class:`controllers.active_set.ActiveSetQP`, to test them
+        on a batch at once; None when there is none. Largest sets first (as the enumeration)."""
+        keys = [rows for rows, m in reversed(self._maps.items()) if m is not None][:SEEN_SETS]
+        if not keys:
+            return None
+        keys.sort(key=lambda rows: (-len(rows), rows))
+        key = tuple(keys)
+        if self._seen is None or self._seen[0] != key:
+            self._seen = (key, ActiveSetQP(self.C, [self._maps[rows] for rows in keys]))
+        return self._seen[1]
+
+    def verify(
+        self, rows: tuple[int, ...], w: np.ndarray, report: dict | None = None
+    ) -> list[float] | None:
+        """``z`` if the active set ``rows`` gives the optimum of instance ``w``, else None.
+        ``report``: filled only by families that test one instance at a time (see
+        :meth:`controllers.tree_qp.TreeQP.verify`); left as it is here."""
         maps = self.maps(rows)
         return None if maps is None else maps.check(w)
 
@@ -358,9 +417,7 @@ class QPFamily:
         if not self.can_enumerate:
             return None
         if self._enum is None:
-            from .active_set import ActiveSetQP
-
-            self._enum = ActiveSetQP(self.P, self.C)
+            self._enum = ActiveSetQP(self.C, candidate_maps(self.P, self.C))
         self.budget.use(self, self.enumeration_floats)
         return self._enum
 
@@ -471,9 +528,10 @@ class QPFamily:
         """
         notes = [] if notes is None else notes
         if warm and self.warm is not None:
-            z = self.verify(self.warm, w)
-            if z is not None:
-                return Solution(z, self.warm, "warm")
+            sol = self.warm_solve(w)
+            if sol is not None:
+                self.warm = sol.rows
+                return sol
         if self.use_daqp:
             sol = self._solve_daqp(w, self.warm if warm else None, notes)
             if sol is not None:
@@ -500,6 +558,12 @@ class QPFamily:
             return self._enumerate_noted(w, notes, True)
         return None
 
+    def warm_solve(self, w: np.ndarray) -> Solution | None:
+        """The answer from the last active set :attr:`warm` (not None): that set, if it passes
+        the KKT test at ``w``."""
+        z = self.verify(self.warm, w)
+        return None if z is None else Solution(z, self.warm, "warm")
+
     def _enumerate_noted(self, w: np.ndarray, notes: list[str], note: bool) -> Solution | None:
         sol = self.enumerate_one(w)
         if sol is not None:
@@ -507,42 +571,6 @@ class QPFamily:
         elif self.can_enumerate and note:
             notes.append("no enumerated active set verified")
         return sol
-
-    def _solve_daqp(
-        self, w: np.ndarray, start: tuple[int, ...] | None, notes: list[str]
-    ) -> Solution | None:
-        """DAQP warm-started from ``start`` (an active set), then from a cold start; the active
-        set of its answer re-solved exactly and verified (:meth:`local`)."""
-        status = first = ""
-        attempts = [(start, 0.0)] if start is not None else []
-        attempts += [(None, 0.0)] + [(None, mu) for mu in REGULARIZE]
-        for begin, mu in attempts:
-            z, y, status = self.run_daqp(w, begin, mu)
-            if z is not None:
-                sol = self.local(z, w, y)
-                if sol is not None:
-                    return Solution(sol.z, sol.rows, "daqp")
-                status = "answer did not verify"
-            first = first or status
-        notes.append(f"daqp {first}")
-        return None
-
-    def run_daqp(
-        self, w: np.ndarray, start: tuple[int, ...] | None = None, regularize: float = 0.0
-    ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
-        """DAQP on instance ``w`` (:func:`controllers.dual_qp.run_daqp`), warm-started from the
-        active set ``start``: ``(z, y, status)``, ``z = y = None`` on failure."""
-        if self._daqp is None:
-            self._daqp = daqp_data(self.P, self.A, self._daqp_simple)
-        lo, hi = self.bounds(np.asarray(w[self.d :]))
-        nu = self.upper_idx.size
-        begin = None
-        if start is not None:
-            begin = [
-                (int(self.upper_idx[i]), False) if i < nu else (int(self.lower_idx[i - nu]), True)
-                for i in start
-            ]
-        return run_daqp(self._daqp, np.asarray(w[: self.d]), lo, hi, begin, regularize)
 
     def enumerate_one(self, w: np.ndarray) -> Solution | None:
         """Full enumeration for one instance (None if the family is too large or nothing

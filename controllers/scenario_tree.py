@@ -42,13 +42,15 @@ rows), so each node's rows hold together with probability ``>= xi`` under its Ga
 
 Solvers
 -------
-``solver="osqp"`` (default): the tree's topology and constraint matrix are fixed per (mode,
+``solver="daqp"`` (default): the tree's topology and constraint matrix are fixed per (mode,
 region) family; one :class:`controllers.tree_qp.TreeQP` per family (a
-:class:`controllers.qp.QPFamily`) is only updated (``update_P``, ``update(q, l, u)``) and warm
-started: the last active set is re-solved exactly for the new data, then OSQP, whose active set
-is re-solved exactly; the answer is verified by the KKT test. After failures the condensed QP
-goes to cvxpy + Clarabel (its active set verified), and as a last resort every ``nu = 0`` with
-the smallest feasible slacks. ``solver="cvxpy"``: the same tree written plainly in cvxpy
+:class:`controllers.qp.QPFamily`) has its Hessian updated at every solve (the path
+probabilities weight the stage costs) and is warm started: the last active set is re-solved
+exactly for the new data, then repaired by primal-dual active-set steps, then DAQP finds the
+active set (OSQP too, on small trees), which is re-solved exactly; the answer is verified by the
+KKT test. After failures the condensed QP goes to cvxpy + Clarabel (its active set verified),
+and as a last resort every ``nu = 0`` with the smallest feasible slacks. ``solver="osqp"``: the
+same with OSQP instead of DAQP. ``solver="cvxpy"``: the same tree written plainly in cvxpy
 (rebuilt at every solve, solved by Clarabel), the reference the tests compare against.
 
 Thread-safe (the base class's lock) and picklable.
@@ -63,12 +65,9 @@ from typing import Any
 import numpy as np
 
 from sdjls_gym.model import SDJLSModel
-from sdjls_gym.validation import check_bool, check_choice, check_int
+from sdjls_gym.validation import check_int
 
-from .base import Controller, check_gain, check_terminal_weights
-from .chance import CONSTRAINT_KINDS, check_xi
-from .qp import check_osqp_settings
-from .rhc import MAX_QP_ENTRY, check_slack_and_offsets
+from .horizon import MAX_QP_ENTRY, RecedingHorizonBase, Status
 from .tree_data import (
     FamilyCache,
     RegionClasses,
@@ -77,7 +76,7 @@ from .tree_data import (
     check_tree_size,
     family_magnitudes,
 )
-from .tree_solve import TINY_PROBABILITY, TreeSolver, _Probabilities
+from .tree_solve import TINY_PROBABILITY, TreeSolver, _Context, _Probabilities
 
 __all__ = [
     "DAMPING",
@@ -87,8 +86,6 @@ __all__ = [
     "ScenarioTreeController",
     "TreePlan",
 ]
-
-SOLVERS = ("osqp", "cvxpy")
 
 #: The fixed-point iterations stop when no region probability ``q`` moves by more than this.
 PROB_TOL = 1e-6
@@ -148,7 +145,7 @@ class TreePlan:
     tightening: np.ndarray
 
 
-class ScenarioTreeController(TreeSolver, Controller):
+class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
     """Multi-step receding-horizon control on a scenario tree of modes (beyond the paper).
 
     See the module docstring for the problem, its approximation of the state-dependent jumps
@@ -159,32 +156,21 @@ class ScenarioTreeController(TreeSolver, Controller):
     model : SDJLSModel
     K : (N, m, n) array
         Pre-stabilising gains of ``u = K_theta x + nu``.
-    Psi : (N, n, n) array
-        Terminal weights, symmetric positive definite.
-    xi : float
-        Chance-constraint level, strictly between 0 and 1.
     steps : int
         Horizon of the tree, ``>= 1`` (``steps = 1`` is problem P3).
     branching : int, optional
         Stages that branch, in ``[0, steps]`` (default: ``steps``, every stage). From stage
         ``branching`` on, a node has one child with its own mode; ``branching = 0`` plans along
         the current mode only (the terminal weights still use the branch probabilities).
-    constraint : {"individual", "joint", "bonferroni"}
-    alpha : float
-        Penalty on each slack (times its node's path probability), in ``(0, 1e12]``.
-    nu_bound : float
-        ``U = {|nu_i| <= nu_bound}``, in ``(0, 1e12]``.
-    horizon : int, optional
-        Episode length of the environment (used by :meth:`predict`).
-    solver : {"osqp", "cvxpy"}
-        The fast path or the plain cvxpy/Clarabel reference (see the module docstring).
     iterations : int
         Largest number of QP solves per decision (fixed-point iterations on the branch
         probabilities), ``>= 1``.
-    osqp_settings : dict, optional
-        Overrides of :data:`controllers.rhc.DEFAULT_OSQP_SETTINGS`.
-    cvxpy_fallback : bool
-        Whether a failed fast path tries cvxpy before ``nu = 0``.
+    **settings
+        ``Psi`` (required), ``xi`` (required), ``constraint``, ``alpha`` (each slack is
+        penalized by ``alpha`` times its node's path probability), ``nu_bound``, ``solver``
+        (``"daqp"``, ``"osqp"`` or ``"cvxpy"``), ``nu_set`` (``"box"`` only), ``horizon``,
+        ``osqp_settings``, ``cvxpy_fallback``: keyword-only, documented once in
+        :class:`controllers.horizon.RecedingHorizonBase`.
 
     Raises
     ------
@@ -198,36 +184,30 @@ class ScenarioTreeController(TreeSolver, Controller):
     on earlier calls (no plan is carried between decisions, and every answer of the fast path is
     the exact solution of a verified active set, whichever path found it; only degenerate
     problems, where several active sets verify, can differ by round-off). Picklable.
+    :attr:`path_counts` counts the QP solves per path.
 
     Examples
     --------
     >>> from sdjls_gym.systems.macro import macro, PAPER_K, PAPER_RHC
     >>> ctrl = ScenarioTreeController(macro(), PAPER_K, **PAPER_RHC, steps=3)
     >>> u, info = ctrl.act([2.0, 2.0], 0, 0)
-    >>> info["rho"], info["status"], info["plan"].mode.shape
-    (0.0, 'solved', (13,))
+    >>> info["rho"], info["status"] == "solved", info["plan"].mode.shape
+    (0.0, True, (13,))
     """
+
+    NU_SETS = ("box",)
 
     def __init__(
         self,
         model: SDJLSModel,
         K: np.ndarray,
-        Psi: np.ndarray,
-        xi: float,
         *,
         steps: int = 3,
         branching: int | None = None,
-        constraint: str = "individual",
-        alpha: float = 1000.0,
-        nu_bound: float = 100.0,
-        horizon: int | None = None,
-        solver: str = "osqp",
         iterations: int = 10,
-        osqp_settings: dict[str, Any] | None = None,
-        cvxpy_fallback: bool = True,
+        **settings: Any,
     ) -> None:
-        super().__init__(model, horizon)
-        self.xi = check_xi(xi)
+        super().__init__(model, K, **settings)
         self.steps = check_int("steps", steps, low=1, what="stages of the tree")
         self._lookahead = self.steps  # the chance constraints read H up to k + steps
         if branching is None:
@@ -236,29 +216,15 @@ class ScenarioTreeController(TreeSolver, Controller):
             self.branching = check_int(
                 "branching", branching, low=0, high=self.steps, what="stages that branch"
             )
-        self.constraint = check_choice("constraint", constraint, CONSTRAINT_KINDS)
-        self.K = check_gain(self.model, K)
-        self.Psi = check_terminal_weights(self.model, Psi)
-        self.alpha, self.nu_bound = check_slack_and_offsets(alpha, nu_bound)
-        self.solver = check_choice("solver", solver, SOLVERS)
         self.iterations = check_int(
             "iterations", iterations, low=1, high=100, what="QP solves per decision"
         )
-        self.osqp_settings = check_osqp_settings(osqp_settings)
-        self.cvxpy_fallback = check_bool("cvxpy_fallback", cvxpy_fallback)
         check_tree_size(self.model, self.steps, self.branching)
         self._check_weight_ratio()
-        model = self.model
-        self.A_tilde = model.A + model.B @ self.K  # eq. (sys:stabilized_input)
-        self.A_tilde.setflags(write=False)
-        self._regions = RegionClasses(model.G)
+        self._regions = RegionClasses(self.model.G)
         self._check_magnitudes()
         #: the families, built when a decision first needs one (within a memory budget)
         self._families = FamilyCache(self._build_family)
-        #: active-set warm start of the OSQP path; False: OSQP at every solve
-        self._warm_start = True
-        #: how many QP solves each path answered
-        self._path_counts: dict[str, int] = {}
 
     # ------------------------------------------------------------------ checks
     def _check_weight_ratio(self) -> None:
@@ -286,7 +252,10 @@ class ScenarioTreeController(TreeSolver, Controller):
         ``A + B K`` overflow); from the nodes' laws, without building the families."""
         for mode in range(self.model.N):
             for inside in (True, False):
-                for name, worst in family_magnitudes(self, mode, inside).items():
+                magnitudes = family_magnitudes(
+                    self.settings, self.steps, self.branching, mode, inside
+                )
+                for name, worst in magnitudes.items():
                     if not worst <= MAX_QP_ENTRY:
                         raise ValueError(
                             f"the scenario tree of mode {mode} with steps = {self.steps} has an "
@@ -298,17 +267,18 @@ class ScenarioTreeController(TreeSolver, Controller):
                         )
 
     def _build_family(self, mode: int, inside: bool) -> TreeFamily:
-        return build_tree_family(self, mode, inside, self._regions)
+        return build_tree_family(
+            self.settings, self.steps, self.branching, mode, inside, self._regions
+        )
 
     # ------------------------------------------------------------------ probabilities
-    def _region_q(self, fam: TreeFamily, x: np.ndarray, k: int, z: np.ndarray | None):
-        """``q`` (S,) of the nodes ``tree.sq`` for the plan ``z`` (None: every ``nu = 0``)."""
-        proj = fam.proj_x @ x
+    def _region_q(self, fam: TreeFamily, ctx: _Context, z: np.ndarray | None):
+        """``q`` (S,) of the nodes ``tree.sq`` for the plan ``z`` (None: every ``nu = 0``) of
+        the decision ``ctx``."""
+        proj = ctx.proj0
         if z is not None:
-            proj = proj + fam.proj_z @ z
-        model = self.model
-        H = model.H0 + (k + fam.q_time)[:, None] * model.H_rate  # H_{k + t}
-        return self._regions.probability(proj.reshape(fam.proj_sd.shape), fam.proj_sd, H)
+            proj = proj + (fam.proj_z @ z).reshape(proj.shape)
+        return self._regions.probability_within(proj, fam.proj_sd, ctx.limits)
 
     def _probabilities(self, fam: TreeFamily, q: np.ndarray) -> _Probabilities:
         tree = fam.tree
@@ -340,32 +310,35 @@ class ScenarioTreeController(TreeSolver, Controller):
         info : dict
             ``"nu"`` (m,) and ``"rho"`` (float): the root's offset and slack; ``"cost"``: the
             optimal value of the tree's QP (every constant included; P3's ``J*`` when
-            ``steps = 1``); ``"status"`` and ``"ok"`` as for
-            :class:`controllers.RecedingHorizonController` (``"solved"``: verified optimal);
-            ``"solver"``: the path of the last solve; ``"in_region"``; ``"plan"``: a
-            :class:`TreePlan`; ``"iterations"``: QP solves; ``"fixed_point_gap"``: the largest
-            change of a region probability that the last solve would cause (0 when the
-            probabilities do not depend on the plan); ``"converged"``: whether that gap is at
-            most :data:`PROB_TOL`. ``"ok"`` is True only for a verified QP answer at a
-            converged fixed point; a verified answer whose fixed point did not converge within
-            ``iterations`` solves has the status ``"unconverged: the last QP was solved ..."``.
+            ``steps = 1``); ``"status"``, ``"notes"`` and ``"ok"`` as for
+            :class:`controllers.RecedingHorizonController` (``"solved"``: verified optimal),
+            plus the statuses ``"unconverged"`` and ``"approximate"`` (see
+            :class:`controllers.Status`); ``"solver"``: the path of the last solve;
+            ``"in_region"``; ``"plan"``: a :class:`TreePlan`; ``"iterations"``: QP solves;
+            ``"fixed_point_gap"``: the largest change of a region probability that the last
+            solve would cause (0 when the probabilities do not depend on the plan);
+            ``"converged"``: whether that gap is at most :data:`PROB_TOL`. ``"ok"`` is True only
+            for a verified QP answer at a converged fixed point; a verified answer whose fixed
+            point did not converge within ``iterations`` solves has the status
+            ``"unconverged"`` (the notes say by how much).
         """
         x, mode, k = self._check_inputs(x, mode, k)
         with self._lock:
             inside = max(self.model.constraint_values_one(x, k).tolist()) <= 0.0
             fam = self._families[(mode, inside)]
             depends = bool(fam.tree.sq.size) and bool(np.any(fam.dP_q))
-            q = self._region_q(fam, x, k, None)  # the plan of nu = 0
+            ctx = self._context(fam, x, k)
+            q = self._region_q(fam, ctx, None)  # the plan of nu = 0
             gap, last_gap, step = 0.0, math.inf, 1.0
             for it in range(1, self.iterations + 1):
                 pr = self._probabilities(fam, q)
-                nu, rho, cost, status, path = self._solve(fam, x, k, pr)
-                counts = self._path_counts
-                counts[path] = counts.get(path, 0) + 1
+                notes: list[str] = []
+                nu, rho, cost, status, path = self._solve(fam, x, k, pr, notes, ctx)
+                self._count(path)
                 if not depends:
                     break
                 z = np.concatenate([nu.ravel(), rho])
-                q_new = self._region_q(fam, x, k, z)
+                q_new = self._region_q(fam, ctx, z)
                 gap = float(np.max(np.abs(q_new - q)))
                 if gap <= PROB_TOL or it == self.iterations:
                     break
@@ -376,14 +349,12 @@ class ScenarioTreeController(TreeSolver, Controller):
             if cost is None:
                 cost = self._objective(fam, x, nu, rho, pr)
             plan = self._plan(fam, x, k, pr, nu, rho)
-        ok = status == "solved" or status.startswith("solved ")
         converged = gap <= PROB_TOL
-        if ok and not converged:  # the QP is solved, but not at the fixed point
-            ok = False
-            status = (
-                f"unconverged: the last QP was {status}, but a region probability still moves "
-                f"by {gap:.2g} > PROB_TOL = {PROB_TOL:g} after {it} solves (iterations = "
-                f"{self.iterations})"
+        if status is Status.SOLVED and not converged:  # the QP is solved, not the fixed point
+            status = Status.UNCONVERGED
+            notes.append(
+                f"the last QP was solved, but a region probability still moves by {gap:.2g} > "
+                f"PROB_TOL = {PROB_TOL:g} after {it} solves (iterations = {self.iterations})"
             )
         m = self.model.m
         u = self.K[mode] @ x + nu[0]  # eq. (eq:stabilization_input)
@@ -392,7 +363,8 @@ class ScenarioTreeController(TreeSolver, Controller):
             "rho": float(rho[0]),
             "cost": float(cost),
             "status": status,
-            "ok": ok,
+            "notes": "; ".join(notes),
+            "ok": status is Status.SOLVED,
             "solver": path,
             "in_region": bool(inside),
             "plan": plan,
@@ -405,22 +377,11 @@ class ScenarioTreeController(TreeSolver, Controller):
     def act_batch(
         self, x: np.ndarray, mode: np.ndarray, k: np.ndarray | int
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """:meth:`act` for each state of a batch (a loop; see
-        :meth:`controllers.base.Controller.act_batch` for the shapes). An empty batch gives
-        empty arrays: ``u`` (0, m), ``"nu"`` (0, m), ``"rho"``, ``"cost"``, ``"status"`` and
-        ``"ok"`` (0,)."""
+        """:meth:`act` for each state of a batch (a loop). Returns ``u`` (B, m) and the arrays
+        ``"nu"`` (B, m), ``"rho"``, ``"cost"``, ``"status"``, ``"notes"``, ``"ok"`` (B,); an
+        empty batch gives empty arrays."""
         x, mode, k = self._check_batch_inputs(x, mode, k)
-        if x.shape[0]:
-            return super().act_batch(x, mode, k)
-        m = self.model.m
-        info = {
-            "nu": np.zeros((0, m)),
-            "rho": np.zeros(0),
-            "cost": np.zeros(0),
-            "status": np.zeros(0, dtype=object),
-            "ok": np.zeros(0, dtype=bool),
-        }
-        return np.zeros((0, m)), info
+        return self._act_each(x, mode, k)
 
     def _plan(self, fam: TreeFamily, x, k, pr: _Probabilities, nu, rho) -> TreePlan:
         M, n = fam.size, self.model.n

@@ -52,6 +52,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy import special, stats
 
+from .horizon import HorizonSettings
 from .tree_qp import OSQP_MAX_VARIABLES, TreeQP
 from .tree_region import RegionClasses
 
@@ -80,6 +81,17 @@ MAX_FAMILY_FLOATS = 8_000_000
 #: needs it). Each family's engine also caches active-set factors (at most
 #: :data:`controllers.tree_qp.FACTOR_CACHE_FLOATS`) and DAQP's scaled rows.
 FAMILY_BUDGET_FLOATS = 32_000_000
+
+
+#: Matrices of a family with at most this many entries are kept dense (see TreeFamily.Lz).
+DENSE_FLOATS = 200_000
+
+
+def _compact(M: Any) -> Any:
+    """``M`` dense (read-only) when it has at most :data:`DENSE_FLOATS` entries, else CSR."""
+    if M.shape[0] * M.shape[1] <= DENSE_FLOATS:
+        return _frozen(M.toarray() if sp.issparse(M) else M)
+    return sp.csr_matrix(M)
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -299,9 +311,11 @@ class TreeFamily:
     cov_next: np.ndarray  # (M, n, n) covariance of each node's next state
     tightening: np.ndarray  # (M, r)
     Lx: np.ndarray  # (R, n)
-    Lz: sp.csr_matrix  # (R, d) sparse: a node's rows involve the offsets of its ancestors only
-    LzT: sp.csr_matrix  # (d, R)
-    P_stack: sp.csr_matrix  # (d * d, sources): the Hessian is (P_stack @ v).reshape(d, d)
+    # sparse beyond DENSE_FLOATS (a node's rows involve the offsets of its ancestors only),
+    # dense below (scipy.sparse's product costs more than a small dense one)
+    Lz: Any  # (R, d)
+    LzT: Any  # (d, R)
+    P_stack: Any  # (d * d, sources): the Hessian is (P_stack @ v).reshape(d, d)
     row_source: np.ndarray  # (R,) index of each row's weight in [w (M); w_last b_last (M_last N)]
     stage_trace: np.ndarray  # (M,) tr((Q + K'RK) Sigma_i)
     term_trace: np.ndarray  # (M_last, N) tr(Psi_j next Sigma_i)
@@ -334,17 +348,18 @@ class _NodeLaws:
     S: np.ndarray  # (M, m, d) selects nu_i
 
 
-def _node_laws(ctrl: Any, mode: int, inside: bool) -> _NodeLaws:
+def _node_laws(
+    s: HorizonSettings, steps: int, branching: int, mode: int, inside: bool
+) -> _NodeLaws:
     """The tree of the family ``(mode, inside)`` and its nodes' laws (small: ``M n (n + d)``)."""
-    model = ctrl.model
+    model = s.model
     n, m, r, p = model.n, model.m, model.r, model.p
-    steps, branching = ctrl.steps, ctrl.branching
     P_row = (model.P_in if inside else model.P_out)[mode]  # eq. (eq:p_tran)
     support = (model.P_in + model.P_out) > 0.0
     tree = build_tree(P_row > 0.0, support, mode, steps, branching)
     M, modes, parent = tree.size, tree.mode, tree.parent
     d = M * (m + 1)
-    At, B = ctrl.A_tilde, model.B
+    At, B = s.A_tilde, model.B
     noise = model.noise_cov
     # node means (affine in x, z) and covariances, parents before children
     Mx = np.zeros((M, n, n))
@@ -367,38 +382,40 @@ def _node_laws(ctrl: Any, mode: int, inside: bool) -> _NodeLaws:
         cov_next = 0.5 * (cov_next + cov_next.transpose(0, 2, 1))
         # tightening of each node's chance rows with its next covariance (section 4)
         std = np.sqrt(np.clip(np.einsum("jn,inm,jm->ij", model.G, cov_next, model.G), 0.0, None))
-        if ctrl.constraint == "individual":
-            tight = special.ndtri(ctrl.xi) * std  # eq. (constraint:det_univariate)
-        elif ctrl.constraint == "bonferroni":
-            tight = special.ndtri(1.0 - (1.0 - ctrl.xi) / r) * std
+        if s.constraint == "individual":
+            tight = special.ndtri(s.xi) * std  # eq. (constraint:det_univariate)
+        elif s.constraint == "bonferroni":
+            tight = special.ndtri(1.0 - (1.0 - s.xi) / r) * std
         else:  # eq. (constraint:chi_square): an ellipsoid of the noise driving the next state
             dof = np.minimum(p * (tree.stage + 1), max(n, p))  # p at the root (section 4)
-            tight = np.sqrt(stats.chi2.ppf(ctrl.xi, df=dof))[:, None] * std
-        if ctrl.constraint == "joint":  # at the root exactly controllers.chance.tightening
+            tight = np.sqrt(stats.chi2.ppf(s.xi, df=dof))[:, None] * std
+        if s.constraint == "joint":  # at the root exactly controllers.chance.tightening
             root = np.einsum("jn,np,pq->jq", model.G, model.E[mode], model.W_sqrt)
-            tight[0] = math.sqrt(stats.chi2.ppf(ctrl.xi, df=p)) * np.linalg.norm(root, axis=-1)
+            tight[0] = math.sqrt(stats.chi2.ppf(s.xi, df=p)) * np.linalg.norm(root, axis=-1)
     return _NodeLaws(tree, P_row, Mx, Mz, cov, next_x, next_z, cov_next, tight, S)
 
 
-def _weight_roots(ctrl: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _weight_roots(s: HorizonSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(FQ, FR, FPsi)``: square roots ``F'F`` of the weights ``Q_i``, ``R_i``, ``Psi_i``."""
-    model = ctrl.model
+    model = s.model
     FQ = np.array([_sqrt_psd(Qi) for Qi in model.Q])
     FR = np.array([_sqrt_psd(Ri) for Ri in model.R])
-    FPsi = np.array([_sqrt_psd(Pi) for Pi in ctrl.Psi])
+    FPsi = np.array([_sqrt_psd(Pi) for Pi in s.Psi])
     return FQ, FR, FPsi
 
 
-def family_magnitudes(ctrl: Any, mode: int, inside: bool) -> dict[str, float]:
+def family_magnitudes(
+    s: HorizonSettings, steps: int, branching: int, mode: int, inside: bool
+) -> dict[str, float]:
     """The largest magnitude of every matrix of the family ``(mode, inside)`` that
     :class:`TreeFamily` holds as ``Lx``, ``Lz``, ``chance_x``, ``cov_next``, ``tightening`` and
     ``term_trace`` (NaN or inf when they overflow), computed from the nodes' laws without
     building the family's large matrices."""
-    model = ctrl.model
-    law = _node_laws(ctrl, mode, inside)
+    model = s.model
+    law = _node_laws(s, steps, branching, mode, inside)
     modes, last = law.tree.mode, law.tree.last
-    FQ, FR, FPsi = _weight_roots(ctrl)
-    K = ctrl.K
+    FQ, FR, FPsi = _weight_roots(s)
+    K = s.K
     top = lambda a: float(np.max(np.abs(a))) if a.size else 0.0  # noqa: E731 (NaN propagates)
     with np.errstate(over="ignore", invalid="ignore"):
         FRK = FR[modes] @ K[modes]
@@ -413,27 +430,35 @@ def family_magnitudes(ctrl: Any, mode: int, inside: bool) -> dict[str, float]:
             top(np.einsum("jab,ibc->ijac", FPsi, law.next_z[last])),
         )
         chance_x = top(np.einsum("jn,ink->ijk", model.G, law.next_x))
-        term = top(np.einsum("jab,iba->ij", ctrl.Psi, law.cov_next[last]))
+        term = top(np.einsum("jab,iba->ij", s.Psi, law.cov_next[last]))
     out = {"Lx": lx, "Lz": lz, "chance_x": chance_x, "cov_next": top(law.cov_next)}
     out.update(tightening=top(law.tight), term_trace=term)
     return {k: (v if math.isfinite(v) else math.inf) for k, v in out.items()}
 
 
-def build_tree_family(ctrl: Any, mode: int, inside: bool, regions: RegionClasses) -> TreeFamily:
-    """The family ``(mode, inside)`` of a :class:`controllers.ScenarioTreeController`."""
-    model = ctrl.model
+def build_tree_family(
+    s: HorizonSettings,
+    steps: int,
+    branching: int,
+    mode: int,
+    inside: bool,
+    regions: RegionClasses,
+) -> TreeFamily:
+    """The family ``(mode, inside)`` of a :class:`controllers.ScenarioTreeController` with the
+    checked parameters ``s``, ``steps`` and ``branching``."""
+    model = s.model
     N, n, m, r = model.N, model.n, model.m, model.r
-    law = _node_laws(ctrl, mode, inside)
+    law = _node_laws(s, steps, branching, mode, inside)
     tree, P_row = law.tree, law.P_row
     M, modes = tree.size, tree.mode
     d = M * (m + 1)
-    K = ctrl.K
+    K = s.K
     Mx, Mz, cov, next_x, next_z, S = law.Mx, law.Mz, law.cov, law.next_x, law.next_z, law.S
     cov_next, tight = law.cov_next, law.tight
-    At_n, B_n = ctrl.A_tilde[modes], model.B[modes]
+    At_n, B_n = s.A_tilde[modes], model.B[modes]
     with np.errstate(over="ignore", invalid="ignore"):  # magnitudes were checked by the caller
         # the weighted rows of the objective
-        FQ, FR, FPsi = _weight_roots(ctrl)
+        FQ, FR, FPsi = _weight_roots(s)
         rows_x, rows_z, source = [], [], []
         for i in range(M):
             th = modes[i]
@@ -449,7 +474,7 @@ def build_tree_family(ctrl: Any, mode: int, inside: bool, regions: RegionClasses
         P_stack = _hessian_stack(Lz, np.array(source), M + tree.last.size * N)
         QKRK = model.Q[modes] + K[modes].transpose(0, 2, 1) @ model.R[modes] @ K[modes]
         stage_trace = np.einsum("iab,iba->i", QKRK, cov)
-        term_trace = np.einsum("jab,iba->ij", ctrl.Psi, cov_next[tree.last])
+        term_trace = np.einsum("jab,iba->ij", s.Psi, cov_next[tree.last])
         # constraints: [chance rows (M r); box (M m); rho (M)]
         GA = model.G @ At_n  # (M, r, n)
         GB = model.G @ B_n  # (M, r, m)
@@ -462,16 +487,17 @@ def build_tree_family(ctrl: Any, mode: int, inside: bool, regions: RegionClasses
     A[M * r + M * m + np.arange(M), M * m + np.arange(M)] = 1.0
     upper = np.concatenate([np.ones(M * r + M * m, bool), np.zeros(M, bool)])
     lower = np.concatenate([np.zeros(M * r, bool), np.ones(M * m + M, bool)])
+    daqp = s.solver != "osqp"  # the cvxpy reference's families solve its rescue's active sets
     engine = TreeQP(
         np.eye(d),
         A,
         lower,
         upper,
-        ctrl.osqp_settings,
-        use_daqp=True,
-        osqp_runs=2 if d <= OSQP_MAX_VARIABLES else 0,
+        s.osqp_settings,
+        use_daqp=daqp,
+        osqp_runs=2 if d <= OSQP_MAX_VARIABLES or not daqp else 0,
     )
-    nb = ctrl.nu_bound
+    nb = s.nu_bound
     h_fixed = np.concatenate([np.full(2 * M * m, nb), np.zeros(M)])
     # a chance row of a node of path probability 0 is made slack for every z: its bound is at
     # least its largest value over the box, |C_nu| nu_bound (its slack is then 0)
@@ -501,9 +527,9 @@ def build_tree_family(ctrl: Any, mode: int, inside: bool, regions: RegionClasses
         cov_next=_frozen(cov_next),
         tightening=_frozen(tight),
         Lx=_frozen(Lx),
-        Lz=sp.csr_matrix(Lz),
-        LzT=sp.csr_matrix(Lz.T),
-        P_stack=P_stack,
+        Lz=_compact(Lz),
+        LzT=_compact(Lz.T),
+        P_stack=_compact(P_stack),
         row_source=np.array(source, dtype=np.int64),
         stage_trace=_frozen(stage_trace),
         term_trace=_frozen(term_trace),

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from .horizon import HorizonSettings
 from .kkt import ActiveSetFactor, active_set_factor, check_active_set
 from .p3 import CLARABEL_SETTINGS
 from .qp import QPFamily, Solution
@@ -81,13 +82,15 @@ class TreeQP(QPFamily):
 
     def _reset_state(self) -> None:
         super()._reset_state()
-        self._factors: OrderedDict[tuple[int, ...], ActiveSetFactor | None] = OrderedDict()
+        self._factors: OrderedDict[tuple, ActiveSetFactor | None] = OrderedDict()
+        self._freed: tuple[bytes, list] | None = None  # see _slack_bounds
+        self._pivot_key = self.pivots.tobytes()
         self._factor_floats = 0
         self._osqp_P: np.ndarray | None = None  # the Hessian the OSQP object holds (None: P)
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
-        for key in ("_factors", "_factor_floats", "_osqp_P"):
+        for key in ("_factors", "_factor_floats", "_osqp_P", "_freed"):
             state.pop(key, None)
         return state
 
@@ -108,6 +111,7 @@ class TreeQP(QPFamily):
         if not self._has_P:
             self._has_P = True
             self.can_enumerate = self._may_enumerate
+        self._pivot_key = self.pivots.tobytes()
 
     def run_osqp(self, w: np.ndarray, retry: bool = False) -> tuple:
         if self._osqp is not None and self._osqp_P is not None:
@@ -117,14 +121,16 @@ class TreeQP(QPFamily):
         return super().run_osqp(w, retry)
 
     def _factor(self, rows: tuple[int, ...]) -> ActiveSetFactor | None:
-        """The active set's factor (:func:`controllers.kkt.active_set_factor`, independent of
-        ``P``; cached within :data:`FACTOR_CACHE_FLOATS`), or None when its rows are dependent."""
+        """The active set's factor (:func:`controllers.kkt.active_set_factor`, a function of the
+        rows and of which variables have no curvature; cached within
+        :data:`FACTOR_CACHE_FLOATS`), or None when its rows are dependent."""
         cache = self._factors
-        if rows in cache:
-            cache.move_to_end(rows)
-            return cache[rows]
-        out = active_set_factor(self.C, rows)
-        cache[rows] = out
+        key = (rows, self._pivot_key)
+        if key in cache:
+            cache.move_to_end(key)
+            return cache[key]
+        out = active_set_factor(self.C, rows, self.pivots)
+        cache[key] = out
         self._factor_floats += 0 if out is None else out.floats
         while self._factor_floats > FACTOR_CACHE_FLOATS and len(cache) > 1:
             _, old = cache.popitem(last=False)
@@ -137,7 +143,7 @@ class TreeQP(QPFamily):
     ) -> list[float] | None:
         """``z`` if the active set ``rows`` gives the optimum of instance ``w``, else None: the
         engine's one KKT test (:func:`controllers.kkt.check_active_set`, the numbers of
-        :meth:`controllers.kkt.ActiveSetMaps.check`) for the one instance. ``report``: see
+        :meth:`controllers.kkt_maps.ActiveSetMaps.check`) for the one instance. ``report``: see
         :func:`controllers.kkt.check_active_set`."""
         if report is not None:
             report.update(add=[], drop=[])
@@ -147,6 +153,61 @@ class TreeQP(QPFamily):
         if fac is None:
             return None
         return check_active_set(fac, self.P, self.C, w, self.absC, report)
+
+    def warm_solve(self, w: np.ndarray) -> Solution | None:
+        """The last active set, then up to :data:`REPAIR_STEPS` primal-dual active-set steps
+        from it (see :meth:`repair`): the probabilities of a fixed-point iteration, or the
+        next state of a closed loop, move the optimum's active set by a few rows, which these
+        steps find at the cost of a few exact solves (a DAQP run on a 111-node tree costs
+        tens of them)."""
+        report: dict = {}
+        out = self.verify(self.warm, w, report)
+        if out is not None:
+            return Solution(out, self.warm, "warm")
+        sol = self.repair(set(self.warm), w, report)
+        return None if sol is None else Solution(sol.z, sol.rows, "repair")
+
+    def repair(self, rows: set[int], w: np.ndarray, report: dict) -> Solution | None:
+        """Up to :data:`REPAIR_STEPS` primal-dual active-set steps from the active set
+        ``rows``, whose KKT test at ``w`` failed with ``report`` (see
+        :func:`controllers.kkt.check_active_set`): the rows whose multipliers are negative leave
+        the set, the violated rows join it (the most violated first, up to ``d`` rows), and the
+        new set is verified. None when no set verifies (or a set repeats)."""
+        seen = {tuple(sorted(rows))}
+        freed = self._slack_bounds()
+        for _ in range(REPAIR_STEPS):
+            if not (report["add"] or report["drop"]):
+                return None
+            kept = rows.difference(report["drop"])
+            add = report["add"][: max((self.d - len(kept)) // 2, 1)]
+            # a violated row joins with its slack free (its bound rho >= 0 leaves the set)
+            rows = kept.union(add).difference(*[freed[i] for i in add])
+            key = tuple(sorted(rows))
+            if key in seen:
+                return None
+            seen.add(key)
+            out = self.verify(key, w, report)
+            if out is not None:
+                return Solution(out, key, "repair")
+        return None
+
+    def _slack_bounds(self) -> list[tuple[int, ...]]:
+        """Per one-sided row, the bound rows on the slacks it involves (variables without
+        curvature, :attr:`pivots`); cached per pattern of slacks."""
+        if self._freed is None or self._freed[0] != self._pivot_key:
+            single = np.count_nonzero(self.C, axis=1) == 1
+            bound_of: dict[int, list[int]] = {}
+            for i in np.flatnonzero(single).tolist():
+                bound_of.setdefault(int(np.flatnonzero(self.C[i])[0]), []).append(i)
+            on = (self.C != 0.0) & self.pivots[None, :]
+            freed = [
+                tuple(b for j in np.flatnonzero(on[i]).tolist() for b in bound_of.get(j, ()))
+                if not single[i]
+                else ()
+                for i in range(self.c)
+            ]
+            self._freed = (self._pivot_key, freed)
+        return self._freed[1]
 
     def local(self, z: np.ndarray, w: np.ndarray, y: np.ndarray | None = None) -> Solution | None:
         """:meth:`QPFamily.local`, then up to :data:`REPAIR_STEPS` primal-dual active-set
@@ -162,19 +223,12 @@ class TreeQP(QPFamily):
         if len(rows) > self.d:
             return None
         report: dict = {}
-        seen: set[tuple[int, ...]] = set()
-        for _ in range(REPAIR_STEPS):
-            key = tuple(sorted(rows))
-            seen.add(key)
-            out = self.verify(key, w, report)
-            if out is not None:
-                return Solution(out, key, "")
-            kept = rows.difference(report["drop"])
-            room = self.d - len(kept)
-            rows = kept.union(report["add"][: max(room, 0)])
-            if not (report["add"] or report["drop"]) or tuple(sorted(rows)) in seen:
-                return None
-        return None
+        key = tuple(sorted(rows))
+        out = self.verify(key, w, report)
+        if out is not None:
+            return Solution(out, key, "")
+        sol = self.repair(rows, w, report)
+        return None if sol is None else Solution(sol.z, sol.rows, "")
 
 
 def solve_condensed_cvxpy(
@@ -208,21 +262,21 @@ def solve_condensed_cvxpy(
     return np.asarray(z.value, dtype=np.float64), np.nan_to_num(y)
 
 
-def solve_tree_cvxpy(ctrl: Any, fam: Any, x: np.ndarray, k: int, pr: Any):
+def solve_tree_cvxpy(s: HorizonSettings, steps: int, fam: Any, x: np.ndarray, k: int, pr: Any):
     """The tree written plainly with cvxpy (node by node, from the model's matrices), solved
     by Clarabel: ``(nu (M, m), rho (M,), value)`` or None."""
     import cvxpy as cp
 
-    model, tree = ctrl.model, fam.tree
+    model, tree = s.model, fam.tree
     M, m, n = tree.size, model.m, model.n
     nu = cp.Variable((M, m))
     rho = cp.Variable(M, nonneg=True)
-    At, B, K = ctrl.A_tilde, model.B, ctrl.K
+    At, B, K = s.A_tilde, model.B, s.K
     noise = model.noise_cov
     means: list[Any] = [None] * M
     covs = [np.zeros((n, n))] * M
     objective = 0.0
-    constraints = [cp.abs(nu) <= ctrl.nu_bound]
+    constraints = [cp.abs(nu) <= s.nu_bound]
     for i in range(M):
         th, a = int(tree.mode[i]), int(tree.parent[i])
         if a < 0:
@@ -240,18 +294,16 @@ def solve_tree_cvxpy(ctrl: Any, fam: Any, x: np.ndarray, k: int, pr: Any):
             + float(np.trace(K[th].T @ model.R[th] @ K[th] @ cov))
         )
         weight = float(pr.weight[i])
-        objective = objective + weight * (stage + ctrl.alpha * rho[i])
+        objective = objective + weight * (stage + s.alpha * rho[i])
         mean_next = At[th] @ mean + B[th] @ nu[i]
         cov_next = At[th] @ cov @ At[th].T + noise[th]
         band = model.H0 + (k + tree.stage[i] + 1) * model.H_rate
         constraints.append(model.G @ mean_next <= band - fam.tightening[i] + rho[i])
-        if tree.stage[i] == ctrl.steps - 1:
+        if tree.stage[i] == steps - 1:
             for j in range(model.N):
                 bj = float(pr.branch[i, j])
                 if bj > 0.0:
-                    term = cp.quad_form(mean_next, ctrl.Psi[j]) + float(
-                        np.trace(ctrl.Psi[j] @ cov_next)
-                    )
+                    term = cp.quad_form(mean_next, s.Psi[j]) + float(np.trace(s.Psi[j] @ cov_next))
                     objective = objective + weight * bj * term
     with warnings.catch_warnings():  # node by node on purpose: the reference stays plain
         warnings.filterwarnings("ignore", "Objective contains too many subexpressions")

@@ -82,21 +82,34 @@ class RegionClasses:
         """``Pr{G x <= H}`` (S,) for ``x ~ N(mean, Sigma)``, given the projections of the mean
         ``mu = mean @ directions.T`` (S, classes), their standard deviations ``sd`` (S, classes)
         and the bounds ``H`` (S, r)."""
+        return self.probability_within(mu, sd, self.limits(H))
+
+    def limits(self, H: np.ndarray) -> tuple:
+        """The interval of each class's projection allowed by the bounds ``H`` (S, r), and
+        whether the rows without a direction hold: what :meth:`probability_within` needs (a
+        function of ``H`` alone, computed once per decision)."""
         S = H.shape[0]
         ext = np.empty((S, H.shape[1] + 2))
         np.multiply(H, self._inv_scale, out=ext[:, :-2])
         ext[:, -2], ext[:, -1] = np.inf, -np.inf
         hi = ext[:, self._up].min(axis=2)  # (S, classes)
         lo = ext[:, self._lo].max(axis=2)
+        zero = np.ones(S, dtype=bool)
+        for j in self.zero_rows.tolist():
+            zero &= H[:, j] >= 0.0
+        return lo, hi, lo <= hi, zero if self.zero_rows.size else None
+
+    def probability_within(self, mu: np.ndarray, sd: np.ndarray, limits: tuple) -> np.ndarray:
+        """:meth:`probability` with the :meth:`limits` of the bounds."""
+        lo, hi, nonempty, zero = limits
         positive = sd > 0.0
         safe = np.where(positive, sd, 1.0)
         a, b = (lo - mu) / safe, (hi - mu) / safe
         # Phi(b) - Phi(a) on the side where both tails are small (no cancellation)
         flip = a > 0.0
         p = special.ndtr(np.where(flip, -a, b)) - special.ndtr(np.where(flip, -b, a))
-        p = np.where(positive, p, (lo <= mu) & (mu <= hi))
-        p = np.where(lo <= hi, np.clip(p, 0.0, 1.0), 0.0)
+        if not positive.all():
+            p = np.where(positive, p, (lo <= mu) & (mu <= hi))
+        p = np.where(nonempty, np.clip(p, 0.0, 1.0), 0.0)
         q = p.prod(axis=1) if p.shape[1] != 1 else p[:, 0]
-        for j in self.zero_rows.tolist():
-            q = q * (H[:, j] >= 0.0)
-        return q
+        return q if zero is None else q * zero

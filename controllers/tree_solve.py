@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .horizon import Status
 from .kkt import KKT_TOL
 from .tree_data import TreeFamily
 from .tree_qp import solve_condensed_cvxpy, solve_tree_cvxpy
@@ -30,7 +31,7 @@ TINY_PROBABILITY = 1e-12
 CONTINUATION_FROM = 1e3
 CONTINUATION_STEP = 1e3
 
-_PATHS = {"warm": "active_set_warm", "osqp": "osqp", "osqp_retry": "osqp_retry"}
+_PATHS = {"warm": "active_set_warm", "repair": "active_set_repair", "enumeration": "active_set"}
 
 
 @dataclass
@@ -44,10 +45,21 @@ class _Probabilities:
     idle: np.ndarray  # (M,) bool: nodes of path probability 0 (left out of the QP)
 
 
+@dataclass
+class _Context:
+    """What one decision computes once: the parts of the QP and of the region probabilities
+    that depend on the state and the time alone (not on the probabilities)."""
+
+    lx: np.ndarray  # (R,) Lx x
+    h_chance: np.ndarray  # (M r,) the chance rows' bounds: band - tightening + chance_x x
+    proj0: np.ndarray  # (S, classes) the projections of the nodes tree.sq's means at nu = 0
+    limits: tuple  # RegionClasses.limits of the bands H_{k + t} of those nodes
+
+
 class TreeSolver:
     """The QP methods of :class:`controllers.ScenarioTreeController` (a mixin: it reads the
-    controller's ``model``, ``alpha``, ``nu_bound``, ``solver``, ``cvxpy_fallback`` and
-    ``_warm_start``)."""
+    controller's ``model``, ``settings``, ``steps``, ``alpha``, ``nu_bound``, ``solver``,
+    ``cvxpy_fallback`` and ``_warm_start``)."""
 
     @staticmethod
     def _row_weights(fam: TreeFamily, pr: _Probabilities) -> tuple[np.ndarray, np.ndarray]:
@@ -57,24 +69,40 @@ class TreeSolver:
         v = np.concatenate([pr.weight, (pr.weight[last, None] * pr.branch[last]).ravel()])
         return v, v[fam.row_source]
 
-    def _qp(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities):
-        """``(P, w)``: the Hessian and the instance ``[q; h]`` of the engine.
+    def _context(self, fam: TreeFamily, x: np.ndarray, k: int) -> _Context:
+        """The :class:`_Context` of a decision at ``(x, k)``."""
+        model = self.model
+        band = model.H0 + (k + fam.chance_time)[:, None] * model.H_rate  # H_{k + t + 1}
+        h_chance = (band - fam.tightening).ravel() + fam.chance_x @ x
+        H = model.H0 + (k + fam.q_time)[:, None] * model.H_rate  # H_{k + t}
+        proj0 = (fam.proj_x @ x).reshape(fam.proj_sd.shape)
+        return _Context(fam.Lx @ x, h_chance, proj0, self._regions.limits(H))
+
+    def _qp(
+        self,
+        fam: TreeFamily,
+        x: np.ndarray,
+        k: int,
+        pr: _Probabilities,
+        ctx: _Context | None = None,
+    ):
+        """``(P, w)``: the Hessian and the instance ``[q; h]`` of the engine (``ctx``: the
+        decision's :class:`_Context` at ``(x, k)``, when the caller has it).
 
         A node of path probability 0 (and its subtree) weighs nothing: its offset and slack
         appear in no other node's cost or rows, so they are decoupled exactly, with unit
         curvature, no linear cost and chance rows made slack for every ``z`` (their optimum is
         then ``nu = rho = 0``; the plan reports their smallest feasible slacks)."""
         M, m, r = fam.size, self.model.m, self.model.r
+        ctx = self._context(fam, x, k) if ctx is None else ctx
         v, wrow = self._row_weights(fam, pr)
         d = fam.engine.d
         P = (fam.P_stack @ v).reshape(d, d)
-        lx = fam.Lx @ x
-        qlin = 2.0 * (fam.LzT @ (wrow * lx))
+        qlin = 2.0 * (fam.LzT @ (wrow * ctx.lx))
         qlin[M * m :] += self.alpha * pr.weight
-        model = self.model
-        band = model.H0 + (k + fam.chance_time)[:, None] * model.H_rate  # H_{k + t + 1}
-        h_chance = (band - fam.tightening).ravel() + fam.chance_x @ x
+        h_chance = ctx.h_chance
         if pr.idle.any():
+            h_chance = h_chance.copy()
             nodes = np.flatnonzero(pr.idle)
             idle = np.concatenate([(nodes[:, None] * m + np.arange(m)).ravel(), M * m + nodes])
             P[idle, :] = 0.0
@@ -118,33 +146,40 @@ class TreeSolver:
         excess = np.where(excess <= KKT_TOL * terms, 0.0, excess)
         return np.maximum(excess.max(axis=1), 0.0)
 
-    def _solve(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities):
+    def _solve(
+        self,
+        fam: TreeFamily,
+        x: np.ndarray,
+        k: int,
+        pr: _Probabilities,
+        notes: list,
+        ctx: _Context | None = None,
+    ):
         """One QP with fixed probabilities: ``(nu (M, m), rho (M,), cost, status, path)``;
-        ``cost`` is None unless a solver reported it (the caller computes the last one only).
-        Whatever path found the answer (the warm active set, DAQP, OSQP, cvxpy), it is called
-        solved only after the engine's KKT test (:mod:`controllers.kkt`)."""
+        ``cost`` is None unless a solver reported it (the caller computes the last one only);
+        ``notes`` receives what failed on the way. Whatever path found the answer (the warm
+        active set, DAQP, OSQP, cvxpy), it is called solved only after the engine's KKT test
+        (:mod:`controllers.kkt`)."""
         M, m = fam.size, self.model.m
-        P, w = self._qp(fam, x, k, pr)
+        P, w = self._qp(fam, x, k, pr, ctx)
         engine = fam.engine
         engine.update_P(P)
-        notes: list[str] = []
         if self.solver == "cvxpy":  # the plain reference, its active set verified
-            out = solve_tree_cvxpy(self, fam, x, k, pr)
+            out = solve_tree_cvxpy(self.settings, self.steps, fam, x, k, pr)
             if out is None:
-                return self._answer(fam, x, k, np.zeros((M, m)), "fallback_nu0: cvxpy failed",
-                                    "fallback")  # fmt: skip
+                notes.append("cvxpy failed")
+                return self._answer(fam, x, k, np.zeros((M, m)), Status.FALLBACK_NU0, "fallback")
             return self._verified(fam, x, k, pr, w, out[0], None, notes, "cvxpy")
         sol = engine.solve(w, warm=self._warm_start, notes=notes)
         if sol is None:
             sol = self._continuation(fam, x, k, pr, notes)
         if sol is not None:
             nu, rho = self._exact(fam, x, k, pr, sol)
-            status = "solved" if not notes else f"solved ({'; '.join(notes)})"
-            return nu, rho, None, status, _PATHS.get(sol.path, sol.path)
+            return nu, rho, None, Status.SOLVED, _PATHS.get(sol.path, sol.path)
         tiny = (pr.path > 0.0) & (pr.path < TINY_PROBABILITY)
         if tiny.any():  # the test cannot resolve their weights: an answer without them
             rough = _Probabilities(pr.q, pr.branch, pr.path, pr.weight, pr.idle | tiny)
-            P2, w2 = self._qp(fam, x, k, rough)
+            P2, w2 = self._qp(fam, x, k, rough, ctx)
             engine.update_P(P2)
             sol = engine.solve(w2, warm=False, notes=[])
             if sol is not None:
@@ -153,8 +188,7 @@ class TreeSolver:
                     f"{int(tiny.sum())} nodes of path probability below {TINY_PROBABILITY:g} "
                     "left out"
                 )
-                status = "approximate: " + "; ".join(notes)
-                return nu, rho, None, status, _PATHS.get(sol.path, sol.path)
+                return nu, rho, None, Status.APPROXIMATE, _PATHS.get(sol.path, sol.path)
             engine.update_P(P)
         if not self.cvxpy_fallback:
             notes.append("cvxpy retry disabled")
@@ -162,11 +196,10 @@ class TreeSolver:
             rescue = solve_condensed_cvxpy(P, w, engine)
             if rescue is not None:
                 z, y = rescue
-                return self._verified(fam, x, k, pr, w, z[: M * m].reshape(M, m), y, notes,
-                                      "cvxpy")  # fmt: skip
+                nu0 = z[: M * m].reshape(M, m)
+                return self._verified(fam, x, k, pr, w, nu0, y, notes, "cvxpy")
             notes.append("cvxpy failed")
-        return self._answer(fam, x, k, np.zeros((M, m)), "fallback_nu0: " + "; ".join(notes),
-                            "fallback")  # fmt: skip
+        return self._answer(fam, x, k, np.zeros((M, m)), Status.FALLBACK_NU0, "fallback")
 
     def _continuation(self, fam: TreeFamily, x: np.ndarray, k: int, pr: _Probabilities, notes):
         """The QP at a huge state by continuation in the state: its data are affine in ``x``
@@ -192,8 +225,7 @@ class TreeSolver:
     def _verified(self, fam, x, k, pr: _Probabilities, w, nu, y, notes: list[str], path: str):
         """The answer of a solver outside the engine (offsets ``nu`` (M, m), multipliers ``y``
         or None): its active set re-solved exactly and verified by the engine's KKT test
-        (then "solved", or "solved by cvxpy (...)" after failures), else "unverified" with its
-        offsets and their smallest feasible slacks."""
+        (then solved), else unverified with its offsets and their smallest feasible slacks."""
         M, m = fam.size, self.model.m
         nu = np.clip(np.asarray(nu, dtype=np.float64).reshape(M, m), -self.nu_bound, self.nu_bound)
         nu[pr.idle] = 0.0
@@ -215,10 +247,9 @@ class TreeSolver:
                 notes.append(f"the {path} answer's active set completed by daqp")
         if sol is None:
             notes.append(f"the {path} answer did not verify")
-            return self._answer(fam, x, k, nu, "unverified: " + "; ".join(notes), path)
+            return self._answer(fam, x, k, nu, Status.UNVERIFIED, path)
         nu, rho = self._exact(fam, x, k, pr, sol)
-        status = "solved" if not notes else f"solved by {path} ({'; '.join(notes)})"
-        return nu, rho, None, status, path
+        return nu, rho, None, Status.SOLVED, path
 
     def _exact(self, fam: TreeFamily, x, k, pr: _Probabilities, sol) -> tuple:
         """``(nu, rho)`` of a verified solution: ``rho = 0`` where the bound ``rho >= 0`` is

@@ -61,7 +61,7 @@ def random_states(model: SDJLSModel, size: int, seed: int, scale: float = 5.0):
 @pytest.mark.parametrize("xi", [0.3, 0.85, 0.97])
 def test_act_batch_equals_act_on_the_example(kind, xi):
     model = sdjls_gym.macro()
-    ctrl = RecedingHorizonController(model, PAPER_K, PAPER_RHC["Psi"], xi, constraint=kind)
+    ctrl = RecedingHorizonController(model, PAPER_K, Psi=PAPER_RHC["Psi"], xi=xi, constraint=kind)
     x, mode, k = random_states(model, 60, seed=int(xi * 100))
     u_b, info_b = ctrl.act_batch(x, mode, k)
     for i in range(len(x)):
@@ -77,7 +77,7 @@ def test_act_batch_equals_act_on_the_example(kind, xi):
 @pytest.mark.parametrize("kind", KINDS)
 def test_act_batch_equals_act_on_random_systems(seed, kind):
     model, K, Psi = random_system(seed)
-    ctrl = RecedingHorizonController(model, K, Psi, 0.9, constraint=kind, nu_bound=2.0)
+    ctrl = RecedingHorizonController(model, K, Psi=Psi, xi=0.9, constraint=kind, nu_bound=2.0)
     x, mode, k = random_states(model, 40, seed=seed + 10)
     u_b, info_b = ctrl.act_batch(x, mode, k)
     for i in range(len(x)):
@@ -91,7 +91,7 @@ def test_act_batch_of_the_other_controllers_equals_act():
     model, K, Psi = random_system(7)
     x, mode, k = random_states(model, 30, seed=3)
     for ctrl in (
-        UnconstrainedRecedingHorizonController(model, K, Psi, nu_bound=1.5),
+        UnconstrainedRecedingHorizonController(model, K, Psi=Psi, nu_bound=1.5),
         LinearFeedbackController(model, K),
         LinearFeedbackController(model, -K),
     ):
@@ -167,7 +167,7 @@ def test_vector_env_with_act_batch_equals_single_env_with_act_on_the_same_noise(
     else:
         model, K, Psi = random_system(5)
         model = SDJLSModel(**{**model.to_dict(), "W": np.eye(model.p)})  # W = I: same draws
-    ctrl = RecedingHorizonController(model, K, Psi, 0.85, nu_bound=100.0)
+    ctrl = RecedingHorizonController(model, K, Psi=Psi, xi=0.85, nu_bound=100.0)
     B, T = 6, 20
     venv = SDJLSVectorEnv(num_envs=B, model=model, horizon=T)
     _, info = venv.reset(seed=0)  # x0 and an int mode0: the reset draws nothing

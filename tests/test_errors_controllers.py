@@ -133,7 +133,7 @@ CASES = [
     case(lambda c: rhc(osqp_settings=3), TypeError, "osqp_settings", 3, "osqp-type"),
     case(lambda c: rhc(cvxpy_fallback="yes"), TypeError, "cvxpy_fallback", "yes", "fallback"),
     case(
-        lambda c: UnconstrainedRecedingHorizonController(macro(), PAPER_K, PSI, alpha=0.0),
+        lambda c: UnconstrainedRecedingHorizonController(macro(), PAPER_K, Psi=PSI, alpha=0.0),
         ValueError,
         "alpha",
         0.0,

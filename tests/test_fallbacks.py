@@ -2,8 +2,9 @@
 
 * The receding-horizon QP: OSQP failures are forced (iteration limit; simulated numerical
   trouble: an exception, a NaN solution, an inaccurate or infeasible status) in ``act`` and in
-  ``act_batch``; the controller retries, falls back to cvxpy, then to ``nu = 0``, says so in
-  ``info["status"]``, and the episode goes on.
+  ``act_batch``, on the OSQP path and on the default path (where DAQP is made to fail first);
+  the controller retries, falls back to cvxpy, then to ``nu = 0``, says so in
+  ``info["status"]`` and ``info["notes"]``, and the episode goes on.
 * The LMIs: infeasible or ill-conditioned Proposition-2 problems, and forced solver statuses,
   give an ``LMIError`` that names the solver and its status; gains are only ever returned verified.
 * Diverging states under poor policies (an RL agent early in training): the env and the vector
@@ -31,6 +32,7 @@ from controllers import (
     verify_mean_square_bound,
 )
 from controllers.active_set import ActiveSetQP
+from controllers.qp import QPFamily
 from sdjls_gym import SDJLSModel, SDJLSVectorEnv
 from sdjls_gym.systems.macro import PAPER_K, PAPER_RHC, macro
 from sdjls_gym.wrappers import ResidualAction, ViolationPenalty
@@ -130,52 +132,79 @@ def no_enumeration(monkeypatch):
     monkeypatch.setattr(ActiveSetQP, "solve_one", lambda self, w: None)
 
 
-def force(monkeypatch, kind: str, failures: float = math.inf) -> dict:
-    """Make OSQP fail the ``kind`` way; returns the controller settings that go with it."""
+#: The fast paths: DAQP finds the active sets (then OSQP), or OSQP alone.
+FAST_PATHS = ["daqp", "osqp"]
+
+#: What the notes say first when DAQP is made to fail (:func:`fail_daqp`).
+DAQP_NOTE = "daqp exit flag -4"
+
+
+def fail_daqp(monkeypatch) -> None:
+    """Make every DAQP run fail (exit flag -4, DAQP's 'iteration limit')."""
+    monkeypatch.setattr(QPFamily, "run_daqp", lambda *args, **kwargs: (None, None, "exit flag -4"))
+
+
+def force(monkeypatch, kind: str, solver: str = "osqp", failures: float = math.inf) -> dict:
+    """Make OSQP fail the ``kind`` way (and DAQP fail first on the ``"daqp"`` path); returns the
+    controller settings that go with it."""
+    if solver == "daqp":
+        fail_daqp(monkeypatch)
     if kind == "max_iter":  # a real failure: OSQP stops after one iteration (10 on the retry)
-        return {"osqp_settings": {"max_iter": 1}}
+        return {"solver": solver, "osqp_settings": {"max_iter": 1}}
     monkeypatch.setattr(osqp.OSQP, "solve", failing_osqp(kind, failures))
-    return {}
+    return {"solver": solver}
 
 
+def first_notes(kind: str, solver: str) -> str:
+    """The start of ``info["notes"]`` when OSQP fails the ``kind`` way on path ``solver``."""
+    return (DAQP_NOTE + "; " if solver == "daqp" else "") + OSQP_NOTE[kind]
+
+
+@pytest.mark.parametrize("solver", FAST_PATHS)
 @pytest.mark.parametrize("kind", list(OSQP_NOTE))
-def test_osqp_failure_in_act_is_solved_exactly_by_the_enumeration(monkeypatch, kind):
-    """OSQP failing in any way does not reach cvxpy or nu = 0 on a family small enough to
-    enumerate: the enumeration answers, exactly (the same bits as a healthy controller)."""
+def test_osqp_failure_in_act_is_solved_exactly_by_the_enumeration(monkeypatch, kind, solver):
+    """OSQP (and DAQP) failing in any way does not reach cvxpy or nu = 0 on a family small
+    enough to enumerate: the enumeration answers, exactly (the same bits as a healthy
+    controller)."""
     healthy = controller()
     expected = [healthy.act(*s)[1] for s in HEALTHY_STATES]
-    ctrl = controller(**force(monkeypatch, kind))
+    ctrl = controller(**force(monkeypatch, kind, solver))
     for state, ref in zip(HEALTHY_STATES, expected, strict=True):
         u, info = ctrl.act(*state)
-        assert info["status"] == f"solved ({OSQP_NOTE[kind]})", info["status"]
+        assert info["status"] == "solved", info["notes"]
+        assert info["notes"] == first_notes(kind, solver)
         assert info["solver"] == "active_set" and info["ok"]
         np.testing.assert_array_equal(info["nu"], ref["nu"])
         assert info["rho"] == ref["rho"] and info["cost"] == ref["cost"]
 
 
+@pytest.mark.parametrize("solver", FAST_PATHS)
 @pytest.mark.parametrize("kind", list(OSQP_NOTE))
-def test_osqp_failure_in_act_is_rescued_by_cvxpy_and_reported(monkeypatch, kind):
+def test_osqp_failure_in_act_is_rescued_by_cvxpy_and_reported(monkeypatch, kind, solver):
     healthy = controller()
     expected = [healthy.act(*s)[1] for s in HEALTHY_STATES]
     no_enumeration(monkeypatch)
-    ctrl = controller(**force(monkeypatch, kind))
+    ctrl = controller(**force(monkeypatch, kind, solver))
     for state, ref in zip(HEALTHY_STATES, expected, strict=True):
         u, info = ctrl.act(*state)
-        assert info["status"].startswith("solved by cvxpy (" + OSQP_NOTE[kind]), info["status"]
-        assert "osqp retry status" in info["status"] and info["solver"] == "cvxpy"
+        assert info["status"] == "solved" and info["solver"] == "cvxpy", info["notes"]
+        assert info["notes"].startswith(first_notes(kind, solver)), info["notes"]
+        assert "osqp retry status" in info["notes"]
         # cvxpy's active set is verified and re-solved exactly
         np.testing.assert_array_equal(info["nu"], ref["nu"])
         assert info["rho"] == ref["rho"] and info["cost"] == ref["cost"] and info["ok"]
 
 
+@pytest.mark.parametrize("solver", FAST_PATHS)
 @pytest.mark.parametrize("kind", list(OSQP_NOTE))
-def test_osqp_failure_without_cvxpy_falls_back_to_nu_zero(monkeypatch, kind):
+def test_osqp_failure_without_cvxpy_falls_back_to_nu_zero(monkeypatch, kind, solver):
     no_enumeration(monkeypatch)
-    ctrl = controller(cvxpy_fallback=False, **force(monkeypatch, kind))
+    ctrl = controller(cvxpy_fallback=False, **force(monkeypatch, kind, solver))
     for x, mode, k in HEALTHY_STATES:
         u, info = ctrl.act(x, mode, k)
-        assert info["status"].startswith("fallback_nu0: " + OSQP_NOTE[kind]), info["status"]
-        assert info["status"].endswith("cvxpy retry disabled") and info["solver"] == "fallback"
+        assert info["status"] == "fallback_nu0" and not info["ok"], info["notes"]
+        assert info["notes"].startswith(first_notes(kind, solver)), info["notes"]
+        assert info["notes"].endswith("cvxpy retry disabled") and info["solver"] == "fallback"
         rho, cost = nu_zero_answer(x, mode, k)
         np.testing.assert_array_equal(info["nu"], [0.0])
         np.testing.assert_allclose(u, PAPER_K[mode] @ np.array(x), rtol=1e-15)
@@ -190,23 +219,25 @@ def test_a_transient_failure_is_retried_then_forgotten(monkeypatch):
     expected = [healthy.act(*s)[1] for s in HEALTHY_STATES]
     no_enumeration(monkeypatch)
     monkeypatch.setattr(osqp.OSQP, "solve", failing_osqp("exception", failures=1))
-    ctrl = controller()
+    ctrl = controller(solver="osqp")
     infos = [ctrl.act(*s)[1] for s in HEALTHY_STATES]
-    assert infos[0]["status"] == (
-        f"solved ({OSQP_NOTE['exception']}; no enumerated active set verified; retried)"
+    assert infos[0]["status"] == "solved"
+    assert infos[0]["notes"] == (
+        f"{OSQP_NOTE['exception']}; no enumerated active set verified; retried"
     )
     assert infos[0]["solver"] == "osqp_retry"
-    assert [i["status"] for i in infos[1:]] == ["solved"] * (len(infos) - 1)
+    assert [(i["status"], i["notes"]) for i in infos[1:]] == [("solved", "")] * (len(infos) - 1)
     for info, ref in zip(infos, expected, strict=True):
         np.testing.assert_allclose(info["nu"], ref["nu"], rtol=0, atol=1e-6)
         assert info["cost"] == pytest.approx(ref["cost"], rel=1e-8)
 
 
-@pytest.mark.parametrize("solver", ["osqp", "cvxpy", "ball"])
+@pytest.mark.parametrize("solver", ["daqp", "osqp", "cvxpy", "ball"])
 def test_every_solver_failing_falls_back_to_nu_zero(monkeypatch, solver):
-    """OSQP and cvxpy both fail (and the SOCP path, nu_set="ball" with m = 2, which only has
-    cvxpy): nu = 0 with the smallest feasible slack, and the status lists every attempt."""
+    """DAQP, OSQP and cvxpy all fail (and the SOCP path, nu_set="ball" with m = 2, which only
+    has cvxpy): nu = 0 with the smallest feasible slack, and the notes list every attempt."""
     no_enumeration(monkeypatch)
+    fail_daqp(monkeypatch)
     monkeypatch.setattr(osqp.OSQP, "solve", failing_osqp("exception"))
     monkeypatch.setattr(cp.Problem, "solve", failing_cvxpy)
     if solver == "ball":
@@ -215,15 +246,17 @@ def test_every_solver_failing_falls_back_to_nu_zero(monkeypatch, solver):
         ctrl = controller(model=model, K=K, nu_set="ball")
     else:
         ctrl = controller(solver=solver)
+    osqp_notes = [OSQP_NOTE["exception"], "osqp retry status", "cvxpy status 'error SolverError"]
     notes = {
-        "osqp": [OSQP_NOTE["exception"], "osqp retry status", "cvxpy status 'error SolverError"],
+        "daqp": [DAQP_NOTE, *osqp_notes],
+        "osqp": osqp_notes,
         "cvxpy": ["cvxpy status 'error SolverError: simulated Clarabel failure'"],
         "ball": ["cvxpy status 'error SolverError: simulated Clarabel failure'"],
     }[solver]
     for x, mode, k in HEALTHY_STATES:
         u, info = ctrl.act(x, mode, k)
-        assert info["status"].startswith("fallback_nu0: ") and info["solver"] == "fallback"
-        assert all(note in info["status"] for note in notes), info["status"]
+        assert info["status"] == "fallback_nu0" and info["solver"] == "fallback"
+        assert all(note in info["notes"] for note in notes), info["notes"]
         np.testing.assert_array_equal(info["nu"], np.zeros(ctrl.model.m))
         rho, cost = nu_zero_answer(x, mode, k)
         assert info["rho"] == pytest.approx(rho, rel=1e-12, abs=1e-12)
@@ -231,10 +264,10 @@ def test_every_solver_failing_falls_back_to_nu_zero(monkeypatch, solver):
             assert info["cost"] == pytest.approx(cost, rel=1e-12)
         assert np.all(np.isfinite(u)) and math.isfinite(info["cost"])
         _, batch = ctrl.act_batch(np.array([x]), np.array([mode]), np.array([k]))
-        if solver == "osqp":  # the batched path solves P3 exactly, without OSQP or cvxpy
+        if solver in FAST_PATHS:  # the batched path solves P3 exactly, without a solver
             assert batch["status"][0] == "solved" and batch["ok"][0]
         else:  # the batched path loops over act
-            assert batch["status"][0].startswith("fallback_nu0: ") and not batch["ok"][0]
+            assert batch["status"][0] == "fallback_nu0" and not batch["ok"][0]
 
 
 @pytest.mark.parametrize("cvxpy_fallback", [True, False])
@@ -251,7 +284,7 @@ def test_failed_steps_do_not_stop_an_episode(monkeypatch, cvxpy_fallback):
             u, cinfo = ctrl.act(info["state"], info["mode"], info["k"])
             obs, reward, terminated, truncated, info = env.step(u)
             rows.append(np.concatenate([u, info["state"], [reward, cinfo["rho"], cinfo["cost"]]]))
-            statuses.append(cinfo["status"])
+            statuses.append((cinfo["status"], cinfo["solver"], cinfo["notes"]))
             if terminated or truncated:
                 break
         assert (terminated, truncated) == (False, True)
@@ -259,14 +292,18 @@ def test_failed_steps_do_not_stop_an_episode(monkeypatch, cvxpy_fallback):
 
     ref, _ = episode(controller())
     no_enumeration(monkeypatch)
-    failing = controller(osqp_settings={"max_iter": 1}, cvxpy_fallback=cvxpy_fallback)
+    failing = controller(
+        solver="osqp", osqp_settings={"max_iter": 1}, cvxpy_fallback=cvxpy_fallback
+    )
     rows, statuses = episode(failing)
     assert rows.shape == ref.shape and np.all(np.isfinite(rows))
+    first = "osqp status 'maximum it"
     if cvxpy_fallback:
-        assert all(s.startswith("solved by cvxpy (osqp status 'maximum it") for s in statuses)
+        assert all((s, p) == ("solved", "cvxpy") and n.startswith(first) for s, p, n in statuses)
         np.testing.assert_allclose(rows[:, 0], ref[:, 0], rtol=0, atol=1e-6)
     else:
-        assert all(s.startswith("fallback_nu0: osqp status 'maximum it") for s in statuses)
+        assert all((s, p) == ("fallback_nu0", "fallback") for s, p, _ in statuses)
+        assert all(n.startswith(first) for _, _, n in statuses)
 
 
 # ----------------------------------------------------------------------------- act_batch
@@ -300,22 +337,25 @@ def test_osqp_failure_inside_act_batch_is_reported_per_instance(monkeypatch, cvx
 
     leave_some_unsettled(monkeypatch)
     no_enumeration(monkeypatch)
-    ctrl = controller(osqp_settings={"max_iter": 1}, cvxpy_fallback=cvxpy_fallback)
+    ctrl = controller(solver="osqp", osqp_settings={"max_iter": 1}, cvxpy_fallback=cvxpy_fallback)
     u, info = ctrl.act_batch(x, mode, k)
     for key in ("nu", "rho", "cost"):
         assert np.all(np.isfinite(info[key])), key
     assert np.all(np.isfinite(u))
-    settled = np.array([s == "solved" for s in info["status"]])
+    pairs = zip(info["status"], info["notes"], strict=True)
+    settled = np.array([s == "solved" and not n for s, n in pairs])
     assert 10 <= settled.sum() <= len(k) - 10  # a mixed batch
     np.testing.assert_allclose(info["nu"][settled], ref["nu"][settled], rtol=0, atol=1e-6)
     failed = ~settled
     if cvxpy_fallback:
-        assert all(s.startswith("solved by cvxpy (osqp status") for s in info["status"][failed])
+        assert all(s == "solved" for s in info["status"][failed])
+        assert all(n.startswith("osqp status") for n in info["notes"][failed])
         np.testing.assert_array_equal(info["ok"], np.ones(len(k), bool))
         np.testing.assert_allclose(info["nu"][failed], ref["nu"][failed], rtol=0, atol=1e-6)
         np.testing.assert_allclose(info["rho"], ref["rho"], rtol=0, atol=1e-6)
     else:
-        assert all(s.startswith("fallback_nu0: osqp status") for s in info["status"][failed])
+        assert all(s == "fallback_nu0" for s in info["status"][failed])
+        assert all(n.startswith("osqp status") for n in info["notes"][failed])
         np.testing.assert_array_equal(info["ok"], settled)
         np.testing.assert_array_equal(info["nu"][failed], 0.0)
         for i in np.flatnonzero(failed):
@@ -329,13 +369,13 @@ def test_failures_inside_act_batch_do_not_stop_the_vector_env(monkeypatch):
     leave_some_unsettled(monkeypatch)
     no_enumeration(monkeypatch)
     monkeypatch.setattr(osqp.OSQP, "solve", failing_osqp("exception"))
-    ctrl = controller(cvxpy_fallback=False)
+    ctrl = controller(solver="osqp", cvxpy_fallback=False)
     envs = SDJLSVectorEnv(32, model="macro")
     _, infos = envs.reset(seed=1)
     fallbacks = 0
     for _ in range(20):
         u, cinfo = ctrl.act_batch(infos["state"], infos["mode"], infos["k"])
-        fallback = np.array([s.startswith("fallback_nu0: ") for s in cinfo["status"]])
+        fallback = np.array([s == "fallback_nu0" for s in cinfo["status"]])
         np.testing.assert_array_equal(cinfo["ok"], ~fallback)
         fallbacks += int(fallback.sum())
         assert np.all(np.isfinite(u)) and np.all(np.isfinite(cinfo["cost"]))

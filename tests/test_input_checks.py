@@ -55,7 +55,7 @@ CONTROLLERS = {
     "rhc": lambda: RecedingHorizonController(macro(), PAPER_K, **PAPER_RHC),
     "rhc-cvxpy": lambda: RecedingHorizonController(macro(), PAPER_K, **PAPER_RHC, solver="cvxpy"),
     "unconstrained": lambda: UnconstrainedRecedingHorizonController(
-        macro(), PAPER_K, PAPER_RHC["Psi"], nu_bound=PAPER_RHC["nu_bound"]
+        macro(), PAPER_K, Psi=PAPER_RHC["Psi"], nu_bound=PAPER_RHC["nu_bound"]
     ),
     "tree": lambda: ScenarioTreeController(macro(), PAPER_K, **PAPER_RHC, steps=2),
 }

@@ -8,10 +8,12 @@ from conftest import UNSHOWN, raises_naming
 
 from controllers.lmi import (
     GainSynthesisResult,
-    MeanSquareCertificate,
     check_proposition2,
-    second_moment_spectral_radius,
     synthesize_gains,
+)
+from controllers.mean_square import (
+    MeanSquareCertificate,
+    second_moment_spectral_radius,
     verify_mean_square_bound,
 )
 from sdjls_gym import SDJLSModel

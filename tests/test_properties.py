@@ -54,7 +54,7 @@ class Problem:
     states: list  # [(x, mode, k)]
 
     def controller(self, **extra) -> RecedingHorizonController:
-        return RecedingHorizonController(self.model, self.K, self.Psi, **self.kw, **extra)
+        return RecedingHorizonController(self.model, self.K, Psi=self.Psi, **self.kw, **extra)
 
 
 def stochastic(rng: np.random.Generator, N: int) -> np.ndarray:

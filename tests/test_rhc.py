@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy import optimize, stats
 
+from controllers import Status
 from controllers.chance import row_satisfaction_probability, tightening
 from controllers.rhc import RecedingHorizonController, UnconstrainedRecedingHorizonController
 from sdjls_gym import SDJLSModel, SDJLSVectorEnv
@@ -76,10 +77,13 @@ def assert_feasible(ctrl, x, mode, k, u, info, tol=1e-7):
 
 
 # ---------------------------------------------------------------------- OSQP against cvxpy
+@pytest.mark.parametrize("solver", ["daqp", "osqp"])
 @pytest.mark.parametrize("constraint", ["individual", "joint", "bonferroni"])
-def test_osqp_matches_cvxpy_on_the_example(constraint):
+def test_fast_path_matches_cvxpy_on_the_example(constraint, solver):
     model = macro()
-    fast = RecedingHorizonController(model, PAPER_K, **PAPER_RHC, constraint=constraint)
+    fast = RecedingHorizonController(
+        model, PAPER_K, **PAPER_RHC, constraint=constraint, solver=solver
+    )
     ref = RecedingHorizonController(
         model, PAPER_K, **PAPER_RHC, constraint=constraint, solver="cvxpy"
     )
@@ -90,7 +94,7 @@ def test_osqp_matches_cvxpy_on_the_example(constraint):
         mode, k = int(rng.integers(3)), int(rng.integers(0, 25))
         u1, i1 = fast.act(x, mode, k)
         u2, i2 = ref.act(x, mode, k)
-        assert i1["status"] == "solved" and i1["solver"] in ("osqp", "active_set_warm")
+        assert i1["status"] == "solved" and i1["solver"] in (solver, "active_set_warm")
         np.testing.assert_allclose(i1["nu"], i2["nu"], rtol=0, atol=1e-6)
         assert i1["rho"] == pytest.approx(i2["rho"], abs=1e-6)
         assert i1["cost"] == pytest.approx(i2["cost"], rel=1e-10, abs=1e-6)
@@ -109,8 +113,8 @@ def test_osqp_matches_cvxpy_on_random_systems(seed):
             alpha=float(rng.uniform(10.0, 1000.0)),
             nu_bound=float(rng.uniform(0.5, 5.0)),
         )
-        fast = RecedingHorizonController(model, K, Psi, **kw)
-        ref = RecedingHorizonController(model, K, Psi, solver="cvxpy", **kw)
+        fast = RecedingHorizonController(model, K, Psi=Psi, **kw)
+        ref = RecedingHorizonController(model, K, Psi=Psi, solver="cvxpy", **kw)
         for _ in range(6):
             x = rng.normal(size=model.n) * rng.uniform(0.1, 3.0)
             mode, k = int(rng.integers(model.N)), int(rng.integers(0, 20))
@@ -129,7 +133,7 @@ def test_random_systems_cover_both_slack_regimes():
     seen = set()
     for seed in range(8):
         rng, model, K, Psi = random_problem(seed)
-        ctrl = RecedingHorizonController(model, K, Psi, xi=0.9, nu_bound=2.0)
+        ctrl = RecedingHorizonController(model, K, Psi=Psi, xi=0.9, nu_bound=2.0)
         for _ in range(10):
             x = rng.normal(size=model.n) * rng.uniform(0.1, 3.0)
             seen.add(ctrl.act(x, int(rng.integers(model.N)), 3)[1]["rho"] > 0)
@@ -188,7 +192,7 @@ def test_cost_is_the_expected_one_step_cost(use_example):
         x, mode, k = np.array([1.0, 3.0]), 1, 4
     else:
         rng, model, K, Psi = random_problem(21)
-        ctrl = RecedingHorizonController(model, K, Psi, xi=0.9, alpha=50.0, nu_bound=3.0)
+        ctrl = RecedingHorizonController(model, K, Psi=Psi, xi=0.9, alpha=50.0, nu_bound=3.0)
         x, mode, k = rng.normal(size=model.n), model.N - 1, 2
     u, info = ctrl.act(x, mode, k)
     rng = np.random.default_rng(99)
@@ -215,7 +219,7 @@ def test_individual_rows_hold_with_probability_xi_when_rho_is_zero(seed):
     else:
         rng, model, K, Psi = random_problem(100 + seed)
         xi = 0.8
-        ctrl = RecedingHorizonController(model, K, Psi, xi=xi, nu_bound=5.0)
+        ctrl = RecedingHorizonController(model, K, Psi=Psi, xi=xi, nu_bound=5.0)
     checked = active = 0
     for _ in range(40):
         x = rng.normal(size=model.n) * rng.uniform(0.1, 3.0)
@@ -268,7 +272,9 @@ def test_all_rows_hold_jointly_on_random_systems(constraint):
         rng, model, K, Psi = random_problem(seed)
         if model.r < 2:
             continue
-        ctrl = RecedingHorizonController(model, K, Psi, xi=xi, constraint=constraint, nu_bound=5.0)
+        ctrl = RecedingHorizonController(
+            model, K, Psi=Psi, xi=xi, constraint=constraint, nu_bound=5.0
+        )
         x = rng.normal(size=model.n) * 0.3
         mode, k = int(rng.integers(model.N)), 1
         u, info = ctrl.act(x, mode, k)
@@ -337,26 +343,59 @@ def test_forced_osqp_failure_is_solved_exactly_by_the_enumeration():
     model = macro()
     normal = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
     failing = RecedingHorizonController(
-        model, PAPER_K, **PAPER_RHC, osqp_settings={"max_iter": 1}, cvxpy_fallback=False
+        model,
+        PAPER_K,
+        **PAPER_RHC,
+        solver="osqp",
+        osqp_settings={"max_iter": 1},
+        cvxpy_fallback=False,
     )
     x = np.array([1.0, 4.0])
     _, i1 = normal.act(x, 2, 3)
     _, i2 = failing.act(x, 2, 3)
     assert i2["solver"] == "active_set" and i2["ok"]
-    assert i2["status"] == "solved (osqp status 'maximum iterations reached')"
+    assert i2["status"] == "solved" and i2["status"] is Status.SOLVED
+    assert i2["notes"] == "osqp status 'maximum iterations reached'"
     np.testing.assert_array_equal(i2["nu"], i1["nu"])
     assert i2["cost"] == i1["cost"] and i2["rho"] == i1["rho"]
+
+
+def test_forced_daqp_failure_goes_to_osqp_then_the_enumeration(monkeypatch):
+    """The default path: DAQP failing (forced) hands over to OSQP, and OSQP failing to the
+    enumeration; the answer is the exact optimum, the notes say what failed."""
+    from controllers.qp import QPFamily
+
+    model = macro()
+    normal = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
+    x = np.array([1.0, 4.0])
+    _, i1 = normal.act(x, 2, 3)
+    monkeypatch.setattr(QPFamily, "run_daqp", lambda *args, **kwargs: (None, None, "exit flag -4"))
+    by_osqp = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
+    _, i2 = by_osqp.act(x, 2, 3)
+    assert i2["solver"] == "osqp" and i2["ok"] and i2["notes"] == "daqp exit flag -4"
+    failing = RecedingHorizonController(model, PAPER_K, **PAPER_RHC, osqp_settings={"max_iter": 1})
+    _, i3 = failing.act(x, 2, 3)
+    assert i3["solver"] == "active_set" and i3["ok"]
+    assert i3["notes"] == "daqp exit flag -4; osqp status 'maximum iterations reached'"
+    for info in (i2, i3):
+        np.testing.assert_array_equal(info["nu"], i1["nu"])
+        assert info["cost"] == i1["cost"] and info["rho"] == i1["rho"]
 
 
 def test_forced_osqp_failure_falls_back_to_nu_zero(monkeypatch):
     _no_enumeration(monkeypatch)
     model = macro()
     ctrl = RecedingHorizonController(
-        model, PAPER_K, **PAPER_RHC, osqp_settings={"max_iter": 1}, cvxpy_fallback=False
+        model,
+        PAPER_K,
+        **PAPER_RHC,
+        solver="osqp",
+        osqp_settings={"max_iter": 1},
+        cvxpy_fallback=False,
     )
     x = np.array([2.0, 2.0])
     u, info = ctrl.act(x, 0, 0)
-    assert "fallback" in info["status"] and "osqp" in info["status"]
+    assert info["status"] == "fallback_nu0" and "osqp" in info["notes"] and not info["ok"]
     assert info["solver"] == "fallback"
     np.testing.assert_array_equal(info["nu"], [0.0])
     np.testing.assert_allclose(u, PAPER_K[0] @ x)
@@ -372,25 +411,31 @@ def test_forced_osqp_failure_is_rescued_by_cvxpy(monkeypatch):
     _no_enumeration(monkeypatch)
     model = macro()
     normal = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
-    rescued = RecedingHorizonController(model, PAPER_K, **PAPER_RHC, osqp_settings={"max_iter": 1})
+    rescued = RecedingHorizonController(
+        model, PAPER_K, **PAPER_RHC, solver="osqp", osqp_settings={"max_iter": 1}
+    )
     x = np.array([1.0, 4.0])
     _, i1 = normal.act(x, 2, 3)
     _, i2 = rescued.act(x, 2, 3)
-    assert "cvxpy" in i2["status"] and "maximum iterations" in i2["status"] and i2["ok"]
+    assert i2["solver"] == "cvxpy" and i2["status"] == "solved" and i2["ok"]
+    assert "maximum iterations" in i2["notes"]
     # cvxpy's active set is re-solved exactly: the same answer as the healthy controller
     np.testing.assert_array_equal(i2["nu"], i1["nu"])
     assert i2["cost"] == i1["cost"]
 
 
-def test_warm_started_families_are_reused():
+@pytest.mark.parametrize("solver", ["daqp", "osqp"])
+def test_warm_started_families_are_reused(solver):
     model = macro()
-    ctrl = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
+    ctrl = RecedingHorizonController(model, PAPER_K, **PAPER_RHC, solver=solver)
     rng = np.random.default_rng(4)
     for _ in range(30):
         ctrl.act(rng.normal(size=2) * 5, int(rng.integers(3)), int(rng.integers(20)))
     engines = [fam.engine for fam in ctrl._families.values()]
     assert len(engines) == 2 * model.N  # one QP family per (mode, in_region)
-    assert any(e._osqp is not None for e in engines)  # set up on first use, then kept
+    # the solver's workspace is set up on first use, then kept
+    workspace = "_daqp_ws" if solver == "daqp" else "_osqp"
+    assert any(getattr(e, workspace) is not None for e in engines)
 
 
 # ---------------------------------------------------------------------- active-set warm start
@@ -429,9 +474,9 @@ def test_warm_start_equals_enumeration_and_cvxpy(case, cls):
     model, K, Psi, kw, scale = warm_start_cases()[case]
     if cls is UnconstrainedRecedingHorizonController:
         kw = {key: kw[key] for key in ("alpha", "nu_bound")}
-    fast = cls(model, K, Psi, **kw)
-    enum = cls(model, K, Psi, **kw, solver="active_set")
-    ref = cls(model, K, Psi, **kw, solver="cvxpy")
+    fast = cls(model, K, Psi=Psi, **kw)
+    enum = cls(model, K, Psi=Psi, **kw, solver="active_set")
+    ref = cls(model, K, Psi=Psi, **kw, solver="cvxpy")
     rng = np.random.default_rng(100 + case)
     paths = []
     for i in range(60):
@@ -448,8 +493,8 @@ def test_warm_start_equals_enumeration_and_cvxpy(case, cls):
         np.testing.assert_allclose(u1, K[mode] @ x + i1["nu"], rtol=0, atol=1e-12)
         assert_feasible(fast, x, mode, k, u1, i1)
         paths.append(i1["solver"])
-    assert "active_set_warm" in paths and "osqp" in paths
-    assert fast._path_counts == {p: paths.count(p) for p in set(paths)}
+    assert "active_set_warm" in paths and "daqp" in paths
+    assert fast.path_counts == {p: paths.count(p) for p in set(paths)}
 
 
 def test_warm_start_answers_most_closed_loop_steps():
@@ -458,7 +503,7 @@ def test_warm_start_answers_most_closed_loop_steps():
     model = macro()
     ctrl = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
     cold = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
-    cold._warm_start = False
+    cold.set_warm_start(False)
     env = SDJLSVectorEnv(16, model=model)
     _, info = env.reset(seed=7)
     for _ in range(20):
@@ -469,15 +514,15 @@ def test_warm_start_answers_most_closed_loop_steps():
             assert_same_answer(i1, i2, 1e-9)
             us.append(u)
         _, _, _, _, info = env.step(np.array(us))
-    counts = ctrl._path_counts
+    counts = ctrl.path_counts
     assert sum(counts.values()) == 16 * 20
     assert counts.get("active_set_warm", 0) > 0.5 * 16 * 20, counts
-    assert "active_set_warm" not in cold._path_counts
+    assert "active_set_warm" not in cold.path_counts
 
 
 def test_a_wrong_remembered_active_set_is_rejected():
     """Whatever active set is remembered for the family, the answer is the optimum: a wrong
-    one fails the KKT test, OSQP decides, and its (right) active set is remembered instead."""
+    one fails the KKT test, DAQP decides, and its (right) active set is remembered instead."""
     model = macro()
     ref = RecedingHorizonController(model, PAPER_K, **PAPER_RHC, solver="cvxpy")
     ctrl = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
@@ -502,7 +547,7 @@ def test_a_wrong_remembered_active_set_is_rejected():
         for wrong in engine.enumeration().active_sets:
             engine.warm = wrong
             _, info = ctrl.act(x, mode, k)
-            assert info["solver"] == ("active_set_warm" if wrong == right else "osqp"), wrong
+            assert info["solver"] == ("active_set_warm" if wrong == right else "daqp"), wrong
             assert engine.warm == right
             np.testing.assert_array_equal(info["nu"], expected["nu"])
             assert info["cost"] == expected["cost"] and info["rho"] == expected["rho"]
@@ -517,7 +562,7 @@ def test_answer_from_a_failed_osqp_identification_comes_from_the_enumeration(mon
     model = macro()
     healthy = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
     monkeypatch.setattr(QPFamily, "local", lambda *args, **kwargs: None)
-    ctrl = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
+    ctrl = RecedingHorizonController(model, PAPER_K, **PAPER_RHC, solver="osqp")
     x = np.array([0.0, 1.0])
     _, info = ctrl.act(x, 1, 5)
     _, expected = healthy.act(x, 1, 5)
@@ -532,13 +577,16 @@ def test_bounds_that_osqp_rejects_are_a_failure_not_the_previous_answer(monkeypa
     answered exactly by the enumeration, and without it go down the fallback chain, never
     return the previous state's solution as "solved"."""
     kw = {**PAPER_RHC, "nu_bound": 1.0}
-    ctrl = RecedingHorizonController(macro(), np.zeros((3, 1, 2)), **kw, cvxpy_fallback=False)
-    ctrl._warm_start = False  # OSQP at every call
+    ctrl = RecedingHorizonController(
+        macro(), np.zeros((3, 1, 2)), **kw, solver="osqp", cvxpy_fallback=False
+    )
+    ctrl.set_warm_start(False)  # OSQP at every call
     assert ctrl.act(np.array([10.0, -10.0]), 1, 3)[1]["solver"] == "osqp"
     _, info = ctrl.act(np.array([1e31, -1e31]), 1, 3)
-    assert info["solver"] == "active_set", info["status"]
-    assert info["status"] == (
-        "solved (osqp status 'error ValueError: bounds rejected by OSQP (l > u after clipping)')"
+    assert info["solver"] == "active_set", info["notes"]
+    assert info["status"] == "solved"
+    assert info["notes"] == (
+        "osqp status 'error ValueError: bounds rejected by OSQP (l > u after clipping)'"
     )
     # with K = 0 the next income's mean is -8.8e31 + nu: nu = +1 moves it towards the band's
     # lower row as far as U allows (the exact rational optimum, tests/exact_p3.py, agrees)
@@ -546,8 +594,13 @@ def test_bounds_that_osqp_rejects_are_a_failure_not_the_previous_answer(monkeypa
     _no_enumeration(monkeypatch)
     ctrl.act(np.array([10.0, -10.0]), 1, 3)
     _, info = ctrl.act(np.array([1e31, -1e31]), 1, 3)
-    assert info["solver"] == "fallback", info["status"]
-    assert info["status"].startswith("fallback_nu0: osqp status 'error ValueError: bounds rejected")
+    assert info["solver"] == "fallback", info["notes"]
+    assert info["status"] == "fallback_nu0"
+    assert info["notes"].startswith("osqp status 'error ValueError: bounds rejected")
+    # the default path answers the same state exactly (DAQP on its regularized objective)
+    default = RecedingHorizonController(macro(), np.zeros((3, 1, 2)), **kw, cvxpy_fallback=False)
+    _, info = default.act(np.array([1e31, -1e31]), 1, 3)
+    assert info["ok"] and info["nu"][0] == 1.0 and info["rho"] > 1e31, info["notes"]
 
 
 def test_fast_input_check_leaves_the_state_alone():
@@ -567,7 +620,9 @@ def test_fast_input_check_leaves_the_state_alone():
 # ---------------------------------------------------------------------- variants
 def test_unconstrained_controller_is_the_clipped_unconstrained_minimiser():
     model = macro()
-    ctrl = UnconstrainedRecedingHorizonController(model, PAPER_K, PAPER_RHC["Psi"], nu_bound=5.0)
+    ctrl = UnconstrainedRecedingHorizonController(
+        model, PAPER_K, Psi=PAPER_RHC["Psi"], nu_bound=5.0
+    )
     rng = np.random.default_rng(6)
     for _ in range(20):
         x, mode, k = rng.normal(size=2) * 8, int(rng.integers(3)), int(rng.integers(20))
@@ -582,7 +637,7 @@ def test_unconstrained_controller_is_the_clipped_unconstrained_minimiser():
         expected = paper_cost(model, PAPER_K, PAPER_RHC["Psi"], 0.0, x, mode, k, info["nu"], 0.0)
         assert info["cost"] == pytest.approx(expected, rel=1e-12)
     ref = UnconstrainedRecedingHorizonController(
-        model, PAPER_K, PAPER_RHC["Psi"], nu_bound=5.0, solver="cvxpy"
+        model, PAPER_K, Psi=PAPER_RHC["Psi"], nu_bound=5.0, solver="cvxpy"
     )
     np.testing.assert_allclose(ref.act(x, mode, k)[1]["nu"], info["nu"], atol=1e-6)
 
@@ -591,9 +646,9 @@ def test_ball_offset_set_with_two_inputs():
     rng, model, K, Psi = random_problem(3)
     while model.m != 2:
         rng, model, K, Psi = random_problem(int(rng.integers(1000, 10**6)))
-    ball = RecedingHorizonController(model, K, Psi, xi=0.9, nu_set="ball", nu_bound=0.3)
+    ball = RecedingHorizonController(model, K, Psi=Psi, xi=0.9, nu_set="ball", nu_bound=0.3)
     ref = RecedingHorizonController(
-        model, K, Psi, xi=0.9, nu_set="ball", nu_bound=0.3, solver="cvxpy"
+        model, K, Psi=Psi, xi=0.9, nu_set="ball", nu_bound=0.3, solver="cvxpy"
     )
     on_boundary = 0
     for _ in range(10):
@@ -605,8 +660,8 @@ def test_ball_offset_set_with_two_inputs():
         on_boundary += abs(np.linalg.norm(info["nu"]) - 0.3) < 1e-6
     assert on_boundary > 0
     # with a bound nothing reaches, the ball and the box give the same answer
-    big_ball = RecedingHorizonController(model, K, Psi, xi=0.9, nu_set="ball", nu_bound=1e4)
-    big_box = RecedingHorizonController(model, K, Psi, xi=0.9, nu_set="box", nu_bound=1e4)
+    big_ball = RecedingHorizonController(model, K, Psi=Psi, xi=0.9, nu_set="ball", nu_bound=1e4)
+    big_box = RecedingHorizonController(model, K, Psi=Psi, xi=0.9, nu_set="box", nu_bound=1e4)
     x = rng.normal(size=model.n)
     np.testing.assert_allclose(
         big_ball.act(x, 0, 1)[1]["nu"], big_box.act(x, 0, 1)[1]["nu"], atol=1e-6
@@ -722,9 +777,9 @@ def test_constructor_rejects_a_non_model():
 
 def test_unconstrained_constructor_validates_too():
     with pytest.raises(ValueError, match=r"Psi\[1\] is not positive definite"):
-        UnconstrainedRecedingHorizonController(macro(), PAPER_K, BAD_PSI)
+        UnconstrainedRecedingHorizonController(macro(), PAPER_K, Psi=BAD_PSI)
     with pytest.raises(ValueError, match=r"nu_bound = 0\.0"):
-        UnconstrainedRecedingHorizonController(macro(), PAPER_K, PAPER_RHC["Psi"], nu_bound=0.0)
+        UnconstrainedRecedingHorizonController(macro(), PAPER_K, Psi=PAPER_RHC["Psi"], nu_bound=0.0)
 
 
 @pytest.mark.parametrize(
@@ -789,4 +844,5 @@ def test_warm_start_answers_equal_the_enumeration_bit_for_bit_along_closed_loops
                 assert np.array_equal(a["nu"], b["nu"]) and a["rho"] == b["rho"], (kind, info)
                 _, _, terminated, truncated, info = env.step(u.astype(np.float32))
                 done = terminated or truncated
-        assert warm._path_counts.get("active_set_warm", 0) > 0.5 * sum(warm._path_counts.values())
+        counts = warm.path_counts
+        assert counts.get("active_set_warm", 0) > 0.5 * sum(counts.values())

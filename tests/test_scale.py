@@ -113,8 +113,8 @@ def test_answers_are_exact_optima_at_every_scale(
     loose = None if log_loose is None else (int(rng.integers(model.r)), 10.0**log_loose)
     model = scaled(model, 10.0**log_scale, loose)
     kw = dict(xi=0.85, constraint=constraint, alpha=10.0**log_alpha, nu_bound=10.0**log_nu_bound)
-    fast = RecedingHorizonController(model, K, Psi, **kw)
-    enum = RecedingHorizonController(model, K, Psi, **kw, solver="active_set")
+    fast = RecedingHorizonController(model, K, Psi=Psi, **kw)
+    enum = RecedingHorizonController(model, K, Psi=Psi, **kw, solver="active_set")
     states = [
         (rng.normal(size=model.n) * 10.0 ** rng.uniform(-2, 2), int(rng.integers(model.N)),
          int(rng.integers(0, 30)))
@@ -275,3 +275,22 @@ def test_pi_in_info_is_read_only():
         first["Pi"][0, 0] = 1e6
     _, again = ctrl.act(x, 0, 0)
     assert again["cost"] == first["cost"]
+
+
+def test_a_slack_penalty_of_1e9_does_not_spoil_the_offsets():
+    """Regression (a hypothesis example): alpha = 1e9, the region in units of 1e7, m = 2. The
+    optimal active set is one band row and rho >= 0 (multipliers 1.1e-7 and 1e9). The exact
+    solve used to mix the penalty into the offsets through a round-off in its null-space basis:
+    nu off by 1.6e-4 and J* by 1.1e-8 relative (every path: they share the solve). The slack's
+    bound is now eliminated exactly: J* to 1e-15."""
+    rng = np.random.default_rng(649329948)
+    model, K, Psi = random_system(rng, 2)
+    model = scaled(model, 1e7)
+    kw = dict(xi=0.85, constraint="individual", alpha=1e9, nu_bound=1.0)
+    x, mode, k = rng.normal(size=model.n) * 10.0 ** rng.uniform(-2, 2), 1, 25
+    for solver in ("daqp", "osqp", "active_set"):
+        ctrl = RecedingHorizonController(model, K, Psi=Psi, **kw, solver=solver)
+        _, info = ctrl.act(x, mode, k)
+        ref = check_answer(ctrl, x, mode, k, info)
+        assert info["cost"] == pytest.approx(ref.J, rel=1e-14), solver
+        np.testing.assert_allclose(info["nu"], ref.nu, rtol=1e-12, atol=0)

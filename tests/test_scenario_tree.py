@@ -72,8 +72,8 @@ def systems() -> st.SearchStrategy:
 
 def qp_solved(info) -> bool:
     """The decision's last QP was verified optimal (``ok``, or a verified QP whose fixed point
-    was left unconverged, e.g. with ``iterations=1``)."""
-    return info["ok"] or info["status"].startswith("unconverged: the last QP was solved")
+    was left unconverged, e.g. with ``iterations=1``: the status "unconverged")."""
+    return info["ok"] or info["status"] == "unconverged"
 
 
 def close(a, b, tol: float) -> bool:
@@ -91,8 +91,8 @@ def tree3():
 @given(systems())
 def test_one_step_tree_is_p3(problem):
     model, K, Psi, kw, states = problem.model, problem.K, problem.Psi, problem.kw, problem.states
-    tree = ScenarioTreeController(model, K, Psi, steps=1, **kw)
-    p3 = RecedingHorizonController(model, K, Psi, **kw)
+    tree = ScenarioTreeController(model, K, Psi=Psi, steps=1, **kw)
+    p3 = RecedingHorizonController(model, K, Psi=Psi, **kw)
     for x, mode, k in states:
         u_t, info_t = tree.act(x, mode, k)
         u_p, info_p = p3.act(x, mode, k)
@@ -162,19 +162,23 @@ def test_fast_path_equals_the_cvxpy_tree(problem, steps, branching):
     interior-point answer fixes it only to about ``sqrt(tolerance / p)`` (and to bounds slowly);
     the cost comparison bounds it instead. Should Clarabel fail on a state, that state is not
     compared (at most one per example); should the fast path return its cvxpy rescue uncertified
-    ("unverified"), that answer is held to 1e-6 instead of 1e-9."""
+    ("unverified"), or an answer without nodes of path probability below
+    ``TINY_PROBABILITY`` ("approximate", only where the plan has such nodes), that answer is
+    held to 1e-6 instead of 1e-9."""
     model, K, Psi, kw, states = problem.model, problem.K, problem.Psi, problem.kw, problem.states
     kw = {**kw, "steps": steps, "branching": branching, "iterations": 1}
     if branching is not None:
         kw["branching"] = min(branching, steps)
-    fast = ScenarioTreeController(model, K, Psi, **kw)
-    ref = ScenarioTreeController(model, K, Psi, solver="cvxpy", **kw)
+    fast = ScenarioTreeController(model, K, Psi=Psi, **kw)
+    ref = ScenarioTreeController(model, K, Psi=Psi, solver="cvxpy", **kw)
     compared = 0
     for x, mode, k in states:
         info_f, info_r = fast.act(x, mode, k)[1], ref.act(x, mode, k)[1]
-        assert qp_solved(info_f) or info_f["status"].startswith("unverified"), info_f["status"]
-        tol = 1e-9 if qp_solved(info_f) else 1e-6
         plan = info_f["plan"]
+        tiny = np.any((plan.probability > 0.0) & (plan.probability < TINY_PROBABILITY))
+        rough = ("unverified", "approximate") if tiny else ("unverified",)
+        assert qp_solved(info_f) or info_f["status"] in rough, info_f["notes"]
+        tol = 1e-9 if qp_solved(info_f) else 1e-6
         J_fast, excess = plan_cost(fast, x, plan.nu, plan.rho, plan)
         assert close(J_fast, info_f["cost"], 1e-9), (J_fast, info_f["cost"])
         assert excess <= tol, excess
@@ -209,7 +213,7 @@ def test_fast_path_equals_the_cvxpy_tree_on_the_macro_example(tree3):
 @given(systems(), st.integers(1, 3))
 def test_first_step_guarantee_whenever_the_root_slack_is_zero(problem, steps):
     model, K, Psi, kw, states = problem.model, problem.K, problem.Psi, problem.kw, problem.states
-    ctrl = ScenarioTreeController(model, K, Psi, steps=steps, **kw)
+    ctrl = ScenarioTreeController(model, K, Psi=Psi, steps=steps, **kw)
     level = kw["xi"] if kw["constraint"] == "individual" else None
     if kw["constraint"] == "bonferroni":
         level = 1.0 - (1.0 - kw["xi"]) / model.r
@@ -309,7 +313,7 @@ def test_covariances_and_tightening_are_propagated():
     K = rng.normal(size=(2, 1, 3)) * 0.3
     Psi = np.array([np.eye(3), 2 * np.eye(3)])
     for kind in KINDS:
-        ctrl = ScenarioTreeController(model, K, Psi, 0.9, steps=3, constraint=kind)
+        ctrl = ScenarioTreeController(model, K, Psi=Psi, xi=0.9, steps=3, constraint=kind)
         plan = ctrl.act(rng.normal(size=3), 0, 1)[1]["plan"]
         At = model.A + model.B @ K
         for i in range(plan.mode.size):  # Sigma_{t+1} = At Sigma_t At' + E W E' of the node's mode
@@ -451,7 +455,7 @@ def test_weights_just_within_the_ratio_are_solved_and_verified(field):
     rng = np.random.default_rng(3)
     for i, x in enumerate(rng.normal(scale=4.0, size=(12, 2))):
         info = ctrl.act(x, i % 3, i)[1]
-        assert info["ok"] and info["status"].startswith("solved"), (i, info["status"])
+        assert info["ok"] and info["status"] == "solved", (i, info["notes"])
 
 
 def test_a_long_unbranched_horizon_is_within_the_limit():
@@ -478,16 +482,16 @@ def test_solver_failures_fall_back_to_cvxpy_then_nu0(monkeypatch):
     kw = {**PAPER_RHC, "steps": 2, "osqp_settings": {"max_iter": 1}}
     ref = ScenarioTreeController(model, PAPER_K, **PAPER_RHC, steps=2)
     ctrl = ScenarioTreeController(model, PAPER_K, **kw)
-    ctrl._warm_start = False
+    ctrl.set_warm_start(False)
     x = np.array([3.0, 8.0])
     _, info = ctrl.act(x, 1, 3)
-    assert info["ok"] and info["status"].startswith("solved by cvxpy"), info["status"]
-    assert info["solver"] == "cvxpy"
+    assert info["ok"] and info["status"] == "solved", info["notes"]
+    assert info["solver"] == "cvxpy" and info["notes"].startswith("daqp exit -4")
     assert close(info["cost"], ref.act(x, 1, 3)[1]["cost"], 1e-8)
     nocvx = ScenarioTreeController(model, PAPER_K, **kw, cvxpy_fallback=False)
-    nocvx._warm_start = False
+    nocvx.set_warm_start(False)
     u, info = nocvx.act(x, 1, 3)
-    assert not info["ok"] and info["status"].startswith("fallback_nu0"), info["status"]
+    assert not info["ok"] and info["status"] == "fallback_nu0", info["notes"]
     assert np.allclose(info["plan"].nu, 0.0) and np.all(np.isfinite(u))
     assert np.isfinite(info["cost"]) and info["rho"] > 0.0  # the smallest feasible slack
     assert np.allclose(u, PAPER_K[1] @ x)
@@ -606,7 +610,7 @@ def test_tree_verify_agrees_with_the_engine_kkt_test():
             if near is not None:
                 candidates.append(near.rows)
             for n_cand, rows in enumerate(candidates):
-                maps = active_set_maps(P, fam.C, rows)
+                maps = active_set_maps(P, fam.C, rows, pivots=fam.pivots)
                 engine = None if maps is None else maps.check(w)
                 mine = fam.verify(rows, w)
                 assert (engine is None) == (mine is None), (trial, rows, engine, mine)
@@ -652,8 +656,8 @@ def test_warm_active_set_with_a_negative_multiplier_is_rejected():
            [[4.818001896836594, 0.4631768443873196], [0.4631768443873196, 1.1501067025997174]]]  # fmt: skip
     kw = {"constraint": "joint", "xi": 0.5429, "alpha": 10.0, "nu_bound": 0.5429}
     kw.update(steps=3, branching=2, iterations=1)
-    fast = ScenarioTreeController(model, K, Psi, **kw)
-    ref = ScenarioTreeController(model, K, Psi, solver="cvxpy", **kw)
+    fast = ScenarioTreeController(model, K, Psi=Psi, **kw)
+    ref = ScenarioTreeController(model, K, Psi=Psi, solver="cvxpy", **kw)
     fast.act([-0.008603393100454774, 0.09180495335981012], 1, 0)  # leaves its warm active set
     x = np.array([0.11016166498851039, -0.14484036067941902])
     info_f, info_r = fast.act(x, 1, 4)[1], ref.act(x, 1, 4)[1]
@@ -694,8 +698,10 @@ def test_a_branch_of_probability_zero_keeps_answers_certified():
         (Path(__file__).parent / "data" / "tree_zero_probability_branch.json").read_text()
     )
     model = SDJLSModel.from_dict(case["model"])
-    fast = ScenarioTreeController(model, case["K"], case["Psi"], **case["kwargs"])
-    ref = ScenarioTreeController(model, case["K"], case["Psi"], solver="cvxpy", **case["kwargs"])
+    fast = ScenarioTreeController(model, case["K"], Psi=case["Psi"], **case["kwargs"])
+    ref = ScenarioTreeController(
+        model, case["K"], Psi=case["Psi"], solver="cvxpy", **case["kwargs"]
+    )
     zero = tiny = 0
     for x, mode, k in case["states"]:
         info_f, info_r = fast.act(x, mode, k)[1], ref.act(x, mode, k)[1]
@@ -704,7 +710,8 @@ def test_a_branch_of_probability_zero_keeps_answers_certified():
         assert np.all(plan.nu[plan.probability == 0.0] == 0.0)
         if np.any((plan.probability > 0.0) & (plan.probability < TINY_PROBABILITY)):
             tiny += 1
-            assert info_f["status"].startswith("approximate: ") and not info_f["ok"]
+            assert info_f["status"] == "approximate" and not info_f["ok"]
+            assert "left out" in info_f["notes"]
             assert close(info_f["cost"], info_r["cost"], 1e-8), (info_f["cost"], info_r["cost"])
         else:
             assert qp_solved(info_f), info_f["status"]

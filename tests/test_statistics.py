@@ -93,7 +93,7 @@ def test_chance_constraints_hold_at_the_stated_frequency():
     model, xi = statistical_model(), 0.9
     K = synthesize_gains(model).K
     ctrl = RecedingHorizonController(
-        model, K, np.array([np.eye(3), 2.0 * np.eye(3)]), xi=xi, alpha=1000.0, nu_bound=50.0
+        model, K, Psi=np.array([np.eye(3), 2.0 * np.eye(3)]), xi=xi, alpha=1000.0, nu_bound=50.0
     )
     envs = SDJLSVectorEnv(5100, model=model, horizon=20, action_bound=1e4)
     _, infos = envs.reset(seed=20240)
@@ -193,7 +193,9 @@ def closed_loop_batch(seed: int, ctrl=None) -> np.ndarray:
     model = statistical_model()
     if ctrl is None:
         K = synthesize_gains(model).K
-        ctrl = RecedingHorizonController(model, K, np.array([np.eye(3)] * 2), xi=0.9, nu_bound=50.0)
+        ctrl = RecedingHorizonController(
+            model, K, Psi=np.array([np.eye(3)] * 2), xi=0.9, nu_bound=50.0
+        )
     envs = SDJLSVectorEnv(64, model=model, horizon=20, action_bound=1e4)
     _, infos = envs.reset(seed=seed)
     out = []
@@ -222,7 +224,7 @@ def test_same_seed_gives_bit_identical_closed_loops():
 def test_reused_batch_controller_gives_bit_identical_closed_loops():
     model = statistical_model()
     ctrl = RecedingHorizonController(
-        model, synthesize_gains(model).K, np.array([np.eye(3)] * 2), xi=0.9, nu_bound=50.0
+        model, synthesize_gains(model).K, Psi=np.array([np.eye(3)] * 2), xi=0.9, nu_bound=50.0
     )
     assert np.array_equal(closed_loop_batch(5, ctrl), closed_loop_batch(5, ctrl))
 

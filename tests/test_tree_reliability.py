@@ -113,7 +113,7 @@ def test_issue_reproducer_reports_the_root_slack_it_needs():
     answer is now the verified optimum, its root slack the LP's bound (the optimum is a vertex
     of U)."""
     model, K, Psi = issue_case()
-    ctrl = ScenarioTreeController(model, K, Psi, 0.8, steps=4, alpha=1e3, nu_bound=10.0)
+    ctrl = ScenarioTreeController(model, K, Psi=Psi, xi=0.8, steps=4, alpha=1e3, nu_bound=10.0)
     x = np.array([0.31, -0.63, -1.43])
     _, info = ctrl.act(x, 0, 1)
     bound, scale = lp_root_slack(model, K, 0.8, x, 0, 1, 10.0)
@@ -169,7 +169,9 @@ def test_root_guarantee_under_unstable_gains():
             np.max(np.abs(np.linalg.eigvals(model.A[i] + model.B[i] @ K[i]))) for i in range(N)
         )
         assert rad > 1.0
-        ctrl = ScenarioTreeController(model, K, Psi, xi, steps=steps, alpha=1e3, nu_bound=nu_bound)
+        ctrl = ScenarioTreeController(
+            model, K, Psi=Psi, xi=xi, steps=steps, alpha=1e3, nu_bound=nu_bound
+        )
         for _ in range(3):
             x = rng.normal(size=3) * 10.0 ** rng.uniform(-1.0, 0.5)
             mode, k = int(rng.integers(N)), int(rng.integers(5))
@@ -243,7 +245,7 @@ def test_a_small_branch_probability_is_weighted_exactly():
         R=[[[1.0]], [[1.0]]], x0=[0.0],
     )  # fmt: skip
     kw = dict(alpha=1e6, nu_bound=10.0, steps=2)
-    ctrl = ScenarioTreeController(model, np.zeros((2, 1, 1)), np.ones((2, 1, 1)), 0.9, **kw)
+    ctrl = ScenarioTreeController(model, np.zeros((2, 1, 1)), Psi=np.ones((2, 1, 1)), xi=0.9, **kw)
     u, info = ctrl.act([0.9], 0, 0)
     wa, wb, alpha = 1.0 - 1e-9, 1e-9, 1e6
     c = 3.0 * wa + 202.0 * wb
@@ -282,7 +284,7 @@ def test_the_answer_does_not_depend_on_earlier_calls():
     alone = [
         ScenarioTreeController(macro(), PAPER_K, **PAPER_RHC, steps=3).act(*s)[1] for s in states
     ]
-    assert sum("continuation" in info["status"] for info in alone) >= 3
+    assert sum("continuation" in info["notes"] for info in alone) >= 3
     shared = ScenarioTreeController(macro(), PAPER_K, **PAPER_RHC, steps=3)
     for order in (range(12), reversed(range(12))):
         for i in order:
@@ -335,7 +337,7 @@ def test_families_are_built_on_first_use_within_a_budget():
     Psi = np.tile(np.eye(4), (12, 1, 1))
     tracemalloc.start()
     try:
-        ctrl = ScenarioTreeController(model, K, Psi, 0.9, steps=3)
+        ctrl = ScenarioTreeController(model, K, Psi=Psi, xi=0.9, steps=3)
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
@@ -373,7 +375,7 @@ def test_no_osqp_on_a_tree_too_large_for_it(monkeypatch):
 
     monkeypatch.setattr(QPFamily, "run_osqp", count_osqp)
     monkeypatch.setattr(QPFamily, "run_daqp", count_daqp)
-    ctrl = ScenarioTreeController(model, K, Psi, 0.9, steps=3)
+    ctrl = ScenarioTreeController(model, K, Psi=Psi, xi=0.9, steps=3)
     rng = np.random.default_rng(0)
     for _ in range(3):
         _, info = ctrl.act(rng.normal(size=4), int(rng.integers(10)), 0)
@@ -381,11 +383,11 @@ def test_no_osqp_on_a_tree_too_large_for_it(monkeypatch):
     assert info["plan"].mode.size * 2 > OSQP_MAX_VARIABLES
     assert runs["osqp"] == 0 and runs["daqp"] >= 1
     monkeypatch.setattr(QPFamily, "run_daqp", lambda *args, **kwargs: (None, None, "exit -4"))
-    ctrl._warm_start = False
+    ctrl.set_warm_start(False)
     _, info = ctrl.act(rng.normal(size=4), 3, 0)
     assert runs["osqp"] == 0
     assert info["solver"] == "cvxpy" and info["ok"], info["status"]
-    assert info["status"].startswith("solved by cvxpy (daqp exit -4")
+    assert info["status"] == "solved" and info["notes"].startswith("daqp exit -4")
 
 
 # ----------------------------------------------------------------------------- fixed point
@@ -421,11 +423,11 @@ def test_an_unconverged_fixed_point_is_reported():
     (ok True) with 30 solves, where the applied offset has moved by more than 1e-4."""
     model, K, Psi, (x, mode, k) = unconverged_case()
     kw = dict(steps=3, alpha=100.0, nu_bound=2.0)
-    _, short = ScenarioTreeController(model, K, Psi, 0.8, **kw).act(x, mode, k)
+    _, short = ScenarioTreeController(model, K, Psi=Psi, xi=0.8, **kw).act(x, mode, k)
     assert short["fixed_point_gap"] > 1e-4 and short["iterations"] == 10
     assert not short["ok"] and not short["converged"]
-    assert short["status"].startswith("unconverged: the last QP was solved")
-    _, full = ScenarioTreeController(model, K, Psi, 0.8, iterations=30, **kw).act(x, mode, k)
+    assert short["status"] == "unconverged" and "still moves" in short["notes"]
+    _, full = ScenarioTreeController(model, K, Psi=Psi, xi=0.8, iterations=30, **kw).act(x, mode, k)
     assert full["ok"] and full["converged"] and full["iterations"] < 30, full["status"]
     assert np.max(np.abs(full["nu"] - short["nu"])) > 1e-4
 
@@ -435,7 +437,7 @@ def test_empty_batches_give_empty_arrays():
     ctrl = ScenarioTreeController(macro(), PAPER_K, **PAPER_RHC, steps=2, horizon=20)
     u, info = ctrl.act_batch(np.zeros((0, 2)), np.zeros(0, dtype=int), np.zeros(0, dtype=int))
     assert u.shape == (0, 1) and info["nu"].shape == (0, 1)
-    for key in ("rho", "cost", "status", "ok"):
+    for key in ("rho", "cost", "status", "notes", "ok"):
         assert info[key].shape == (0,), key
     assert info["ok"].dtype == bool
     actions, state = ctrl.predict(np.zeros((0, 6)))

@@ -1,0 +1,203 @@
+"""The DAQP steps of :class:`controllers.qp.QPFamily` (a mixin), and the verified
+:class:`Solution` every step returns.
+
+DAQP (:mod:`controllers.dual_qp`) finds an active set; it is re-solved exactly and verified by
+:mod:`controllers.kkt` before it is returned. A family with many more one-sided rows than
+variables (a large scenario tree) first gives DAQP a growing subset of its rows
+(:meth:`DaqpSolving._solve_screened`): DAQP's set-up is linear in the rows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .dual_qp import REGULARIZE, DaqpWorkspace, daqp_data, run_daqp
+
+__all__ = [
+    "NEAR_ACTIVE_TOL",
+    "SCREEN_NEAR",
+    "SCREEN_RATIO",
+    "SCREEN_ROUNDS",
+    "DaqpSolving",
+    "Solution",
+]
+
+#: A row whose residual at OSQP's solution is within this fraction of its terms counts as nearly
+#: active (OSQP's polished solutions are accurate to ~1e-10 relative).
+NEAR_ACTIVE_TOL = 1e-6
+
+#: DAQP sees a growing subset of the general rows first (QPFamily._solve_screened) in families
+#: with more one-sided rows than this many per variable, in at most SCREEN_ROUNDS rounds.
+SCREEN_RATIO = 4
+SCREEN_ROUNDS = 8
+
+#: With the violated rows, a round of QPFamily._solve_screened adds the rows within this
+#: fraction of their terms from active at DAQP's answer (fewer rounds).
+SCREEN_NEAR = 0.05
+
+
+@dataclass(frozen=True)
+class Solution:
+    """An exact, verified solution of one instance: ``z`` and its active set ``rows``."""
+
+    z: list[float]
+    rows: tuple[int, ...]
+    path: str  # "warm", "repair", "daqp", "osqp", "osqp_retry", "enumeration"
+
+
+class DaqpSolving:
+    """The DAQP steps of :class:`controllers.qp.QPFamily`: a mixin that reads the family's
+    ``P``, ``A``, ``C``, bounds, caches and :meth:`verify` / :meth:`local`."""
+
+    # set by QPFamily
+    P: np.ndarray
+    A: np.ndarray
+    C: np.ndarray
+    absC: np.ndarray
+    d: int
+    screen: bool
+    _daqp: Any
+    _daqp_ws: Any
+    _daqp_scaling: Any
+    _daqp_simple: bool
+    _fixed_P: bool
+    _general_pos: np.ndarray | None
+    _pool: np.ndarray | None
+    upper_idx: np.ndarray
+    lower_idx: np.ndarray
+
+    def _solve_daqp(
+        self, w: np.ndarray, start: tuple[int, ...] | None, notes: list[str]
+    ) -> Solution | None:
+        """DAQP, then the active set of its answer re-solved exactly and verified: first the
+        rows of its nonzero multipliers, then :meth:`local` around its answer. Attempts: with a
+        fixed Hessian, the family's workspace (warm from its last solve, then cold); else warm
+        started from ``start`` (an active set), then cold; then on regularized objectives."""
+        if self.screen and not self._fixed_P:  # a fixed Hessian keeps DAQP's warm workspace
+            sol = self._solve_screened(w, start)
+            if sol is not None:
+                return sol
+        status = first = ""
+        attempts: list[tuple[tuple[int, ...] | str | None, float, bool]] = []
+        if self._fixed_P:
+            attempts += [(None, 0.0, False), (None, 0.0, True)]
+        else:
+            attempts += [(start, 0.0, False)] if start is not None else []
+            attempts += [(None, 0.0, True)]
+        attempts += [(None, mu, True) for mu in REGULARIZE]
+        if self._daqp_scaling is not None:  # then once more with the scaling of this P
+            attempts.append(("rescale", 0.0, True))
+        for begin, mu, cold in attempts:
+            if begin == "rescale":
+                self._daqp_scaling = self._daqp = None
+                begin = None
+            z, y, status = self.run_daqp(w, begin, mu, cold)
+            if z is not None:
+                rows = self.rows_of_multipliers(y)
+                out = None if rows is None else self.verify(rows, w)
+                if out is not None:
+                    return Solution(out, rows, "daqp")
+                sol = self.local(z, w, y)
+                if sol is not None:
+                    return Solution(sol.z, sol.rows, "daqp")
+                status = "answer did not verify"
+            first = first or status
+        notes.append(f"daqp {first}")
+        return None
+
+    def run_daqp(
+        self,
+        w: np.ndarray,
+        start: tuple[int, ...] | None = None,
+        regularize: float = 0.0,
+        cold: bool = False,
+        subset: np.ndarray | None = None,
+    ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+        """DAQP on instance ``w`` (:mod:`controllers.dual_qp`): ``(z, y, status)``, ``z = y =
+        None`` on failure. A family whose Hessian has kept its first value solves in its
+        workspace (warm from its last solve unless ``cold``); otherwise, or with a ``start``
+        (an active set), a ``regularize`` term or a ``subset`` of the general rows of ``A``
+        (sorted positions among them; see :meth:`_solve_screened`), DAQP is set up for this
+        one solve."""
+        if self._daqp is None:
+            self._daqp = daqp_data(self.P, self.A, self._daqp_simple, self._daqp_scaling)
+        lo, hi = self.bounds(np.asarray(w[self.d :]))
+        q = np.asarray(w[: self.d])
+        if self._fixed_P and start is None and not regularize and subset is None:
+            if self._daqp_ws is None:
+                self._daqp_ws = DaqpWorkspace(self._daqp)
+            return self._daqp_ws.solve(q, lo, hi, cold)
+        nu = self.upper_idx.size
+        begin = None
+        if start is not None:
+            begin = [
+                (int(self.upper_idx[i]), False) if i < nu else (int(self.lower_idx[i - nu]), True)
+                for i in start
+            ]
+        return run_daqp(self._daqp, q, lo, hi, begin, regularize, subset)
+
+    def _solve_screened(self, w: np.ndarray, start: tuple[int, ...] | None) -> Solution | None:
+        """DAQP on a subset of the general rows, grown until no row it omits is violated: for
+        a family with many more rows than variables (a tree of 111 nodes has 2220 chance rows
+        and 222 variables) DAQP's set-up, linear in the rows, dominates its run. The subset
+        starts with the rows of the family's last screened solve, the general rows of ``start``
+        and the rows violated at the solution of that active set; each round adds every omitted row violated at DAQP's answer and starts
+        DAQP from its last working set. When none is violated, DAQP's answer is the optimum of
+        the whole QP, and the active set of its multipliers is verified as usual. None when a
+        round fails or after :data:`SCREEN_ROUNDS` rounds. Used only while the Hessian changes
+        (a fixed one keeps DAQP's warm workspace, which sees every row)."""
+        general = self._daqp_general_rows()
+        n_up = self.upper_idx.size
+        # the rows DAQP needed at the family's last screened solve, a good start nearby
+        take = np.zeros(general.size, dtype=bool) if self._pool is None else self._pool.copy()
+        if start is not None:
+            report: dict = {}
+            self.verify(start, w, report)
+            rows = set(start) | set(report.get("add", ()))
+            for i in rows:
+                a = self.upper_idx[i] if i < n_up else self.lower_idx[i - n_up]
+                take[self._general_pos[a]] = self._general_pos[a] >= 0
+        h = np.asarray(w[self.d :])
+        begin = start
+        for _ in range(SCREEN_ROUNDS):
+            subset = np.flatnonzero(take)
+            z, y, _ = self.run_daqp(w, begin, 0.0, False, subset)
+            if z is None:
+                return None
+            slack = h - self.C @ z
+            terms = self.absC @ np.abs(z) + np.abs(h)
+            violated = slack < -NEAR_ACTIVE_TOL * terms
+            new = np.zeros(general.size, dtype=bool)
+            if violated.any():  # the violated rows, and those nearly active, join
+                violated |= slack < SCREEN_NEAR * terms
+            for i in np.flatnonzero(violated).tolist():
+                a = self.upper_idx[i] if i < n_up else self.lower_idx[i - n_up]
+                pos = self._general_pos[a]
+                if pos >= 0 and not take[pos]:
+                    new[pos] = True
+            rows = self.rows_of_multipliers(y)
+            if not new.any():
+                self._pool = take
+                out = None if rows is None else self.verify(rows, w)
+                if out is not None:
+                    return Solution(out, rows, "daqp")
+                sol = self.local(z, w, y)
+                return None if sol is None else Solution(sol.z, sol.rows, "daqp")
+            take |= new
+            begin = rows
+        return None
+
+    def _daqp_general_rows(self) -> np.ndarray:
+        """The rows of ``A`` DAQP takes as general constraints (the others are its simple
+        bounds); :attr:`_general_pos` maps a row of ``A`` to its position among them (-1)."""
+        if self._daqp is None:
+            self._daqp = daqp_data(self.P, self.A, self._daqp_simple, self._daqp_scaling)
+        general = self._daqp.general
+        if self._general_pos is None:
+            pos = np.full(self.A.shape[0], -1, dtype=np.int64)
+            pos[general] = np.arange(general.size)
+            self._general_pos = pos
+        return general
