@@ -47,26 +47,14 @@ import gymnasium as gym
 import numpy as np
 
 import sdjls_gym
+from benchmarks.speed_references import CvxpyParametric, DaqpFloor, P3Data
+from benchmarks.speed_report import TARGETS, write_markdown
 from benchmarks.versions import package_versions
-from controllers import RecedingHorizonController, ScenarioTreeController, tightening
-from controllers.dual_qp import DaqpWorkspace, daqp_data
+from controllers import RecedingHorizonController, ScenarioTreeController
 from controllers.scenario_tree import PROB_TOL
 from sdjls_gym import SDJLSModel, SDJLSVectorEnv
 from sdjls_gym.systems.macro import PAPER_K, PAPER_RHC
 from sdjls_gym.systems.random_system import random_task
-
-TARGETS = {
-    "env_step_ratio_max": 1.5,
-    "act_speedup_vs_cvxpy_rebuild_min": 200.0,
-    "batched_steps_per_second_min": 1_000_000.0,
-    "batched_speedup_vs_loop_min": 50.0,
-    "tree_steps3_speedup_vs_cvxpy_min": 50.0,
-    "act_vs_daqp_floor_max": 3.0,
-    "act_batch_vs_act_max": 1.0,
-    "tree_steps3_vs_act_max": 15.0,
-    "large_tree_ms_max": 50.0,
-    "agreement_tol": 1e-6,
-}
 
 
 def median_time(
@@ -111,106 +99,6 @@ def env_step_time(env_id: str, episodes: int, repeats: int) -> float:
 
     block()
     return statistics.median(block() for _ in range(repeats))
-
-
-class P3Data:
-    """Problem P3 of a receding-horizon controller, written here from the model and the
-    controller's parameters (public data only): for each (mode, x_k in C1) the QP in
-    ``z = (nu, rho)``, ``min nu'H_nu nu + g'nu + alpha rho`` s.t. ``G B nu - rho <= H_{k+1} - t
-    - G Atilde x``, ``|nu_i| <= nu_bound``, ``rho >= 0`` (individual chance rows, box set)."""
-
-    def __init__(self, model: SDJLSModel, K: np.ndarray, params: dict[str, Any]) -> None:
-        self.model, self.K = model, np.asarray(K, dtype=float)
-        self.Psi = np.asarray(params["Psi"], dtype=float)
-        self.alpha, self.nu_bound = float(params["alpha"]), float(params["nu_bound"])
-        self.tight = tightening(model, float(params["xi"]), params.get("constraint", "individual"))
-        self._fams: dict[tuple[int, bool], dict[str, Any]] = {}
-
-    def family(self, mode: int, inside: bool) -> dict[str, Any]:
-        key = (mode, inside)
-        if key not in self._fams:
-            model, m, r = self.model, self.model.m, self.model.r
-            Pi = np.einsum("j,jab->ab", (model.P_in if inside else model.P_out)[mode], self.Psi)
-            B, R, K = model.B[mode], model.R[mode], self.K[mode]
-            At = model.A[mode] + B @ K
-            H_nu = R + B.T @ Pi @ B
-            P = np.zeros((m + 1, m + 1))
-            P[:m, :m] = H_nu + H_nu.T  # 1/2 z'Pz = nu'H_nu nu
-            GB = model.G @ B
-            A = np.vstack(
-                [np.hstack([GB, -np.ones((r, 1))]), np.eye(m + 1)]
-            )  # chance rows, then the identity (DAQP's simple bounds)
-            self._fams[key] = {
-                "P": P,
-                "A": A,
-                "H_nu": H_nu,
-                "GB": GB,
-                "grad": 2.0 * (R @ K + B.T @ Pi @ At),
-                "GA": model.G @ At,
-                "K": K,
-                "tight": self.tight[mode],
-                "lo": np.concatenate([np.full(r, -np.inf), np.full(m, -self.nu_bound), [0.0]]),
-                "hi": np.concatenate([np.zeros(r), np.full(m, self.nu_bound), [np.inf]]),
-            }
-        return self._fams[key]
-
-    def instance(self, x: np.ndarray, mode: int, k: int):
-        """``(family, q, lo, hi)`` of the state: two matrix-vector products."""
-        fam = self.family(mode, bool(self.model.in_region(x, k)))
-        q = np.append(fam["grad"] @ x, self.alpha)
-        hi = fam["hi"].copy()
-        hi[: self.model.r] = self.model.H(k + 1) - fam["tight"] - fam["GA"] @ x
-        return fam, q, fam["lo"], hi
-
-
-class DaqpFloor:
-    """The dense active-set floor of the issue: P3 of :class:`P3Data` solved by DAQP, with
-    everything that depends only on (mode, region) built once (DAQP's scaled data and its
-    workspace, warm from its last working set); per call two matrix-vector products and one
-    DAQP solve, no verification."""
-
-    def __init__(self, p3: P3Data) -> None:
-        self.p3 = p3
-        self._ws: dict[int, DaqpWorkspace] = {}
-
-    def solve(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, bool]:
-        """``(u, active)``: the input and whether a chance row or the box is active."""
-        fam, q, lo, hi = self.p3.instance(x, mode, k)
-        ws = self._ws.get(id(fam))
-        if ws is None:
-            ws = self._ws[id(fam)] = DaqpWorkspace(daqp_data(fam["P"], fam["A"], True))
-        z, y, status = ws.solve(q, lo, hi)
-        if z is None:
-            raise RuntimeError(f"DAQP failed on the floor's P3: {status}")
-        m, r = self.p3.model.m, self.p3.model.r
-        return fam["K"] @ x + z[:m], bool(np.any(y[: r + m] != 0.0))
-
-
-class CvxpyParametric:
-    """P3 of :class:`P3Data` for one (mode, region) family as a cvxpy problem with
-    Parameters, solved repeatedly (Clarabel)."""
-
-    def __init__(self, p3: P3Data, mode: int, inside: bool) -> None:
-        import cvxpy as cp
-
-        fam = p3.family(mode, inside)
-        m, r = p3.model.m, p3.model.r
-        self.nu, self.rho = cp.Variable(m), cp.Variable(nonneg=True)
-        self.g, self.rhs = cp.Parameter(m), cp.Parameter(r)
-        L = np.linalg.cholesky(0.5 * (fam["H_nu"] + fam["H_nu"].T))
-        objective = cp.sum_squares(L.T @ self.nu) + self.g @ self.nu + p3.alpha * self.rho
-        constraints = [fam["GB"] @ self.nu - self.rho <= self.rhs, cp.abs(self.nu) <= p3.nu_bound]
-        self.problem = cp.Problem(cp.Minimize(objective), constraints)
-        self.p3, self.fam = p3, fam
-
-    def solve(self, x: np.ndarray, k: int) -> np.ndarray:
-        import cvxpy as cp
-
-        fam, model = self.fam, self.p3.model
-        self.g.value = fam["grad"] @ x
-        self.rhs.value = model.H(k + 1) - fam["tight"] - fam["GA"] @ x
-        self.problem.solve(solver=cp.CLARABEL, tol_gap_abs=1e-11, tol_gap_rel=1e-11, tol_feas=1e-11)
-        return fam["K"] @ x + self.nu.value
 
 
 def closed_loop_states(model: SDJLSModel, ctrl, count: int, seed: int):
@@ -558,146 +446,6 @@ def measure_scaling(opts) -> dict[str, Any]:
         del env, info
     peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return {"p3": rows, "monte_carlo": mc, "peak_rss_mb": peak_kb / 1024}
-
-
-def write_markdown(res: dict[str, Any], cmd: str) -> str:
-    e, a, b, s = res["env_step"], res["act"], res["batched"], res["scaling"]
-    t = TARGETS
-
-    def ok(flag: bool) -> str:
-        return "yes" if flag else "**no**"
-
-    lines = [
-        "# Speed",
-        "",
-        f"Generated by `{cmd}` on {res['machine']}. Medians over repeats after warm-up; the",
-        "machine is shared, so the ratios (measured in the same run) are what to read.",
-        "",
-        "How act() works: it first re-solves exactly the KKT system of the active set that was "
-        "optimal at the last call in the same (mode, region) family and keeps that answer if it "
-        "passes the KKT test (primal feasibility, nonnegative multipliers); otherwise DAQP, a dense "
-        "dual active-set solver warm-started from its last working set, finds the active set, "
-        "which is re-solved exactly and verified (OSQP, the enumeration and cvxpy follow only if "
-        "that fails). The DAQP floor is the same P3, written in this script from the model, "
-        "solved by DAQP alone (its workspace kept per family, no verification).",
-        "",
-        "| measurement | value | reference | ratio | target | met |",
-        "|---|---|---|---|---|---|",
-        f"| env step, SDJLS-Macro-v0 vs Pendulum-v1 | {e['sdjls_us']:.1f} us | {e['pendulum_us']:.1f} us | "
-        f"{e['ratio']:.2f}x | <= {t['env_step_ratio_max']}x | {ok(e['ratio'] <= t['env_step_ratio_max'])} |",
-        f"| act() (default: warm active set, then DAQP) vs cvxpy rebuild | {a['act_us']:.0f} us | {a['cvxpy_rebuild_us']:.0f} us | "
-        f"{a['speedup_vs_rebuild']:.0f}x faster | >= {t['act_speedup_vs_cvxpy_rebuild_min']:.0f}x | "
-        f"{ok(a['speedup_vs_rebuild'] >= t['act_speedup_vs_cvxpy_rebuild_min'])} |",
-        f"| act() vs the DAQP floor of the same P3 | {a['act_us']:.1f} us | {a['daqp_floor_us']:.1f} us | "
-        f"{a['act_vs_daqp_floor']:.2f}x | <= {t['act_vs_daqp_floor_max']:g}x | "
-        f"{ok(a['act_vs_daqp_floor'] <= t['act_vs_daqp_floor_max'])} |",
-        f"| act() calls answered by the active-set warm start (no solver run), timed loop | "
-        f"{100 * a['warm_start_share']:.1f}% | | | - | - |",
-        f"| act() with the warm start disabled (DAQP at every call) vs cvxpy rebuild | "
-        f"{a['act_every_call_us']:.0f} us | {a['cvxpy_rebuild_us']:.0f} us | "
-        f"{a['cvxpy_rebuild_us'] / a['act_every_call_us']:.0f}x faster | - | - |",
-        f'| act(), solver="osqp" (warm active set, then OSQP) vs cvxpy rebuild | {a["act_osqp_us"]:.0f} us | {a["cvxpy_rebuild_us"]:.0f} us | '
-        f"{a['cvxpy_rebuild_us'] / a['act_osqp_us']:.0f}x faster | - | - |",
-        f'| act(), solver="active_set" (full enumeration) vs cvxpy rebuild | {a["act_active_set_us"]:.0f} us | {a["cvxpy_rebuild_us"]:.0f} us | '
-        f"{a['speedup_active_set_vs_rebuild']:.0f}x faster | (same) | "
-        f"{ok(a['speedup_active_set_vs_rebuild'] >= t['act_speedup_vs_cvxpy_rebuild_min'])} |",
-        f"| act() vs cvxpy Parameter problem | {a['act_us']:.0f} us | {a['cvxpy_parametric_us']:.0f} us | "
-        f"{a['speedup_vs_parametric']:.0f}x faster | - | - |",
-        "| solutions: max abs difference of u vs act() (rebuild / Parameter / DAQP floor / active set / DAQP at every call / OSQP) | "
-        + " / ".join(
-            f"{a['max_abs_diff_u'][key]:.1e}"
-            for key in ("rebuild", "parametric", "daqp_floor", "active_set", "every_call", "osqp")
-        )
-        + f" | | | <= {t['agreement_tol']:g} | {ok(max(a['max_abs_diff_u'].values()) <= t['agreement_tol'])} |",
-        f"| batched closed loop ({b['num_envs']} envs, act_batch) | {b['batched_steps_per_second']:,.0f} steps/s | "
-        f"{b['loop_steps_per_second']:,.0f} steps/s (loop) | {b['speedup_vs_loop']:.0f}x | >= {t['batched_speedup_vs_loop_min']:.0f}x and "
-        f">= {t['batched_steps_per_second_min']:,.0f} steps/s | "
-        f"{ok(b['speedup_vs_loop'] >= t['batched_speedup_vs_loop_min'] and b['batched_steps_per_second'] >= t['batched_steps_per_second_min'])} |",
-        f"| act_batch vs act on the same states: max abs difference of u | {b['max_abs_diff_act_batch_vs_act']:.1e} | | | "
-        f"<= {t['agreement_tol']:g} | {ok(b['max_abs_diff_act_batch_vs_act'] <= t['agreement_tol'])} |",
-    ]
-    tree = res["tree"]["rows"]
-    three = next(row for row in tree if row["steps"] == 3 and row["branching"] == 3)
-    big = res["tree"]["large"]
-    lines += [
-        f"| act(), ScenarioTreeController steps=3 vs its cvxpy reference (same tree) | "
-        f"{three['act_us']:.0f} us | {three['cvxpy_us']:.0f} us | "
-        f"{three['speedup_vs_cvxpy']:.0f}x faster | >= {t['tree_steps3_speedup_vs_cvxpy_min']:.0f}x | "
-        f"{ok(three['speedup_vs_cvxpy'] >= t['tree_steps3_speedup_vs_cvxpy_min'])} |",
-        f"| act(), ScenarioTreeController steps=3 vs one-step act() | {three['act_us']:.0f} us | "
-        f"{a['act_us']:.1f} us | {three['vs_one_step_act']:.0f}x | <= {t['tree_steps3_vs_act_max']:g}x | "
-        f"{ok(three['vs_one_step_act'] <= t['tree_steps3_vs_act_max'])} |",
-        f"| one decision of the {big['nodes']}-node tree (median of {big['decisions']}) | "
-        f"{big['median_ms']:.1f} ms | | | <= {t['large_tree_ms_max']:g} ms | "
-        f"{ok(big['median_ms'] <= t['large_tree_ms_max'])} |",
-        "",
-        "## Multi-step receding horizon (scenario tree)",
-        "",
-        "One decision of `ScenarioTreeController` on the macro example (closed-loop states of the "
-        "paper's controller), against the same tree written plainly in cvxpy (Clarabel) and "
-        "against one-step act() above. A decision solves the tree's QP once per fixed-point "
-        "iteration on the branch probabilities (at most 10, the default; 'converged': no region probability "
-        f"moved by more than {PROB_TOL:g} at the last one); the fast path re-solves the last "
-        "active set exactly first (warm start), then tries a few primal-dual active-set steps "
-        "from it, and runs DAQP only when neither verifies.",
-        "",
-        "| steps | branching | nodes | QP variables | act() | QP solves per decision | "
-        "fixed point converged | solves by warm start | cvxpy reference | speedup | "
-        "vs one-step act() | max abs diff of u (states) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for row in tree:
-        lines.append(
-            f"| {row['steps']} | {row['branching']} | {row['nodes']} | {row['variables']} | "
-            f"{row['act_us']:,.0f} us | {row['qp_solves_per_decision']:.2f} | "
-            f"{100 * row['fixed_point_converged_share']:.0f}% | "
-            f"{100 * row['warm_start_share']:.0f}% | {row['cvxpy_us']:,.0f} us | "
-            f"{row['speedup_vs_cvxpy']:.0f}x | {row['vs_one_step_act']:.0f}x | "
-            f"{row['max_abs_diff_u_vs_cvxpy']:.1e} ({row['cvxpy_states']}) |"
-        )
-    lines += [
-        "",
-        f"Tree decision time against its size: the {big['nodes']}-node tree ({big['variables']} QP "
-        "variables; issue 28's system: N = 10, n = 4, m = 1, r = 20 random rows, steps = 3) on "
-        f"{big['decisions']} states of its own closed loop, families built beforehand: median "
-        f"{big['median_ms']:.1f} ms, mean {big['mean_ms']:.1f} ms, largest {big['max_ms']:.1f} ms per "
-        f"decision, {big['qp_solves_per_decision']:.2f} QP solves per decision, "
-        f"{100 * big['ok_share']:.0f}% verified; solves by path: "
-        + ", ".join(f"{key} {val}" for key, val in sorted(big["solves_by_path"].items()))
-        + ".",
-        "",
-        "## Scaling",
-        "",
-        "One-step act() on `random_task(n, m, N, r, seed=0)` with its receding-horizon data "
-        "(individual chance rows at xi = 0.9, alpha = 1000, |nu_i| <= 10), on the states of "
-        "its own closed loop (20 steps of states / 20 environments, from x0 outside the first row), "
-        "against the DAQP floor of the same P3 in the same run; act_batch on the same states, "
-        "per state. 'active': the share of states whose P3 has an active chance row or box "
-        "row at the optimum. Differences of u: the floor's relative to 1 + |u| (DAQP's own "
-        "tolerance), act_batch's absolute.",
-        "",
-        "| n | m | r | N | states | active | act() | DAQP floor | act / floor | act_batch per state "
-        "| act_batch / act | max diff u, floor | max diff u, act_batch |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for row in s["p3"]:
-        lines.append(
-            f"| {row['n']} | {row['m']} | {row['r']} | {row['N']} | {row['states']} | "
-            f"{100 * row['active_share']:.0f}% | {row['act_us']:.1f} us | "
-            f"{row['daqp_floor_us']:.1f} us | {row['act_vs_floor']:.2f}x | "
-            f"{row['act_batch_per_state_us']:.1f} us | {row['batch_vs_act']:.2f}x | "
-            f"{row['max_rel_diff_u_vs_floor']:.1e} | {row['max_abs_diff_u_batch_vs_act']:.1e} |"
-        )
-    lines += ["", "| trajectories (20 steps) | seconds | per trajectory (us) |", "|---|---|---|"]
-    for row in s["monte_carlo"]:
-        lines.append(
-            f"| {row['trajectories']:,} | {row['seconds']:.3f} | {1e6 * row['seconds'] / row['trajectories']:.1f} |"
-        )
-    lines += [
-        "",
-        f"Peak memory (RSS) of the process, largest Monte Carlo included: {s['peak_rss_mb']:.0f} MB.",
-    ]
-    return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:

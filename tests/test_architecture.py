@@ -90,14 +90,7 @@ def test_the_checks_see_lazy_imports_and_cycles():
     [
         "sdjls_gym",
         "benchmarks",
-        pytest.param(
-            "controllers",
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="controllers' cycles (qp/active_set, lmi/mean_square, rhc/p3) are the "
-                "QP-engine branch's part of issue 32; remove this mark when it is merged",
-            ),
-        ),
+        "controllers",
     ],
 )
 def test_no_import_cycle_between_modules(package):
@@ -158,18 +151,11 @@ def test_benchmarks_import_no_private_name_of_another_module():
     assert not _private_imports("benchmarks"), _private_imports("benchmarks")
 
 
-def test_benchmarks_read_no_private_attribute_apart_from_the_speed_script():
-    reads = {m: r for m, r in _private_reads("benchmarks").items() if m != "benchmarks.speed"}
+def test_benchmarks_read_no_private_attribute():
+    reads = _private_reads("benchmarks")
     assert not reads, reads
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="benchmarks/speed.py times the controllers through _warm_start, _path_counts, "
-    "_families and _hbar; public accessors are the QP-engine branch's (controllers/) part",
-)
-def test_the_speed_script_reads_no_private_attribute():
-    assert "benchmarks.speed" not in _private_reads("benchmarks")
 
 
 # ----------------------------------------------------------------------------- base install
