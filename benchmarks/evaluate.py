@@ -66,6 +66,7 @@ from benchmarks.reference import (
     REFERENCE_CONSTRAINT,
     REFERENCE_XIS,
     curve_xis,
+    gap_reason,
     reference_curve,
     task_of,
 )
@@ -126,6 +127,16 @@ class Score:
         a task of the suite.
     episode_costs, episode_violations : (episodes,) arrays
         Each episode's cost and share of violated steps (for paired comparisons).
+    curve_gap_reason : str or None
+        Why ``curve_gap`` is None (diverged episodes, a violation frequency above or below the
+        curve's range and that range, a system that is not a task of the suite); None when
+        there is a gap.
+    curve_points : tuple of dict
+        The reference curve's points on the same episodes, one dict per level ``xi`` (``xi``,
+        ``cost_mean``, ``cost_ci95``, ``cost_median``, ``violation``, ``violation_wilson95``,
+        ``diverged``), to plot a policy against; empty when no curve was computed (a diverged
+        episode, or not a task of the suite). Neither this nor the reason is in
+        :meth:`to_dict`, whose schema the committed summaries share.
     """
 
     env_id: str
@@ -145,10 +156,13 @@ class Score:
     curve_gap: CurveGap | None
     episode_costs: np.ndarray = field(repr=False, compare=False)
     episode_violations: np.ndarray = field(repr=False, compare=False)
+    curve_gap_reason: str | None = field(default=None, compare=False)
+    curve_points: tuple[dict[str, Any], ...] = field(default=(), repr=False, compare=False)
 
     def to_dict(self, per_episode: bool = False) -> dict[str, Any]:
         """Plain JSON types; the per-episode arrays only with ``per_episode``."""
         out = asdict(self)
+        out.pop("curve_gap_reason"), out.pop("curve_points")
         costs, viols = out.pop("episode_costs"), out.pop("episode_violations")
         if per_episode:
             out["episode_costs"] = np.asarray(costs).tolist()
@@ -290,14 +304,22 @@ def evaluate_rollouts(
     stats = rollout_statistics(ro, spec.divergence_bound)
     states = decision_states(ro, min(TIMING_STATES, ro.runs * spec.horizon))
     batched, single = decision_time(controller, *states)
-    gap = None
-    if spec.task is not None and stats["diverged"] == 0:
+    gap, points = None, ()
+    if spec.task is None:
+        reason: str | None = f"{env_id} is not a task of the suite: it has no reference curve"
+    elif stats["diverged"]:
+        reason = gap_reason(stats["violation"], stats["diverged"], None, np.zeros((1, 1)))
+    else:
         curve = reference_curve(
             spec.task, episodes, seed, horizon=spec.horizon, action_bound=spec.action_bound,
             divergence_bound=spec.divergence_bound,
         )  # fmt: skip
         gap = curve.gap(stats["episode_costs"], stats["episode_violations"])
+        reason = gap_reason(stats["violation"], 0, gap, curve.violations)
+        points = tuple(curve.point(i) for i in range(len(curve.xis)))
     score = Score(
+        curve_gap_reason=reason,
+        curve_points=points,
         env_id=env_id,
         seed=seed,
         decision_time_batched_s=batched,

@@ -187,6 +187,27 @@ def test_other_horizons_and_systems(feedback):
     other = evaluate(paper_rhc(SDJLSModel.from_dict(model), 0.85), episodes=E, env_id="SDJLS-v0",
                      env_kwargs={"model": SDJLSModel.from_dict(model), "horizon": 20})  # fmt: skip
     assert other.curve_gap is None and other.steps == 20
+    assert "not a task of the suite" in other.curve_gap_reason and other.curve_points == ()
+
+
+def test_score_says_why_it_has_no_gap_and_carries_the_curve(feedback):
+    """Issue 33: a Score without curve_gap says why, and holds the reference curve's points
+    (one per level xi, scored on the same episodes) so that a user can plot against them."""
+    out = evaluate(feedback, episodes=E, seed=3)  # ignores the band: 0.99 of the steps violate
+    assert out.curve_gap is None and "above the curve's range" in out.curve_gap_reason
+    assert [p["xi"] for p in out.curve_points] == list(REFERENCE_XIS)
+    top = max(p["violation"] for p in out.curve_points)
+    assert f"{out.violation:.3f}" in out.curve_gap_reason and f"{top:.3f}" in out.curve_gap_reason
+    on = evaluate(paper_rhc(macro(), 0.8), episodes=E, seed=3)
+    assert on.curve_gap is not None and on.curve_gap_reason is None
+    (point,) = [p for p in on.curve_points if p["xi"] == 0.8]
+    assert point["cost_mean"] == pytest.approx(on.cost_mean, rel=1e-12)
+    assert point["violation"] == on.violation
+    zero = evaluate(lambda obs: np.zeros(1), episodes=E, seed=3)  # open loop: diverges
+    assert zero.diverged > 0 and zero.curve_gap is None and zero.curve_points == ()
+    assert zero.curve_gap_reason == f"{zero.diverged} episode(s) diverged"
+    assert set(out.to_dict()) == set(on.to_dict())  # the JSON schema is unchanged
+    assert "curve_points" not in out.to_dict()
 
 
 # ------------------------------------------------------------------ command line
