@@ -198,6 +198,7 @@ def _section(text: str, title: str) -> str:
         ("Reproducing the paper (section 6)", "results/paper/REPORT.md", 8),
         ("Receding horizon against reinforcement learning", "results/rl/REPORT.md", 20),
         ("Speed", "results/speed/SPEED.md", 14),
+        ("The suite, scored as one benchmark", "results/suite/REPORT.md", 12),
     ],
 )
 def test_benchmark_tables_are_copied_from_the_committed_reports(title, report, min_rows):
