@@ -33,18 +33,21 @@ seeds kept on all of them are used. What is left out is listed with its reason, 
 states how many tasks and seeds each aggregate covers. The sample-efficiency figure is the IQM
 of the normalized gap along training, from the learning curves (:func:`sample_efficiency`).
 
-Scoring cost, measured on the shared 2-core machine (load average about 4; CPU seconds): one
-agent on one task, 1000 episodes, 2.1 s (the rollout itself 0.1 s; the rest is the bootstrap of
-its gap and the decision-time measurement); the one-step curve of a task on 1000 episodes
-1.3-2.7 s; the 3-step tree 0.04-0.12 s per episode and level (VTOL more). The suite's 150 runs
-and 6 tasks: about 150 x 2.2 s + 6 x 80 s, some 14 CPU-minutes, plus the bootstrap of the
-aggregates (about 12 s per configuration and table).
+Scoring cost (CPU seconds, measured on the shared 2-core machine at load average 9-10, one
+torch thread): one agent on one task, 1000 episodes, 2.1 s (the rollout itself 0.1 s; the rest
+is the bootstrap of its gap and the decision-time measurement), 2.1-3.0 s with its rollout on
+the tree's episodes (10.6 s for the first agent on VTOL, which also paid for the one-step curve
+on its learning curve's 100 episodes, computed once per task); a task's references (the one-step
+curve on 1000 episodes, 1.3-2.7 s; the tree's curve, 0.04-0.2 s per episode and level, and the
+one-step curve on the tree's and on the learning curves' episodes) about 55 s. The report on the
+4 runs kept then and all 6 tasks took 340 CPU-s (34 min of wall time at that load). The suite's
+150 runs: about 6 x 65 s + 150 x 2.5 s + the aggregates' bootstrap (with 5 seeds, 2000
+resamples of a Mann-Whitney test per task, about 1 ms each: some 2 min), 14-15 CPU-minutes in
+one process (``results/rl_suite/HISTORY.md``).
 """
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import time
 from dataclasses import asdict, dataclass, field
@@ -58,7 +61,14 @@ from benchmarks.evaluate import evaluate, resolve_env
 from benchmarks.files import stable_floats, write_atomic
 from benchmarks.montecarlo import rollout
 from benchmarks.reference import ReferenceCurve, reference_curve, tree_rhc
-from benchmarks.rl_report import RunResult, aggregate, curve_table, result_json, table
+from benchmarks.rl_report import RunResult, aggregate, result_json
+from benchmarks.rl_suite_tables import (
+    across_section,
+    gap_text,
+    runs_section,
+    task_section,
+    write_csv,
+)
 from benchmarks.rl_train import (
     RunRecord,
     RunSpec,
@@ -73,6 +83,7 @@ from benchmarks.suite_report import QUICK_TREE, TREE_BY_TASK, TREE_EPISODES, TRE
 from sdjls_gym.systems import TASKS
 
 __all__ = [
+    "TREE_EXTRA_XIS",
     "AgentScore",
     "ConfigAcross",
     "TaskReport",
@@ -86,6 +97,10 @@ __all__ = [
     "tree_plan",
 ]
 
+#: Levels added to ``results/suite``'s tree curve: agents safer than the tree at xi = 0.95
+#: have no gap to it (the first SAC Lagrangian run on the three-state task violates in 0.013 of
+#: its steps, the one-step curve's xi = 0.983 there, below the tree's range 0.035..0.421).
+TREE_EXTRA_XIS: tuple[float, ...] = (0.99,)
 #: Stratified-bootstrap resamples of the aggregates with ``--quick``.
 QUICK_RESAMPLES = 200
 
@@ -182,8 +197,13 @@ def kept_runs(specs: list[RunSpec], run_dir: Path) -> list[RunRecord | None]:
 def tree_plan(env_id: str, quick: bool) -> tuple[int, tuple[float, ...]]:
     """Episodes and levels of a task's 3-step tree curve: ``results/suite``'s
     (:data:`benchmarks.suite_report.TREE_EPISODES` at :data:`~benchmarks.suite_report.TREE_XIS`,
-    fewer on the slow tasks) with the task's own ``xi``; ``quick``: its smoke-test plan."""
-    episodes, xis = QUICK_TREE if quick else TREE_BY_TASK.get(env_id, (TREE_EPISODES, TREE_XIS))
+    fewer on the slow tasks) with :data:`TREE_EXTRA_XIS` and the task's own ``xi``; ``quick``:
+    ``results/suite``'s smoke-test plan."""
+    if quick:
+        episodes, xis = QUICK_TREE
+    else:
+        episodes, xis = TREE_BY_TASK.get(env_id, (TREE_EPISODES, TREE_XIS))
+        xis = (*xis, *TREE_EXTRA_XIS)
     return episodes, tuple(sorted({*xis, float(TASKS[env_id].rhc["xi"])}))
 
 
@@ -289,15 +309,16 @@ def gap_table(
     used, and what was left out with its reason.
     """
     tasks, left = [], []
+    empty = [task for task, runs in cells.items() if not runs]
+    if empty:
+        left.append(f"no kept run on {', '.join(empty)}")
     for task, runs in cells.items():
         bad = [
             f"seed {s}: {_short(reason)}" for s, (g, reason) in sorted(runs.items()) if g is None
         ]
-        if not runs:
-            left.append(f"{task}: no kept run")
-        elif bad:
+        if bad:
             left.append(f"{task}: " + "; ".join(bad))
-        else:
+        elif runs:
             tasks.append(task)
     seeds = sorted(set.intersection(*(set(cells[t]) for t in tasks))) if tasks else []
     extra = sorted(set().union(*(set(cells[t]) for t in tasks)) - set(seeds))
@@ -374,158 +395,6 @@ def sample_efficiency(reports: list[TaskReport], across: list[ConfigAcross],
 
 
 # ----------------------------------------------------------------------------- outputs
-def _pct(g: CurveGap | None, reason: str | None) -> str:
-    if g is None or g.relative is None:
-        return "none: " + (reason or "-")
-    lo, hi = g.relative_ci95
-    at = "" if g.xi is None else f" at xi {g.xi:.3f}"
-    return f"{g.relative:+.1f} ({lo:+.1f} to {hi:+.1f}){at}"
-
-
-def _seeds(seeds: list[int]) -> str:
-    return ", ".join(map(str, seeds)) if seeds else "-"
-
-
-def _agg_cells(a: SuiteAggregate | None, tasks: tuple, seeds: tuple) -> list[str]:
-    if a is None:
-        return ["none", "-", "-"]
-    lo, hi = a.iqm_gap_ci95
-    plo, phi = a.probability_of_improvement_ci95
-    return [f"{len(seeds)} x {len(tasks)}", f"{a.iqm_gap:+.1f} ({lo:+.1f} to {hi:+.1f})",
-            f"{a.probability_of_improvement:.2f} ({plo:.2f} to {phi:.2f})"]  # fmt: skip
-
-
-def runs_section(reports: list[TaskReport]) -> list[str]:
-    """The kept and missing runs, per task and configuration."""
-    expected = sum(len(s) for r in reports for s in r.expected.values())
-    kept = sum(len(r.agents) for r in reports)
-    lines = [
-        "## Runs",
-        "",
-        f"{kept} of the {expected} runs asked for are kept and scored, "
-        + ("none missing." if kept == expected else f"{expected - kept} missing:"),
-        "",
-        "| task | configuration | seeds kept | seeds missing |",
-        "|---|---|---|---|",
-    ]
-    for r in reports:
-        for config, seeds in r.expected.items():
-            miss = r.missing.get(config, [])
-            have = [s for s in seeds if s not in miss]
-            lines.append(f"| {r.env_id} | {config} | {len(have)} of {len(seeds)} "
-                         f"({_seeds(have)}) | {_seeds(miss)} |")  # fmt: skip
-    return lines + [""]
-
-
-def across_section(across: list[ConfigAcross], tree_refs: dict[str, Any]) -> list[str]:
-    lines = [
-        "## Across tasks (rliable)",
-        "",
-        "Normalized gap: cost minus the one-step RHC curve at the agent's own violation "
-        "frequency, paired over the episodes, in % of the curve's cost (the suite's). Per "
-        "configuration, rliable on the (seeds x tasks) table of its gaps: the interquartile mean "
-        "(IQM) with a 95% stratified-bootstrap interval (seeds resampled within each task; one "
-        "seed: the interval is the point), and the probability of improvement P(gap < 0) "
-        "averaged over the tasks. Against the 3-step tree: the same on the gaps to the tree's "
-        "curve (% of its cost; on the tree's own episodes). A task where a kept run has no gap "
-        "is left out whole, and of the other tasks the seeds kept on all of them are used "
-        "(column 'left out'; each run's reason is in its task's section).",
-        "",
-        "| configuration | seeds x tasks | IQM of the gaps to the one-step RHC, % (95% CI) | "
-        "P(improvement over the one-step RHC) (95% CI) | seeds x tasks | IQM of the gaps to the "
-        "3-step tree, % (95% CI) | P(improvement over the 3-step tree) (95% CI) | left out |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for c in across:
-        left = [f"vs RHC: {x}" for x in c.rhc_left_out] + [f"vs tree: {x}" for x in c.tree_left_out]
-        cells = [c.config, *_agg_cells(c.vs_rhc, c.rhc_tasks, c.rhc_seeds),
-                 *_agg_cells(c.vs_tree, c.tree_tasks, c.tree_seeds), "<br>".join(left) or "-"]  # fmt: skip
-        lines.append("| " + " | ".join(cells) + " |")
-    ref = tree_refs.get("aggregate")
-    lines += ["", "The 3-step tree itself at each task's xi, against the one-step curve on its "
-              "own episodes: " + (f"IQM {ref.iqm_gap:+.1f}% over {ref.tasks} task(s)"
-                                  if isinstance(ref, SuiteAggregate) else "no aggregate")
-              + "; " + "; ".join(f"{t} {v}" for t, v in tree_refs["per_task"].items()) + ".", ""]  # fmt: skip
-    return lines
-
-
-def task_section(r: TaskReport, figures: list[str]) -> list[str]:
-    lines = [
-        f"## {r.env_id}",
-        "",
-        f"Level xi = {r.xi:g} (target violation frequency {1 - r.xi:.2f}); "
-        f"{r.rhc.episodes} evaluation episodes (noise seed {r.rhc.seed}); the 3-step tree on "
-        f"{r.tree.episodes} episodes at xi {', '.join(f'{x:g}' for x in r.tree.xis)}.",
-        "",
-        "| reference | episodes | mean episode cost (95% CI) | median cost | violation frequency "
-        "(95% Wilson) | diverged |",
-        "|---|---|---|---|---|---|",
-    ]
-    for name, p in r.reference_rows():
-        (lo, hi), (vlo, vhi) = p["cost_ci95"], p["violation_wilson95"]
-        eps = r.rhc.episodes if "one-step" in name else r.tree.episodes
-        lines.append(f"| {name} | {eps} | {p['cost_mean']:.4g} ({lo:.4g} to {hi:.4g}) | "
-                     f"{p['cost_median']:.4g} | {p['violation']:.3f} ({vlo:.3f}-{vhi:.3f}) | "
-                     f"{p['diverged']} |")  # fmt: skip
-    lines += ["", f"The tree at xi = {r.xi:g} against the one-step curve, % of its cost: "
-              f"{_pct(r.tree_gap, r.tree_reason)}.", ""]  # fmt: skip
-    missing = [f"{c} seed(s) {_seeds(s)}" for c, s in r.missing.items()]
-    lines += [f"Missing runs: {'; '.join(missing)}." if missing else "No run is missing.", ""]
-    if r.agents:
-        lines += ["Agents (seeds pooled as in results/rl/REPORT.md):", "",
-                  *table(r.aggregates), "",
-                  "Paired gaps of each run, in % of the curve's cost (95% bootstrap interval; "
-                  "the xi of the curve at the run's violation frequency):", "",
-                  "| run | violation frequency | mean episode cost | gap to the one-step RHC, % "
-                  "| gap to the 3-step tree, % |", "|---|---|---|---|---|"]  # fmt: skip
-        for a in sorted(r.agents, key=lambda a: a.run.name):
-            s = a.result.score
-            lines.append(f"| {a.run.name} | {s.violation:.3f} | {s.cost_mean:.4g} | "
-                         f"{_pct(a.gap, a.reason)} | {_pct(a.tree_gap, a.tree_reason)} |")  # fmt: skip
-        lines += ["", "Learning curves (the flatness test of results/rl):", "",
-                  *curve_table(r.status), ""]  # fmt: skip
-    for name in figures:
-        lines += [f"![{name}]({name})", ""]
-    return lines
-
-
-CSV_HEADER = ["task", "name", "kind", "algo", "variant", "seed", "xi", "episodes", "cost_mean",
-              "cost_ci95_low", "cost_ci95_high", "cost_median", "violation",
-              "violation_wilson95_low", "violation_wilson95_high", "diverged", "timesteps",
-              "gap_rhc_pct", "gap_rhc_pct_low", "gap_rhc_pct_high", "gap_tree_pct",
-              "gap_tree_pct_low", "gap_tree_pct_high", "reason"]  # fmt: skip
-
-
-def _gap_cells(g: CurveGap | None) -> list[Any]:
-    if g is None or g.relative is None:
-        return ["", "", ""]
-    return [g.relative, *g.relative_ci95]
-
-
-def write_csv(path: Path, reports: list[TaskReport]) -> None:
-    """``summary.csv``: a row per reference point at the task's xi and per kept run."""
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(CSV_HEADER)
-    for r in reports:
-        for (name, p), gap, reason, eps in zip(r.reference_rows(), (None, r.tree_gap),
-                                               (None, r.tree_reason),
-                                               (r.rhc.episodes, r.tree.episodes), strict=True):  # fmt: skip
-            w.writerow(stable_floats([r.env_id, name, "model-based", "", "", "", r.xi, eps,
-                                      p["cost_mean"], *p["cost_ci95"], p["cost_median"],
-                                      p["violation"], *p["violation_wilson95"], p["diverged"],
-                                      "", *_gap_cells(None), *_gap_cells(gap), reason or ""]))  # fmt: skip
-        for a in r.agents:
-            s = a.result.score
-            w.writerow(stable_floats([r.env_id, a.run.name, "rl-seed", a.run.algo,
-                                      a.run.variant, a.run.seed, "", s.episodes, s.cost_mean,
-                                      *s.cost_ci95, s.cost_median, s.violation,
-                                      *s.violation_wilson95, s.diverged, a.run.timesteps,
-                                      *_gap_cells(a.gap), *_gap_cells(a.tree_gap),
-                                      "; ".join(x for x in (a.reason, a.tree_reason) if x)]))  # fmt: skip
-    write_atomic(path, buf.getvalue())
-
-
 def report_suite(specs: list[RunSpec], records: list[RunRecord | None], run_dir: Path,
                  opts: Any, argv: list[str], log: Any = print) -> dict[str, Any]:  # fmt: skip
     """Score the kept runs of ``specs`` (``records``: each spec's kept run or None) and write
@@ -549,7 +418,7 @@ def report_suite(specs: list[RunSpec], records: list[RunRecord | None], run_dir:
     log("rliable's aggregates across the tasks")
     across = across_tasks(reports, list(opts.configs), resamples)
     efficiency = sample_efficiency(reports, across, resamples)
-    per_task = {r.env_id: _pct(r.tree_gap, r.tree_reason) for r in reports}
+    per_task = {r.env_id: gap_text(r.tree_gap, r.tree_reason) for r in reports}
     tree_gaps = [r.tree_gap.relative for r in reports if r.tree_gap is not None]
     tree_agg = (aggregate_gaps(np.array([tree_gaps]), resamples)
                 if len(tree_gaps) == len(reports) else None)  # fmt: skip

@@ -54,7 +54,7 @@ def test_gap_table_leaves_out_tasks_without_a_gap_and_seeds_not_on_every_task():
     table, tasks, seeds, left = gap_table(cells)
     assert tasks == ("A", "C") and seeds == (0, 1)
     np.testing.assert_array_equal(table, [[1.0, -1.0], [2.0, -2.0]])
-    assert left == ("B: seed 1: 2 episode(s) diverged", "D: no kept run",
+    assert left == ("no kept run on D", "B: seed 1: 2 episode(s) diverged",
                     "seed(s) 2: not kept on every task used")  # fmt: skip
     assert gap_table({"D": {}, "B": cells["B"]})[0] is None
 
