@@ -50,9 +50,13 @@ def _save(fig: Any, out: Path, name: str, names: list[str]) -> None:
     names.append(name)
 
 
-def _steps_axis(ax: Any) -> None:
+def _steps_axis(ax: Any, first: float) -> None:
+    """Env steps on a symmetric-log axis from 0 (the untrained policy), linear up to ``first``
+    (the first point after it), labelled 1k, 200k, 1.2M."""
     from matplotlib.ticker import FuncFormatter
 
+    ax.set_xscale("symlog", linthresh=max(float(first), 1.0))
+    ax.set_xlim(left=0.0)
     ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: fmt_steps(int(round(max(v, 0))))))
 
 
@@ -114,8 +118,8 @@ def task_figures(out: Path, r: Any) -> list[str]:
     axes[1].set_ylabel("violation frequency")
     axes[1].set_ylim(-0.02, 1.02)
     axes[1].set_xlabel("training env steps (mean over seeds, band min to max)")
-    axes[1].set_xscale("symlog", linthresh=1000)
-    _steps_axis(axes[1])
+    first = [p.timesteps for a in r.agents for p in a.run.learning_curve if p.timesteps > 0]
+    _steps_axis(axes[1], min(first, default=1000))
     for ax in axes:
         ax.grid(alpha=0.3, which="both")
     axes[0].legend(fontsize=7)
@@ -199,9 +203,9 @@ def across_figures(out: Path, across: list[Any], efficiency: dict[str, dict[str,
     axes[0].set_ylabel("IQM of the normalized gap, %\n(where every run x task has one)")
     axes[1].set_ylabel("share of runs x tasks with a gap\n(no divergence, inside the curve)")
     axes[1].set_ylim(-0.02, 1.02)
-    axes[1].set_xscale("symlog", linthresh=1000)
     axes[1].set_xlabel("training env steps (learning-curve points; own budget per configuration)")
-    _steps_axis(axes[1])
+    first = [s for e in efficiency.values() for s in e["steps"] if s > 0]
+    _steps_axis(axes[1], min(first, default=1000))
     for ax in axes:
         ax.grid(alpha=0.3, which="both")
         if ax.get_legend_handles_labels()[0]:

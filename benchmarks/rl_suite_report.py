@@ -14,12 +14,13 @@ Per task (:func:`score_task`), on common random numbers:
   one-step RHC curve (:func:`benchmarks.reference.reference_curve`) at its own violation
   frequency, paired over the episodes, in % of the curve's cost, with a 95% bootstrap interval;
 * the 3-step scenario tree (:func:`benchmarks.reference.tree_rhc`) is swept over the levels and
-  episodes of ``results/suite`` (:func:`tree_plan`: its decisions cost 100 to 1000 times the
-  one-step controller's); each agent is rolled out again on those episodes (same noise seed),
+  episodes of ``results/suite`` and xi = 0.99 (:func:`tree_plan`: its decisions cost 100 to 1000
+  times the one-step controller's); each agent is rolled out again on those episodes (same noise seed),
   and its paired gap to the tree's curve is measured there, in % of the tree's cost;
 * the table of ``results/rl/REPORT.md`` (:func:`benchmarks.rl_report.table`: mean and median
   cost, violation frequency with its Wilson interval, divergences), each run's two paired gaps,
-  the flatness test of the learning curves, and the figures of :mod:`benchmarks.rl_suite_figures`.
+  the flatness test of the learning curves (:mod:`benchmarks.rl_suite_tables`), and the figures
+  of :mod:`benchmarks.rl_suite_figures`.
 
 Across tasks (:func:`across_tasks`), per configuration, with rliable
 (:func:`benchmarks.aggregate.aggregate_gaps`): the IQM of the normalized gaps with its
