@@ -40,11 +40,12 @@ is the bootstrap of its gap and the decision-time measurement), 2.1-3.0 s with i
 the tree's episodes (10.6 s for the first agent on VTOL, which also paid for the one-step curve
 on its learning curve's 100 episodes, computed once per task); a task's references (the one-step
 curve on 1000 episodes, 1.3-2.7 s; the tree's curve, 0.04-0.2 s per episode and level, and the
-one-step curve on the tree's and on the learning curves' episodes) about 55 s. The report on the
+one-step curve on the tree's and on the learning curves' episodes) about 55 s (110 s on the
+three-state task with the tree's 6 levels). The report on the
 4 runs kept then and all 6 tasks took 340 CPU-s (34 min of wall time at that load). The suite's
-150 runs: about 6 x 65 s + 150 x 2.5 s + the aggregates' bootstrap (with 5 seeds, 2000
-resamples of a Mann-Whitney test per task, about 1 ms each: some 2 min), 14-15 CPU-minutes in
-one process (``results/rl_suite/HISTORY.md``).
+150 runs: about 6 x 80 s + 150 x 2.5 s + the aggregates' bootstrap (with 5 seeds, 2000
+resamples of a Mann-Whitney test per task, about 1 ms each: some 2 min), about 16 CPU-minutes
+in one process (``results/rl_suite/HISTORY.md``).
 """
 
 from __future__ import annotations
