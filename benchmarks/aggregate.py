@@ -37,6 +37,7 @@ __all__ = [
     "PROFILE_TAUS",
     "SuiteAggregate",
     "aggregate_gaps",
+    "iqm_interval",
     "rliable_modules",
     "seeded_legacy_generator",
 ]
@@ -95,8 +96,8 @@ class SuiteAggregate:
 
 # ----------------------------------------------------------------------------- aggregate
 def rliable_modules() -> tuple[Any, Any]:
-    """rliable's ``library`` and ``metrics`` modules; an ImportError naming the extra without
-    it."""
+    """rliable's ``library`` and ``metrics`` modules, or an ImportError that says how to
+    install them."""
     try:
         from rliable import library, metrics
     except ImportError as exc:
@@ -119,6 +120,47 @@ def seeded_legacy_generator(seed: int) -> Iterator[None]:
         np.random.set_state(saved)  # noqa: NPY002
 
 
+def _checked(gaps: Any, resamples: Any, seed: Any) -> tuple[np.ndarray, int, int]:
+    """``gaps`` as a finite (runs, tasks) array, and the resamples to draw: one run makes
+    every stratified resample the table itself and the interval the point for any number of
+    resamples, so a few (:data:`ONE_RUN_RESAMPLES`) stand for them (the Mann-Whitney test per
+    task and resample of the probability of improvement costs about 1 ms)."""
+    resamples = check_int("resamples", resamples, low=1)
+    seed = check_int("seed", seed, low=0, high=2**32 - 1)  # the legacy generator's seeds
+    gaps = np.asarray(gaps, dtype=np.float64)
+    if gaps.ndim != 2 or gaps.size == 0 or not np.all(np.isfinite(gaps)):
+        raise ValueError(
+            f"gaps = {describe(gaps)} (shape {gaps.shape}); expected a finite (runs, tasks) "
+            "array with at least one run and one task"
+        )
+    return gaps, (resamples if gaps.shape[0] > 1 else ONE_RUN_RESAMPLES), seed
+
+
+def _iqm(rly: Any, metrics: Any, gaps: np.ndarray, resamples: int) -> tuple[float, tuple]:
+    """IQM of ``gaps`` and its interval, drawn from the legacy generator as it stands."""
+    iqm, ci = rly.get_interval_estimates(
+        {"policy": -gaps}, lambda s: np.array([metrics.aggregate_iqm(s)]), reps=resamples
+    )
+    lo, hi = ci["policy"][:, 0]
+    return -float(iqm["policy"][0]), (-float(hi), -float(lo))
+
+
+def iqm_interval(
+    gaps: np.ndarray, resamples: int = AGGREGATE_RESAMPLES, seed: int = BOOTSTRAP_SEED
+) -> tuple[float, tuple[float, float]]:
+    """The IQM of a (runs, tasks) table of normalized gaps and its stratified-bootstrap 95%
+    interval, as :func:`aggregate_gaps` gives them, without its probability of improvement and
+    profile (for many tables, e.g. one per point of a learning curve).
+
+    >>> iqm_interval(np.array([[-4.0, 1.0, 2.0, 30.0]]))
+    (1.5, (1.5, 1.5))
+    """
+    gaps, resamples, seed = _checked(gaps, resamples, seed)
+    rly, metrics = rliable_modules()
+    with seeded_legacy_generator(seed):
+        return _iqm(rly, metrics, gaps, resamples)
+
+
 def aggregate_gaps(
     gaps: np.ndarray, resamples: int = AGGREGATE_RESAMPLES, seed: int = BOOTSTRAP_SEED
 ) -> SuiteAggregate:
@@ -131,25 +173,12 @@ def aggregate_gaps(
     ValueError
         ``gaps`` is not a finite 2-d array with at least one run and one task.
     """
-    resamples = check_int("resamples", resamples, low=1)
-    seed = check_int("seed", seed, low=0, high=2**32 - 1)  # the legacy generator's seeds
-    gaps = np.asarray(gaps, dtype=np.float64)
-    if gaps.ndim != 2 or gaps.size == 0 or not np.all(np.isfinite(gaps)):
-        raise ValueError(
-            f"gaps = {describe(gaps)} (shape {gaps.shape}); expected a finite (runs, tasks) "
-            "array with at least one run and one task"
-        )
+    gaps, resamples, seed = _checked(gaps, resamples, seed)
     rly, metrics = rliable_modules()
     scores = -gaps  # improvement over the one-step RHC: higher is better
     runs, tasks = scores.shape
-    # one run: every stratified resample is the table itself, and the interval the point for
-    # any number of resamples; a few stand for them (the Mann-Whitney test per task and
-    # resample of the probability of improvement costs about 1 ms)
-    resamples = resamples if runs > 1 else ONE_RUN_RESAMPLES
     with seeded_legacy_generator(seed):
-        iqm, iqm_ci = rly.get_interval_estimates(
-            {"policy": scores}, lambda s: np.array([metrics.aggregate_iqm(s)]), reps=resamples
-        )
+        (iqm_gap, (lo, hi)) = _iqm(rly, metrics, gaps, resamples)
         # the one-step RHC's improvement over itself is 0 on every task (one run)
         poi, poi_ci = rly.get_interval_estimates(
             {"policy": [scores, np.zeros((1, tasks))]},
@@ -159,12 +188,11 @@ def aggregate_gaps(
         profile, profile_ci = rly.create_performance_profile(
             {"policy": scores}, PROFILE_TAUS, reps=resamples
         )
-    lo, hi = iqm_ci["policy"][:, 0]
     return SuiteAggregate(
         runs=runs,
         tasks=tasks,
-        iqm_gap=-float(iqm["policy"][0]),
-        iqm_gap_ci95=(-float(hi), -float(lo)),
+        iqm_gap=iqm_gap,
+        iqm_gap_ci95=(lo, hi),
         probability_of_improvement=float(poi["policy"][0]),
         probability_of_improvement_ci95=tuple(float(v) for v in poi_ci["policy"][:, 0]),
         profile_taus=PROFILE_TAUS.copy(),

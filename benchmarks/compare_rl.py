@@ -16,11 +16,12 @@ Run ``python -m benchmarks.compare_rl --help`` for the options. Two presets (``-
   numbers).
 
 Each training environment is :func:`benchmarks.rl_envs.make_train_env` of its task and variant.
-``--train-only`` trains and keeps the runs and stops before any scoring. Without it, a comparison
-on the macro task alone writes the full report (``summary.json``, ``summary.csv``, the figures,
-``REPORT.md``, each written atomically); on other tasks each agent is scored on its task by
-:func:`~benchmarks.evaluate.evaluate`, without model-based references (their per-task curves
-come with ``benchmarks.suite``).
+``--train-only`` trains and keeps the runs and stops before any scoring; ``--score-only`` trains
+nothing and scores the runs kept so far. Without them, a comparison on the macro task alone
+writes the full report (``summary.json``, ``summary.csv``, the figures, ``REPORT.md``, each
+written atomically); on other tasks :func:`benchmarks.rl_suite_report.report_suite` scores each
+agent on its task against the task's one-step RHC and 3-step tree curves, with rliable's
+statistics across the tasks, and names the runs that are missing.
 
 Per training, ``runs/<task>/<name>-<fingerprint>.json`` (learning curve, dual ascent, training
 and CPU time) and ``.pt`` (the policy's state dict, 40-130 KB). A run is named by the fingerprint
@@ -52,7 +53,7 @@ from benchmarks.cli_options import one_of, options_parser, parse_options
 from benchmarks.evaluate import REFERENCE_XIS, check_evaluation, evaluate
 from benchmarks.files import stable_floats, write_atomic
 from benchmarks.montecarlo import multistep_rhc, paper_rhc, rollout
-from benchmarks.rl_envs import MACRO, get_task
+from benchmarks.rl_envs import MACRO
 from benchmarks.rl_figures import make_figures
 from benchmarks.rl_report import (
     ControllerResult,
@@ -64,13 +65,11 @@ from benchmarks.rl_report import (
     best_agent,
     best_config,
     comparable,
-    curve_table,
     hyperparams_record,
-    result_json,
-    table,
     write_csv,
     write_report,
 )
+from benchmarks.rl_suite_report import kept_runs, report_suite
 from benchmarks.rl_train import (
     ALGOS,
     VARIANTS,
@@ -285,6 +284,13 @@ class Options:
             "it to score the kept runs)"
         },
     )
+    score_only: bool = field(
+        default=False,
+        metadata={
+            "help": "train nothing: score the runs kept so far; the report names the missing "
+            "ones (per task, configuration and seed)"
+        },
+    )
     tuned: list[Path] | None = field(
         default=None,
         metadata={
@@ -340,6 +346,8 @@ def parse_args(argv: list[str] | None = None) -> Options:
         parser.error(f"--timesteps = {opts.timesteps}; expected a positive integer")
     if opts.address is not None and opts.backend != "ray":
         parser.error(f"--address = {opts.address!r} needs --backend ray")
+    if opts.score_only and (opts.train_only or opts.retrain):
+        parser.error("--score-only with --train-only or --retrain: give one of them")
     try:
         tuned_overrides(opts.tuned)
     except ValueError as exc:
@@ -430,7 +438,8 @@ def main(argv: list[str] | None = None) -> Summary | dict[str, Any] | None:
     """Train (and, without ``--train-only``, score) as the options say.
 
     Returns the macro comparison's :class:`~benchmarks.rl_report.Summary` (``--tasks`` the
-    macro task alone), the per-task scores' dict (other tasks), or None (``--train-only``).
+    macro task alone), the suite report's summary dict (other tasks,
+    :func:`benchmarks.rl_suite_report.report_suite`), or None (``--train-only``).
     """
     argv = sys.argv[1:] if argv is None else list(argv)
     opts = parse_args(argv)
@@ -440,14 +449,20 @@ def main(argv: list[str] | None = None) -> Summary | dict[str, Any] | None:
     log(f"{len(specs)} training runs: {len(opts.tasks)} task(s) x {', '.join(opts.configs)} x "
         f"{opts.seeds} seed(s)")  # fmt: skip
     run_dir = opts.out / "runs"
-    trained = train_all(specs, run_dir, backend=opts.backend, workers=opts.workers,
-                        address=opts.address, retrain=opts.retrain,
-                        progress=not opts.no_progress, log=log)  # fmt: skip
+    if opts.score_only:  # what is kept; the report names the rest
+        trained = kept_runs(specs, run_dir)
+    else:
+        trained = train_all(specs, run_dir, backend=opts.backend, workers=opts.workers,
+                            address=opts.address, retrain=opts.retrain,
+                            progress=not opts.no_progress, log=log)  # fmt: skip
     if opts.train_only:
         log(f"--train-only: {len(trained)} run(s) kept in {run_dir}; no scoring")
         return None
     if opts.tasks != [MACRO]:
-        return score_per_task(specs, trained, run_dir, opts, argv)
+        return report_suite(specs, trained, run_dir, opts, argv, log)
+    if None in trained:
+        missing = ", ".join(s.name for s, r in zip(specs, trained, strict=True) if r is None)
+        raise SystemExit(f"--score-only: the macro comparison needs every run; missing: {missing}")
     return report_macro(specs, trained, run_dir, opts, argv)
 
 
@@ -517,59 +532,6 @@ def report_macro(specs: list[Any], trained: list[Any], run_dir: Path, opts: Opti
     write_csv(opts.out / "summary.csv", mb + aggs + runs)
     write_atomic(opts.out / "REPORT.md", write_report(summary, XI, MODEL_BASED_CURVES[0].family))
     log(f"wrote {opts.out}/REPORT.md")
-    return summary
-
-
-def score_per_task(specs: list[Any], trained: list[Any], run_dir: Path, opts: Options,
-                   argv: list[str]) -> dict[str, Any]:  # fmt: skip
-    """Each agent scored on its own task (no model-based reference: the suite's per-task curves
-    come with ``benchmarks.suite``); ``summary.json`` and a ``REPORT.md`` of per-task tables."""
-    import torch
-
-    torch.set_num_threads(1)  # as in training, and for the agents' decision times
-    command = "python -m benchmarks.compare_rl" + ("" if not argv else " " + " ".join(argv))
-    summary: dict[str, Any] = {
-        "command": command,
-        "options": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(opts).items()},
-        "versions": package_versions(),
-        "tasks": {},
-    }
-    lines = [
-        "# RL agents on the tasks of the suite (agents only)",
-        "",
-        f"Generated by `{command}`. Each agent is scored by `benchmarks.evaluate.evaluate` on "
-        f"{opts.eval_episodes} episodes of its task (noise seed {opts.seed}); the model-based "
-        "references per task are `benchmarks.suite`'s.",
-        "",
-    ]
-    for task in opts.tasks:
-        pairs = [(s, r) for s, r in zip(specs, trained, strict=True) if s.task == task]
-        _log(f"scoring the {len(pairs)} agents of {task} on {opts.eval_episodes} episodes")
-        env_kwargs = dict(get_task(task).env_kwargs)
-        runs = [
-            RunResult(
-                run,
-                evaluate(
-                    load_policy(s, policy_path(kept_run_path(run_dir, s))),
-                    episodes=opts.eval_episodes,
-                    seed=opts.seed,
-                    env_id=task,
-                    env_kwargs=env_kwargs,
-                ),
-            )  # fmt: skip
-            for s, run in pairs
-        ]
-        aggs, status = aggregate(runs), curve_status([r.run for r in runs])
-        summary["tasks"][task] = {
-            "rl_runs": [result_json(r) for r in runs],
-            "rl_aggregates": [asdict(a) for a in aggs],
-            "learning_curves": [asdict(c) for c in status],
-        }
-        lines += [f"## {task}", "", *table(aggs), "", *curve_table(status), ""]
-    write_atomic(opts.out / "summary.json",
-                 json.dumps(stable_floats(json.loads(json.dumps(summary))), indent=1) + "\n")  # fmt: skip
-    write_atomic(opts.out / "REPORT.md", "\n".join(lines) + "\n")
-    _log(f"wrote {opts.out}/REPORT.md")
     return summary
 
 

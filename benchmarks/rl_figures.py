@@ -17,7 +17,7 @@ VARIANT_MARKERS = dict(zip(VARIANTS, ("o", "v", "^", "<", "*", "X"), strict=True
 SINGLE_MARKERS = ("s", "D", "P", "h", "8")
 
 
-def _errbars(ax: Any, s: Any, **kw: Any) -> None:
+def errbars(ax: Any, s: Any, **kw: Any) -> None:
     """A point with its violation (x) and cost (y) intervals; ``s`` a Score or an Aggregate."""
     v, (vlo, vhi), c, (clo, chi) = s.violation, s.violation_wilson95, s.cost_mean, s.cost_ci95
     ax.errorbar(v, c, xerr=[[v - vlo], [vhi - v]],
@@ -79,17 +79,17 @@ def make_figures(
             ax.plot([r.score.violation for r in pts], [r.score.cost_mean for r in pts], "-",
                     color=color, lw=1.2, label=f"{family}, xi = {pts[0].xi:g}..{pts[-1].xi:g}")  # fmt: skip
             for r in pts:
-                _errbars(ax, r.score, fmt="o", color=color, ms=4)
+                errbars(ax, r.score, fmt="o", color=color, ms=4)
                 if i == 0 and r.xi in (0.3, 0.5, 0.7, 0.85, 0.99):
                     ax.annotate(f"xi={r.xi:g}", (r.score.violation, r.score.cost_mean),
                                 textcoords="offset points", xytext=(3, 6), fontsize=7)  # fmt: skip
         for r, marker in zip(singles, SINGLE_MARKERS, strict=False):
             if keep(r.score):
-                _errbars(ax, r.score, fmt=marker, color="C7", ms=7, label=r.name)
+                errbars(ax, r.score, fmt=marker, color="C7", ms=7, label=r.name)
         for a in aggs:
             if keep(a):
                 still = not flat.get((a.algo, a.variant), True)  # hollow: not flat yet
-                _errbars(ax, a, fmt=VARIANT_MARKERS.get(a.variant, "o"),
+                errbars(ax, a, fmt=VARIANT_MARKERS.get(a.variant, "o"),
                          color=ALGO_COLORS.get(a.algo, "C3"), ms=8, mfc="none" if still else None,
                          label=a.name + (" (still learning)" if still else ""))  # fmt: skip
         ax.axvline(1 - xi, color="r", ls=":", lw=1, label=f"1 - xi = {1 - xi:.2f}")

@@ -156,8 +156,6 @@ def test_benchmarks_read_no_private_attribute():
     assert not reads, reads
 
 
-
-
 # ----------------------------------------------------------------------------- base install
 BLOCK_RL = textwrap.dedent(
     """

@@ -16,6 +16,8 @@ pytest.importorskip("stable_baselines3")
 
 from benchmarks import backends, compare_rl, rl_envs, rl_train, runs  # noqa: E402
 from benchmarks import rl_hyperparams as HP  # noqa: E402
+from benchmarks.evaluate import evaluate  # noqa: E402
+from benchmarks.reference import tree_rhc  # noqa: E402
 from sdjls_gym import SUITE  # noqa: E402
 from sdjls_gym.systems import TASKS  # noqa: E402
 from sdjls_gym.wrappers import (  # noqa: E402
@@ -247,17 +249,20 @@ def test_presets_and_their_budgets():
 
 def test_quick_on_two_tasks(tmp_path, monkeypatch):
     """``--quick`` on two tasks trains every configuration asked for, keeps the runs by task,
-    scores each agent on its own task, writes nothing into results/, and resumes."""
+    scores each agent on its own task against both model-based curves (the report of
+    benchmarks.rl_suite_report: its sections, figures and JSON keys), writes nothing into
+    results/, and resumes; ``--score-only`` after a run is lost names it as missing."""
     monkeypatch.setattr(compare_rl, "QUICK_OUT", tmp_path / "quick")
     results = ROOT / "results"
     before = {p: p.stat().st_mtime_ns for p in results.rglob("*")}
-    args = ["--quick", "--tasks", "SDJLS-Solar-v0", "SDJLS-VTOL-v0", "--configs", "ppo_residual",
-            "ppo_lagrangian", "--seeds", "1", "--timesteps", "2048", "--eval-episodes", "20",
-            "--workers", "1", "--no-progress"]  # fmt: skip
+    two = ["SDJLS-Solar-v0", "SDJLS-Degradation-v0"]  # the cheapest trees of the suite
+    args = ["--quick", "--tasks", *two, "--configs", "ppo_residual", "ppo_lagrangian", "--seeds",
+            "1", "--timesteps", "2048", "--eval-episodes", "20", "--workers", "1",
+            "--no-progress"]  # fmt: skip
     summary = compare_rl.main(args)
     assert {p: p.stat().st_mtime_ns for p in results.rglob("*")} == before
     out = tmp_path / "quick"
-    assert set(summary["tasks"]) == {"SDJLS-Solar-v0", "SDJLS-VTOL-v0"}
+    assert set(summary["tasks"]) == set(two)
     for task_id, section in summary["tasks"].items():
         task = TASKS[task_id]
         assert len(list((out / "runs" / task_id).glob("*.json"))) == 2
@@ -265,25 +270,67 @@ def test_quick_on_two_tasks(tmp_path, monkeypatch):
             assert r["task"] == task_id and r["score"]["env_id"] == task_id
             assert r["score"]["steps"] == task.horizon and r["score"]["episodes"] == 20
             assert r["cpu_time_s"] > 0 and [p["timesteps"] for p in r["learning_curve"]][0] == 0
+            # both gaps: a value or the reason it has none, never both or neither
+            if r["curve_gap_reason"] is None:
+                assert r["score"]["curve_gap"]["relative"] is not None
+            assert (r["tree_gap"] is None) != (r["tree_gap_reason"] is None)
+            assert len(r["learning_curve_gaps"]) == len(r["learning_curve"])
             if r["variant"] == "lagrangian":  # one update, towards the task's 1 - xi
                 lag = rl_train.RunSpec("ppo", "lagrangian", 0, 2048, 3, 20, 1, task_id).lagrangian()
                 (point,) = r["dual_ascent"]
                 step = lag["lr_dual"] * (point["freq"] - (1 - task.rhc["xi"]))
                 assert point["beta"] == pytest.approx(max(0.0, lag["beta0"] + step), rel=1e-12)
         assert {a["name"] for a in section["rl_aggregates"]} == {"PPO residual", "PPO lagrangian"}
+        # the tree's reference row, recomputed by evaluate() on the same 10 episodes
+        assert section["tree"]["episodes"] == 10 and task.rhc["xi"] in section["tree"]["xis"]
+        tree = evaluate(tree_rhc(task, task.rhc["xi"], 3), episodes=10, seed=0, env_id=task_id,
+                        env_kwargs=dict(task.env_kwargs))  # fmt: skip
+        (row,) = [v for k, v in section["references"].items() if "3-step" in k]
+        assert row["cost_mean"] == pytest.approx(tree.cost_mean, rel=1e-9)
+        assert row["violation"] == pytest.approx(tree.violation, abs=1e-12)
+        assert section["missing"] == {}
     saved = json.loads((out / "summary.json").read_text())
     assert set(saved["tasks"]) == set(summary["tasks"])
-    assert "## SDJLS-VTOL-v0" in (out / "REPORT.md").read_text()
+    assert saved["runs"] == {"expected": 4, "kept": 4, "missing": {t: {} for t in two}}
+    for config in ("ppo_residual", "ppo_lagrangian"):
+        across = saved["across_tasks"][config]
+        for key in ("vs_rhc", "vs_tree"):  # an aggregate or what was left out, and why
+            assert across[key] is not None or across[key.replace("vs", "") + "_left_out"]
+        assert set(saved["sample_efficiency"][config]) == {"steps", "iqm", "ci95",
+                                                            "share_with_gap"}  # fmt: skip
+    report = (out / "REPORT.md").read_text()
+    for heading in ("## Runs", "## Across tasks (rliable)", *(f"## {t}" for t in two)):
+        assert heading in report
+    assert "4 of the 4 runs asked for are kept and scored, none missing." in report
+    figures = ["fig_aggregate.png", "fig_profiles.png", "fig_sample_efficiency.png"] + [
+        f"fig_{t}_{kind}.png" for t in two for kind in ("cost_violation", "learning_curves")
+    ]
+    assert sorted(saved["figures"]) == sorted(figures)
+    for name in figures:
+        assert (out / name).stat().st_size > 10_000 and f"]({name})" in report
+    rows = (out / "summary.csv").read_text().splitlines()
+    assert rows[0].startswith("task,name,kind") and len(rows) == 1 + 2 * (2 + 2)
     # rerun with --train-only: every run is reused, nothing is scored or written again
     stamps = {p: p.stat().st_mtime_ns for p in out.rglob("*")}
     assert compare_rl.main([*args, "--train-only"]) is None
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == stamps
     # a kept run of the suite's layout is rebuilt by benchmarks.runs and acts as the report's
-    (path,) = (out / "runs" / "SDJLS-VTOL-v0").glob("ppo_residual_s0-*.json")
+    (path,) = (out / "runs" / two[1]).glob("ppo_residual_s0-*.json")
     score = runs.score_run(path, episodes=20, seed=0)
-    kept = next(r for r in summary["tasks"]["SDJLS-VTOL-v0"]["rl_runs"]
-                if r["name"] == "ppo_residual_s0")  # fmt: skip
+    kept = next(r for r in summary["tasks"][two[1]]["rl_runs"] if r["name"] == "ppo_residual_s0")
     assert score.cost_mean == pytest.approx(kept["score"]["cost_mean"], rel=1e-9)
+    # a lost run: --score-only trains nothing and names it (task, configuration, seed)
+    path.unlink()
+    partial = compare_rl.main([*args, "--score-only"])
+    assert not path.exists()
+    assert partial["runs"]["kept"] == 3
+    assert partial["runs"]["missing"] == {two[0]: {}, two[1]: {"ppo_residual": [0]}}
+    assert [r["name"] for r in partial["tasks"][two[1]]["rl_runs"]] == ["ppo_lagrangian_s0"]
+    assert f"no kept run on {two[1]}" in partial["across_tasks"]["ppo_residual"]["rhc_left_out"]
+    report = (out / "REPORT.md").read_text()
+    assert "3 of the 4 runs asked for are kept and scored, 1 missing:" in report
+    assert f"| {two[1]} | ppo_residual | 0 of 1 (-) | 0 |" in report
+    assert "Missing runs: ppo_residual seed(s) 0." in report
 
 
 # ------------------------------------------------------------------ kept agents
