@@ -126,6 +126,15 @@ class CurveGap:
     relative: float | None = None
     relative_ci95: tuple[float, float] | None = None
 
+    def percent(self) -> tuple[float, tuple[float, float]]:
+        """``relative`` and ``relative_ci95``; a ValueError where they are None (the curve's
+        cost at ``violation`` is not positive, so there is no percentage to report)."""
+        if self.relative is None or self.relative_ci95 is None:
+            raise ValueError(
+                f"curve_cost = {self.curve_cost!r}; expected a positive cost for a gap in percent"
+            )
+        return self.relative, self.relative_ci95
+
 
 def paired_curve_gap(
     costs: np.ndarray,
