@@ -123,7 +123,7 @@ def rollout(
     runs: int,
     horizon: int,
     seed: int,
-    action_bound: float = 200.0,
+    action_bound: float | np.ndarray = 200.0,
     progress: Any = None,
     divergence_bound: float = 1e6,
 ) -> Rollouts:

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.rl_report import Aggregate, ControllerResult, RunResult
+from benchmarks.rl_report import Aggregate, ControllerResult, RunResult, curve_xi
 from benchmarks.rl_train import VARIANTS
 from benchmarks.score_table import fmt_steps
 from benchmarks.stats import CurveStatus
@@ -66,7 +66,7 @@ def make_figures(
     for panel, ax in enumerate(axes):
         keep = (lambda s: True) if panel == 0 else (lambda s: s.cost_mean <= zoom_max)
         for i, (family, color, pts) in enumerate(curves):
-            pts = sorted(pts, key=lambda r: r.curve_xi)
+            pts = sorted(pts, key=curve_xi)
             ax.plot([r.score.violation for r in pts], [r.score.cost_mean for r in pts], "-",
                     color=color, lw=1.2, label=f"{family}, xi = {pts[0].xi:g}..{pts[-1].xi:g}")  # fmt: skip
             for r in pts:

@@ -47,12 +47,12 @@ class ControllerResult:
     tightened_band_empty: float | None = None  # share of (mode, k) with an empty tightened band
     kind: str = "model-based"
 
-    @property
-    def curve_xi(self) -> float:
-        """``xi`` of a point of a curve over ``xi``; a ValueError for a result without one."""
-        if self.xi is None:
-            raise ValueError(f"{self.name!r} has xi = None; expected a point of a curve over xi")
-        return self.xi
+
+def curve_xi(point: ControllerResult) -> float:
+    """``point.xi`` of a point of a curve over ``xi``; a ValueError for a result without one."""
+    if point.xi is None:
+        raise ValueError(f"{point.name!r} has xi = None; expected a point of a curve over xi")
+    return point.xi
 
 
 @dataclass
@@ -266,12 +266,12 @@ def against_curve(
     Rows with a diverged episode, or whose frequency lies outside the curve's range, are left
     out; so is everything when the curve has fewer than 2 points.
     """
-    points = sorted(points, key=lambda r: r.curve_xi)
+    points = sorted(points, key=curve_xi)
     if len(points) < 2:
         return []
     c_costs = np.stack([p.score.episode_costs for p in points])
     c_viols = np.stack([p.score.episode_violations for p in points])
-    xis = [p.curve_xi for p in points]
+    xis = [curve_xi(p) for p in points]
     out = []
     for r in others:
         if r.score.diverged:
