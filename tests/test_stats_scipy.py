@@ -12,7 +12,7 @@ from benchmarks.stats import two_proportion_p, wilson
 def _pairs() -> list[tuple[int, int]]:
     """(k, n): k = 0, 1, 2, n/3, n/2, n-2, n-1, n for n from 1 to 2**62, and 500 pairs drawn
     with seed 0 (n log-uniform up to 1e9, k uniform in 0..n)."""
-    out = set()
+    out: set[tuple[int, int]] = set()
     for n in (1, 2, 3, 5, 10, 20, 100, 1000, 2000, 20_000, 40_000, 10**6, 10**9, 10**12, 10**15,
               10**18, 2**62):  # fmt: skip
         out.update((k, n) for k in (0, 1, 2, n // 3, n // 2, n - 2, n - 1, n) if 0 <= k <= n)
