@@ -117,7 +117,11 @@ def _run_ray(
     import sdjls_gym
 
     ray = _import_ray()
-    packages = [str(Path(m.__file__).parent) for m in (sdjls_gym, controllers, benchmarks)]
+    packages = []
+    for m in (sdjls_gym, controllers, benchmarks):
+        if m.__file__ is None:
+            raise ValueError(f"{m.__name__}.__file__ = None; expected the package's folder for Ray")
+        packages.append(str(Path(m.__file__).parent))
     runtime_env = {
         "py_modules": packages,
         "excludes": ["__pycache__"],

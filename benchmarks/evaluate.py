@@ -177,7 +177,7 @@ class TaskEnv:
 
     model: SDJLSModel
     horizon: int
-    action_bound: float
+    action_bound: float | np.ndarray  # one bound, or one per input (m,)
     divergence_bound: float
     paper_system: bool  # the macro example
     env_id: str = "SDJLS-Macro-v0"
@@ -219,7 +219,10 @@ def resolve_env(env_id: str, env_kwargs: dict[str, Any]) -> TaskEnv:
                 f"{base.horizon} (its episodes, and the time in its observation, run to it); "
                 f"{advice}"
             )
-        bound = np.asarray(base.action_space.high, dtype=np.float64)
+        box = base.action_space
+        if not isinstance(box, gym.spaces.Box):
+            raise ValueError(f"env_id = {env_id!r} has the action space {box}; expected a Box")
+        bound = np.asarray(box.high, dtype=np.float64)
         return TaskEnv(
             model=base.model,
             horizon=int(base.horizon),
@@ -265,7 +268,9 @@ def rollout_statistics(ro: Rollouts, divergence_bound: float) -> dict[str, Any]:
     }
 
 
-def decision_states(ro: Rollouts, size: int, seed: int = 0) -> tuple[np.ndarray, ...]:
+def decision_states(
+    ro: Rollouts, size: int, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``size`` visited states ``(x (B, n), mode (B,), k (B,))``, k < T, drawn from ``ro``;
     none from after a diverged episode ended."""
     runs, T = ro.ended.shape

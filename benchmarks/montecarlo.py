@@ -3,27 +3,31 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sdjls_gym import SDJLSModel, SDJLSVectorEnv
+
+if TYPE_CHECKING:
+    from controllers import RecedingHorizonController, ScenarioTreeController
 
 __all__ = ["Rollouts", "rollout", "decide_batch", "multistep_rhc", "paper_rhc"]
 
 
 def paper_rhc(
     model: SDJLSModel, xi: float, constraint: str = "individual", horizon: int | None = None
-):
+) -> RecedingHorizonController:
     """The paper's receding-horizon controller (section 6: PAPER_K, Psi, alpha, |nu| <= 100),
     for episodes of ``horizon`` steps (default: the paper's 20)."""
     from controllers import RecedingHorizonController
     from sdjls_gym.systems.macro import HORIZON, PAPER_K, PAPER_RHC
 
-    kw = {key: PAPER_RHC[key] for key in ("Psi", "alpha", "nu_bound")}
     return RecedingHorizonController(
-        model, PAPER_K, xi=xi, constraint=constraint, horizon=horizon or HORIZON, **kw
-    )
+        model, PAPER_K, PAPER_RHC["Psi"], xi=xi, alpha=PAPER_RHC["alpha"],
+        nu_bound=PAPER_RHC["nu_bound"], constraint=constraint, horizon=horizon or HORIZON,
+    )  # fmt: skip
 
 
 def multistep_rhc(
@@ -32,17 +36,18 @@ def multistep_rhc(
     steps: int = 3,
     constraint: str = "individual",
     horizon: int | None = None,
-):
+) -> ScenarioTreeController:
     """The multi-step receding-horizon controller on a fully branched scenario tree of
     ``steps`` stages (:class:`controllers.ScenarioTreeController`) with the paper's gains,
     ``Psi``, ``alpha`` and ``|nu| <= 100`` (section 6), for episodes of ``horizon`` steps."""
     from controllers import ScenarioTreeController
     from sdjls_gym.systems.macro import HORIZON, PAPER_K, PAPER_RHC
 
-    kw = {key: PAPER_RHC[key] for key in ("Psi", "alpha", "nu_bound")}
     return ScenarioTreeController(
-        model, PAPER_K, xi=xi, steps=steps, constraint=constraint, horizon=horizon or HORIZON, **kw
-    )
+        model, PAPER_K, PAPER_RHC["Psi"], xi=xi, alpha=PAPER_RHC["alpha"],
+        nu_bound=PAPER_RHC["nu_bound"], steps=steps, constraint=constraint,
+        horizon=horizon or HORIZON,
+    )  # fmt: skip
 
 
 @dataclass
@@ -81,9 +86,9 @@ class Rollouts:
         return self.x.shape[0]
 
     @property
-    def any_violation(self) -> np.ndarray:
+    def any_violation(self) -> NDArray[np.bool_]:
         """(runs, T) whether any row is violated at k+1."""
-        return self.violations.any(axis=-1)
+        return np.asarray(self.violations.any(axis=-1))  # an array: violations is (runs, T, r)
 
     @property
     def episode_cost(self) -> np.ndarray:
@@ -118,7 +123,7 @@ def rollout(
     runs: int,
     horizon: int,
     seed: int,
-    action_bound: float = 200.0,
+    action_bound: float | np.ndarray = 200.0,
     progress: Any = None,
     divergence_bound: float = 1e6,
 ) -> Rollouts:

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from benchmarks.montecarlo import Rollouts
+
+if TYPE_CHECKING:
+    from matplotlib.typing import RcKeyType
 
 KINDS = ("individual", "joint", "bonferroni")
 
@@ -158,7 +162,7 @@ def make_figures(
     import matplotlib.pyplot as plt
 
     names = []
-    style = {
+    style: dict[RcKeyType, Any] = {
         "font.size": 11,
         "axes.titlesize": 12,
         "axes.labelsize": 11,

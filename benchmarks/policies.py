@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import inspect
+from collections.abc import Mapping
 from typing import Any
 
 import gymnasium as gym
@@ -44,6 +45,13 @@ def check_spaces(agent: Any, observation_space: Any, action_space: Any, where: s
             )
 
 
+def _box(space: gym.Space[Any], where: str) -> gym.spaces.Box:
+    """``space`` (the action space of ``where``), which must be a Box to be rescaled."""
+    if not isinstance(space, gym.spaces.Box):
+        raise TypeError(f"{where} has the action space {space}; expected a gymnasium.spaces.Box")
+    return space
+
+
 def _actions(value: Any, m: int, obs: np.ndarray) -> np.ndarray:
     """A policy's answer read by ``env.step``'s rule (:func:`sdjls_gym.validation.check_numbers`):
     ``"1.0"``, ``True`` or None are not actions."""
@@ -63,6 +71,7 @@ class _Predict:
 
     def __init__(self, agent: Any) -> None:
         self.agent = agent
+        params: Mapping[str, inspect.Parameter]
         try:
             params = inspect.signature(agent.predict).parameters
         except (TypeError, ValueError):
@@ -137,6 +146,7 @@ class _ObservationPolicy:
         # undecided: one call on all rows, checked against single calls on up to 8 distinct rows
         # (decided only on a batch with distinct rows: a batch of equal rows cannot show a
         # policy that mixes up its rows)
+        a: np.ndarray | None
         try:
             a = _actions(self.call(obs), self.m, obs[0])
             a = a.reshape(B, self.m) if a.shape in ((B, self.m), (B,) * (self.m == 1)) else None
@@ -293,8 +303,8 @@ class RawEnvPolicy:
         self.agent, self.model = agent, base.model
         self._predict = _Predict(agent)
         self.horizon, self.divergence_bound = int(base.horizon), float(base.divergence_bound)
-        self.action_bound = float(np.max(base.action_space.high))
-        box = env.action_space
+        self.action_bound = float(np.max(_box(base.action_space, "the SDJLSEnv").high))
+        box = _box(env.action_space, "env (RawEnvPolicy's env)")
         self.low, self.high = box.low.astype(np.float64), box.high.astype(np.float64)
         self.scaling: tuple[float, float] | None = None
         self.actions: list[tuple[str, Any]] = []  # outermost first: how an action reaches u
@@ -304,8 +314,12 @@ class RawEnvPolicy:
             if isinstance(e, ScaleObservationReward):
                 self.scaling = (e.x_scale, e.obs_clip)
             elif isinstance(e, gym.wrappers.RescaleAction):
-                lo, hi = e.action_space.low, e.action_space.high
-                in_lo, in_hi = inner.action_space.low, inner.action_space.high
+                outer, inner_box = (
+                    _box(e.action_space, "RescaleAction"),
+                    _box(inner.action_space, "the env RescaleAction wraps"),
+                )
+                lo, hi = outer.low, outer.high
+                in_lo, in_hi = inner_box.low, inner_box.high
                 bounds = tuple(np.asarray(v, dtype=np.float64) for v in (lo, hi, in_lo, in_hi))
                 self.actions.append(("rescale", bounds))
             elif isinstance(e, ResidualAction):

@@ -187,7 +187,7 @@ def reference_curve(
     seed: int,
     *,
     horizon: int | None = None,
-    action_bound: float | None = None,
+    action_bound: float | np.ndarray | None = None,
     divergence_bound: float = 1e6,
     constraint: str = REFERENCE_CONSTRAINT,
     xis: tuple[float, ...] | None = None,

@@ -43,6 +43,7 @@ import numpy as np
 
 import sdjls_gym  # noqa: F401  (registers the ids)
 from benchmarks.cli_options import options_parser, parse_options
+from sdjls_gym.env import SDJLSEnv
 from sdjls_gym.systems.macro import HORIZON, PAPER_K, PAPER_RHC, macro
 
 TARGET_FPS = 30.0  # a 20-step episode recorded as video at >= 30 frames per second
@@ -180,9 +181,13 @@ def save_picture(opts: Options, policy, name: str) -> dict[str, Any]:
     env = gym.make("SDJLS-Macro-v0", render_mode="rgb_array")
     run_episode(env, policy, opts.seed)
     frame = env.render()
+    if not isinstance(frame, np.ndarray):  # render_mode="rgb_array" gives one image
+        raise TypeError(f"env.render() returned {type(frame).__name__}; expected an RGB array")
     path = opts.out / name
     Image.fromarray(frame).save(path, optimize=True)
     unwrapped = env.unwrapped
+    if not isinstance(unwrapped, SDJLSEnv):
+        raise TypeError(f"SDJLS-Macro-v0 made a {type(unwrapped).__name__}; expected an SDJLSEnv")
     return {"file": name, "k": unwrapped.k, "shape": list(frame.shape), "final_state": [
         float(v) for v in unwrapped.state
     ]}  # fmt: skip

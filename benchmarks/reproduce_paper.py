@@ -364,7 +364,9 @@ def write_per_step_csv(path: Path, summary: dict[str, Any]) -> int:
                     step["violation_rows"],
                     step["violation_rows_wilson95"],
                 )
-                cells = [(j, *cell) for j, cell in enumerate(zip(*by_row, strict=True))]
+                cells: list[tuple[int | str, Any, Any, Any]] = [
+                    (j, *cell) for j, cell in enumerate(zip(*by_row, strict=True))
+                ]
                 cells.append(
                     ("any", step["violation_any_count"], step["violation_any"], step["wilson95"])
                 )

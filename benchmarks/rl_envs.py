@@ -282,7 +282,10 @@ def wrap_train_env(
         if K is None:
             raise ValueError("a residual agent needs the gains K (N, m, n)")
         env = ResidualAction(env, K, nu_bound)
-    one = np.ones(env.action_space.shape, dtype=np.float32)
+    shape = env.action_space.shape
+    if shape is None:
+        raise TypeError(f"{env_id}'s action space {env.action_space} has no shape; expected a Box")
+    one = np.ones(shape, dtype=np.float32)
     env = RescaleAction(env, -one, one)
     if beta is not None:
         env = ViolationPenalty(env, beta)

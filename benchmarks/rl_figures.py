@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.rl_report import Aggregate, ControllerResult, RunResult
+from benchmarks.rl_report import Aggregate, ControllerResult, RunResult, curve_xi
 from benchmarks.rl_train import VARIANTS
 from benchmarks.score_table import fmt_steps
 from benchmarks.stats import CurveStatus
@@ -75,7 +75,7 @@ def make_figures(
     for panel, ax in enumerate(axes):
         keep = (lambda s: True) if panel == 0 else (lambda s: s.cost_mean <= zoom_max)
         for i, (family, color, pts) in enumerate(curves):
-            pts = sorted(pts, key=lambda r: r.xi)
+            pts = sorted(pts, key=curve_xi)
             ax.plot([r.score.violation for r in pts], [r.score.cost_mean for r in pts], "-",
                     color=color, lw=1.2, label=f"{family}, xi = {pts[0].xi:g}..{pts[-1].xi:g}")  # fmt: skip
             for r in pts:
@@ -152,14 +152,14 @@ def make_figures(
     lag = [r.run for r in runs if r.run.variant == "lagrangian" and r.run.dual_ascent]
     if lag:
         fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-        for r in lag:
-            steps = [p.timesteps for p in r.dual_ascent]
-            color, label = ALGO_COLORS.get(r.algo, "C3"), f"{r.algo.upper()} seed {r.seed}"
-            axes[0].plot(steps, [p.beta for p in r.dual_ascent], color=color, alpha=0.8,
+        for run in lag:
+            at = [p.timesteps for p in run.dual_ascent]
+            color, label = ALGO_COLORS.get(run.algo, "C3"), f"{run.algo.upper()} seed {run.seed}"
+            axes[0].plot(at, [p.beta for p in run.dual_ascent], color=color, alpha=0.8,
                          label=label)  # fmt: skip
-            axes[1].plot(steps, [p.freq for p in r.dual_ascent], color=color, alpha=0.8,
+            axes[1].plot(at, [p.freq for p in run.dual_ascent], color=color, alpha=0.8,
                          label=label)  # fmt: skip
-            axes[1].plot(steps, [p.train_freq for p in r.dual_ascent], color=color, alpha=0.35,
+            axes[1].plot(at, [p.train_freq for p in run.dual_ascent], color=color, alpha=0.35,
                          ls="--")  # fmt: skip
         axes[1].axhline(1 - xi, color="r", ls=":", label="target 1 - xi")
         axes[0].set_ylabel("beta")

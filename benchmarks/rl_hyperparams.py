@@ -179,7 +179,7 @@ def learning_rate(value: float | str) -> float | Callable[[float], float]:
     rate: Any = value
     if linear:
         try:
-            rate = float(value[len(LINEAR_SCHEDULE_PREFIX) :])
+            rate = float(str(value)[len(LINEAR_SCHEDULE_PREFIX) :])  # value is a str here
         except ValueError:
             rate = None
     if (

@@ -48,6 +48,13 @@ class ControllerResult:
     kind: str = "model-based"
 
 
+def curve_xi(point: ControllerResult) -> float:
+    """``point.xi`` of a point of a curve over ``xi``; a ValueError for a result without one."""
+    if point.xi is None:
+        raise ValueError(f"{point.name!r} has xi = None; expected a point of a curve over xi")
+    return point.xi
+
+
 @dataclass
 class RunResult:
     """A trained seed, scored."""
@@ -174,6 +181,11 @@ def aggregate(runs: list[RunResult]) -> list[Aggregate]:
         vlo, vhi = wilson(count, steps)
         freqs = [s.violation for s in scores]
         betas = [r.run.final_beta for r in rs]
+        known = [b for b in betas if b is not None]
+        if known and len(known) < len(betas):
+            raise ValueError(
+                f"{algo} {variant}: final_beta = {betas}; expected a value on every seed or on none"
+            )
         rows.append(
             Aggregate(
                 name=f"{algo.upper()} {variant}",
@@ -193,7 +205,7 @@ def aggregate(runs: list[RunResult]) -> list[Aggregate]:
                 train_time_s=float(np.mean([r.run.train_time_s for r in rs])),
                 decision_time_batched_s=float(np.mean([s.decision_time_batched_s for s in scores])),
                 decision_time_single_s=float(np.mean([s.decision_time_single_s for s in scores])),
-                final_beta=None if betas[0] is None else float(np.mean(betas)),
+                final_beta=float(np.mean(known)) if known else None,
             )
         )
     return rows
@@ -254,12 +266,12 @@ def against_curve(
     Rows with a diverged episode, or whose frequency lies outside the curve's range, are left
     out; so is everything when the curve has fewer than 2 points.
     """
-    points = sorted(points, key=lambda r: r.xi)
+    points = sorted(points, key=curve_xi)
     if len(points) < 2:
         return []
     c_costs = np.stack([p.score.episode_costs for p in points])
     c_viols = np.stack([p.score.episode_violations for p in points])
-    xis = [p.xi for p in points]
+    xis = [curve_xi(p) for p in points]
     out = []
     for r in others:
         if r.score.diverged:
@@ -269,7 +281,7 @@ def against_curve(
         if g is None:
             continue
         out.append(AgainstCurve(r.name, points[0].family, g.violation, r.score.cost_mean,
-                                g.curve_cost, g.mean, tuple(g.ci95), g.xi))  # fmt: skip
+                                g.curve_cost, g.mean, g.ci95, g.xi))  # fmt: skip
     return out
 
 

@@ -234,7 +234,10 @@ def build_agent(spec: RunSpec, env_fns: list[Callable[[], gym.Env]]) -> Any:
     n_envs = hp.pop("n_envs")
     venv = DummyVecEnv(env_fns * n_envs if len(env_fns) == 1 else env_fns)
     if spec.algo == "td3":
-        std, m = hp.pop("noise_std"), venv.action_space.shape[0]
+        shape = venv.action_space.shape
+        if shape is None:
+            raise TypeError(f"{spec.task}'s action space {venv.action_space} has no shape")
+        std, m = hp.pop("noise_std"), shape[0]
         hp["action_noise"] = NormalActionNoise(np.zeros(m), std * np.ones(m))
     if isinstance(hp.get("train_freq"), list):
         hp["train_freq"] = tuple(hp["train_freq"])
@@ -408,12 +411,13 @@ def train_run(
     callbacks: list[BaseCallback] = [LearningCurve(spec, log, evaluator, report, on_curve_point)]
     if lagrangian:
         callbacks.insert(0, DualAscent(spec, log, evaluator))
-    if should_stop is not None:
-        callbacks.append(StopWhen(should_stop))
+    stopper = None if should_stop is None else StopWhen(should_stop)
+    if stopper is not None:
+        callbacks.append(stopper)
     t0, c0 = time.perf_counter(), time.process_time()
     agent.learn(total_timesteps=spec.timesteps, callback=callbacks)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    if should_stop is not None and callbacks[-1].stopped:
+    if stopper is not None and stopper.stopped:
         raise TrainingStopped(f"{spec.label} was stopped at {agent.num_timesteps} steps")
     record = RunRecord(
         name=spec.name,
@@ -501,9 +505,11 @@ def policy_from_config(
     :func:`env_from_config`), acting on the raw environment."""
     import torch
     from stable_baselines3 import PPO, SAC, TD3
+    from stable_baselines3.common.base_class import BaseAlgorithm
 
     env = env_from_config(config, variant)
-    cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[algo]
+    classes: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
+    cls = classes[algo]
     kwargs = copy.deepcopy(config["hyperparams"].get("policy_kwargs", {}))
     policy = cls.policy_aliases["MlpPolicy"](
         env.observation_space, env.action_space, lambda _: 0.0, **kwargs

@@ -278,13 +278,20 @@ def evaluate_suite(
     )
     table = agg = None
     if not missing:
-        table = np.array([[g.relative for g in r.gaps] for r in results]).T  # (runs, tasks)
+        table = np.array([[_percent(g)[0] for g in r.gaps] for r in results]).T  # (runs, tasks)
         agg = aggregate_gaps(table, resamples)
     return SuiteScore(tuple(r.env_id for r in results), episodes, seed, n_runs, tuple(results),
                       table, agg, missing)  # fmt: skip
 
 
 # ----------------------------------------------------------------------------- report lines
+def _percent(gap: CurveGap | None) -> tuple[float, tuple[float, float]]:
+    """A run's gap in percent; None here is a bug (a run with a reason has no gap)."""
+    if gap is None:
+        raise ValueError("gap = None; expected the CurveGap of a run scored against the curve")
+    return gap.percent()
+
+
 def _ci(lo: float, hi: float, fmt: str = "+.1f") -> str:
     return f"{lo:{fmt}} to {hi:{fmt}}"
 
@@ -298,7 +305,7 @@ def describe_suite(suite: SuiteScore) -> list[str]:
     ]
     for r in suite.results:
         for i, (s, g, reason) in enumerate(zip(r.scores, r.gaps, r.reasons, strict=True)):
-            gap = "-" if g is None else f"{g.relative:+.1f} ({_ci(*g.relative_ci95)})"
+            gap = "-" if g is None else f"{_percent(g)[0]:+.1f} ({_ci(*_percent(g)[1])})"
             at = "-" if g is None or g.xi is None else f"{g.xi:.3f}"
             lines.append(
                 f"| {r.env_id} | {i} | {s.cost_mean:.4g} ({s.cost_ci95[0]:.4g} to "
@@ -442,6 +449,8 @@ def main(argv: list[str] | None = None) -> Any:
     from benchmarks.files import write_atomic
     from benchmarks.versions import package_versions
 
+    if opts.episodes is None:
+        raise ValueError("opts.episodes = None; expected the value parse_args fills in")
     suite = evaluate_suite(factory, tuple(opts.tasks), opts.episodes, opts.seed,
                            progress=not opts.no_progress)  # fmt: skip
     print("\n".join(describe_suite(suite)))

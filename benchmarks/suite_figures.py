@@ -45,9 +45,9 @@ def make_figures(out: Path, refs: list[Any], aggs: dict[str, Any]) -> list[str]:
         fig, ax = plt.subplots(figsize=(7.5, 5))
         for family in ("RHC individual", "RHC joint", "RHC 3-step"):
             pts = sorted((p for p in t.points if p.family == family), key=lambda p: p.xi)
-            label = f"{family} ({pts[0].episodes} episodes), xi = {pts[0].xi:g}..{pts[-1].xi:g}"
+            text = f"{family} ({pts[0].episodes} episodes), xi = {pts[0].xi:g}..{pts[-1].xi:g}"
             ax.plot([p.violation for p in pts], [p.cost_mean for p in pts], "-",
-                    color=COLORS[family], lw=1.2, label=label)  # fmt: skip
+                    color=COLORS[family], lw=1.2, label=text)  # fmt: skip
             for p in pts:
                 _errbars(ax, p, fmt="o", color=COLORS[family], ms=3.5)
                 if family == "RHC individual" and p.xi == t.xi:
@@ -78,8 +78,8 @@ def make_figures(out: Path, refs: list[Any], aggs: dict[str, Any]) -> list[str]:
             p = t.at(family)
             if p.gap is None:
                 continue
-            lo, hi = p.gap.relative_ci95
-            g = p.gap.relative  # a percentile interval need not contain the point (e.g. 0)
+            # a percentile interval need not contain the point (e.g. 0)
+            g, (lo, hi) = p.gap.percent()
             ax.errorbar(g, yi, xerr=[[max(g - lo, 0.0)], [max(hi - g, 0.0)]],
                         fmt=MARKERS.get(family, "o"), color=COLORS[family], ms=5, capsize=2,
                         label=label)  # fmt: skip

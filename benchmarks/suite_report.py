@@ -190,10 +190,11 @@ def aggregates(refs: list[TaskReferences]) -> dict[str, SuiteAggregate | list[st
     for family in AGGREGATED:
         pts = [(t.env_id, t.at(family)) for t in refs]
         missing = [f"{env_id}: {p.reason}" for env_id, p in pts if p.gap is None]
+        gaps = [p.gap for _, p in pts if p.gap is not None]
         if missing:
             out[family] = missing
         else:
-            out[family] = aggregate_gaps(np.array([[p.gap.relative for _, p in pts]]))
+            out[family] = aggregate_gaps(np.array([[g.percent()[0] for g in gaps]]))
     return out
 
 
@@ -205,8 +206,8 @@ def _gap_text(p: Point) -> str:
         return (
             "outside" if "range" in p.reason else "diverged" if "diverged" in p.reason else "none"
         )
-    lo, hi = p.gap.relative_ci95
-    return f"{p.gap.relative:+.1f} ({lo:+.1f} to {hi:+.1f})"
+    relative, (lo, hi) = p.gap.percent()
+    return f"{relative:+.1f} ({lo:+.1f} to {hi:+.1f})"
 
 
 def _cv(p: Point) -> str:
@@ -300,7 +301,7 @@ def write_csv(out: Path, refs: list[TaskReferences]) -> None:
     for t in refs:
         for p in t.points:
             g = p.gap
-            gap = ["", "", ""] if g is None else [g.relative, *g.relative_ci95]
+            gap = ["", "", ""] if g is None else [g.percent()[0], *g.percent()[1]]
             row = [t.env_id, p.family, "" if p.xi is None else p.xi, p.episodes, p.cost_mean,
                    *p.cost_ci95, p.violation, *p.violation_wilson95, p.diverged, *gap]  # fmt: skip
             w.writerow(stable_floats(row))

@@ -104,7 +104,7 @@ def draw(task: Any, plan: Any, info: dict, out: Path) -> Path:
     from sdjls_gym.render import single_state_bounds, state_labels
 
     model = task.model
-    colors = plt.get_cmap("tab10").colors
+    colors = matplotlib.color_sequences["tab10"]  # the colours of the tab10 colormap
     names = model.mode_names
     steps = int(plan.stage.max()) + 1
     fig, (ax_tree, ax_band) = plt.subplots(

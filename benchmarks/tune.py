@@ -35,7 +35,7 @@ import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -140,7 +140,7 @@ def suggest(trial: Any, algo: str, variant: str) -> dict[str, Any]:
 
 def overrides(params: dict[str, Any], task: str) -> tuple[tuple[str, Any], ...]:
     """A trial's parameters as :attr:`benchmarks.rl_train.RunSpec.overrides`."""
-    out = []
+    out: list[tuple[str, Any]] = []
     for name, value in sorted(params.items()):
         if name == "net_arch":
             out.append(("net_arch", list(NET_ARCHS[value])))
@@ -275,6 +275,16 @@ class Options:
         return QUICK["curve_episodes"] if self.quick else HP.LEARNING_CURVE["episodes"]
 
 
+_T = TypeVar("_T")
+
+
+def _resolved(value: _T | None, name: str) -> _T:
+    """``opts.<name>``, which :func:`parse_args` fills; None is a bug of the caller."""
+    if value is None:
+        raise ValueError(f"Options.{name} = None; expected the value parse_args fills in")
+    return value
+
+
 def parse_args(argv: list[str] | None = None) -> Options:
     parser = options_parser(
         Options,
@@ -324,9 +334,10 @@ def run_trial(params: dict[str, Any], opts: Options, report: Any = None) -> tupl
     ``report(value, timesteps)`` is called at each learning-curve point of the first seed (an
     exception it raises, a pruning, ends the trial)."""
     reference = reference_curve(opts.task, opts.curve_episodes, HP.LEARNING_CURVE["seed"])
+    timesteps, out = _resolved(opts.timesteps, "timesteps"), _resolved(opts.out, "out")
     values, names = [], []
     for i in range(opts.seeds):
-        spec = RunSpec(opts.algo, opts.variant, TUNE_SEED0 + i, opts.timesteps, opts.curve_points,
+        spec = RunSpec(opts.algo, opts.variant, TUNE_SEED0 + i, timesteps, opts.curve_points,
                        opts.curve_episodes, HP.LEARNING_CURVE["seed"], opts.task,
                        overrides(params, opts.task))  # fmt: skip
 
@@ -335,7 +346,7 @@ def run_trial(params: dict[str, Any], opts: Options, report: Any = None) -> tupl
                 report(point_objective(point, opts.curve_episodes, reference), point.timesteps)
 
         record, policy = train_run(spec, on_curve_point=on_point)
-        names.append(save_run(opts.out / "runs", record, policy).name)
+        names.append(save_run(out / "runs", record, policy).name)
         values.append(late_value(record.learning_curve, opts.curve_episodes, reference))
     return float(np.mean(values)), names
 
@@ -364,10 +375,10 @@ def load_study(opts: Options) -> Any:
     ``--seed`` and the number of trials already in it, and the median pruner."""
     import optuna
 
-    warmup = int(0.3 * opts.timesteps)
+    warmup = int(0.3 * _resolved(opts.timesteps, "timesteps"))
     pruner = optuna.pruners.MedianPruner(n_startup_trials=1 if opts.quick else 5,
                                          n_warmup_steps=warmup)  # fmt: skip
-    study = optuna.create_study(study_name=opts.study_name, storage=_storage(opts.storage),
+    study = optuna.create_study(study_name=opts.study_name, storage=_storage(_resolved(opts.storage, "storage")),
                                 direction="minimize", load_if_exists=True, pruner=pruner)  # fmt: skip
     attrs = study_attrs(opts)
     kept = {k: study.user_attrs[k] for k in attrs if k in study.user_attrs}
@@ -410,12 +421,13 @@ def optimize_optuna(study: Any, opts: Options, log: Any) -> None:
     def logged(study: Any, trial: Any) -> None:
         log(f"trial {trial.number}: {trial.state.name} value {trial.value} {trial.params}")
 
-    todo = opts.trials - finished(study)
+    trials = _resolved(opts.trials, "trials")
+    todo = trials - finished(study)
     if todo <= 0:
         log(f"study {opts.study_name} already holds {finished(study)} finished trials")
         return
     stop = optuna.study.MaxTrialsCallback(
-        opts.trials, states=(optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
+        trials, states=(optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
     )
     study.optimize(objective, n_trials=todo, callbacks=[stop, logged], catch=())
 
@@ -431,7 +443,8 @@ def _ray_trainable(config: dict[str, Any], opts: dict[str, Any]) -> None:
 
     o = Options(**{**opts, "out": Path(opts["out"])})
     value, _ = run_trial(config, o, lambda v, t: tune.report({"objective": v, "timesteps": t}))
-    tune.report({"objective": value, "timesteps": o.timesteps * o.seeds + 1, "final": True})
+    steps = _resolved(o.timesteps, "timesteps") * o.seeds + 1
+    tune.report({"objective": value, "timesteps": steps, "final": True})
 
 
 def optimize_ray(study: Any, opts: Options, log: Any) -> None:
@@ -451,11 +464,14 @@ def optimize_ray(study: Any, opts: Options, log: Any) -> None:
         raise ImportError(
             f'--backend ray needs Ray Tune ({exc}): pip install -e ".[cluster]"'
         ) from None
-    todo = opts.trials - finished(study)
+    trials, timesteps = _resolved(opts.trials, "trials"), _resolved(opts.timesteps, "timesteps")
+    storage, out = _resolved(opts.storage, "storage"), _resolved(opts.out, "out")
+    todo = trials - finished(study)
     if todo <= 0:
         log(f"study {opts.study_name} already holds {finished(study)} finished trials")
         return
-    packages = [str(Path(m.__file__).parent) for m in (sdjls_gym, controllers, benchmarks)]
+    packages = [str(Path(_resolved(m.__file__, f"{m.__name__}.__file__")).parent)
+                for m in (sdjls_gym, controllers, benchmarks)]  # fmt: skip
     env_vars = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     kwargs: dict[str, Any] = {"runtime_env": {"py_modules": packages, "excludes": ["__pycache__"],
                                               "env_vars": env_vars}, "log_to_driver": False}  # fmt: skip
@@ -472,10 +488,10 @@ def optimize_ray(study: Any, opts: Options, log: Any) -> None:
         searcher = OptunaSearch(
             space=functools.partial(_define_by_run, algo=opts.algo, variant=opts.variant),
             metric="objective", mode="min", study_name=opts.study_name,
-            storage=_storage(opts.storage, heartbeat=False), sampler=study.sampler,
+            storage=_storage(storage, heartbeat=False), sampler=study.sampler,
         )  # fmt: skip
         scheduler = MedianStoppingRule(time_attr="timesteps", metric="objective", mode="min",
-                                       grace_period=int(0.3 * opts.timesteps),
+                                       grace_period=int(0.3 * timesteps),
                                        min_samples_required=1 if opts.quick else 5)  # fmt: skip
         plain = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(opts).items()}
         tuner = tune.Tuner(
@@ -483,7 +499,7 @@ def optimize_ray(study: Any, opts: Options, log: Any) -> None:
             tune_config=tune.TuneConfig(search_alg=searcher, scheduler=scheduler,
                                         num_samples=todo, max_concurrent_trials=opts.workers),
             run_config=tune.RunConfig(name=opts.study_name, verbose=0,
-                                      storage_path=str((opts.out / "ray").resolve())),
+                                      storage_path=str((out / "ray").resolve())),
         )  # fmt: skip
         tuner.fit()
     finally:
@@ -528,14 +544,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any] | None:
     if opts.print_space:
         print("\n".join(describe_space(opts.algo, opts.variant)))
         return None
-    opts.out.mkdir(parents=True, exist_ok=True)
+    out = _resolved(opts.out, "out")
+    out.mkdir(parents=True, exist_ok=True)
     study = load_study(opts)
     log(f"study {opts.study_name} ({opts.storage}): {finished(study)} of {opts.trials} trials "
         f"finished; {opts.algo} {opts.variant} on {opts.task}, {opts.timesteps} steps x "
         f"{opts.seeds} seed(s) per trial")  # fmt: skip
     (optimize_ray if opts.backend == "ray" else optimize_optuna)(study, opts, log)
     summary = summarize(load_study(opts), opts)
-    path = opts.out / f"{opts.study_name}.json"
+    path = out / f"{opts.study_name}.json"
     write_atomic(path, json.dumps(stable_floats(summary), indent=1, default=str) + "\n")
     best = summary["best"]
     log(f"wrote {path}; best: " + ("-" if best is None else f"trial {best['number']}, value "

@@ -9,7 +9,10 @@ The target band for the income is ``2 + 0.5 k <= x_k(2) <= 5 + 0.5 k``, written 
 
 from __future__ import annotations
 
+from typing import TypedDict
+
 import numpy as np
+from numpy.typing import NDArray
 
 from sdjls_gym.model import SDJLSModel
 
@@ -31,9 +34,19 @@ PAPER_Y = np.array([[[3.2866, -2.4108]], [[8.2797, -3.4325]], [[-6.0384, 0.5429]
 #: The paper's gains ``K_i = Y_i X_i^{-1}`` as printed (section 6).
 PAPER_K = np.array([[[2.5, -3.2]], [[4.3, -4.5]], [[-5.3, 5.2]]])
 
+
+class PaperRHC(TypedDict):
+    """The types of :data:`PAPER_RHC`'s entries (a plain dict at run time)."""
+
+    xi: float
+    alpha: float
+    Psi: NDArray[np.float64]
+    nu_bound: float
+
+
 #: The paper's receding-horizon parameters (section 6): chance level, slack penalty, terminal
 #: weights Psi_i, and the bound on the offset |nu_k| <= 100.
-PAPER_RHC = {
+PAPER_RHC: PaperRHC = {
     "xi": 0.85,
     "alpha": 1000.0,
     "Psi": np.array([np.eye(2), 2.0 * np.eye(2), 3.0 * np.eye(2)]),
