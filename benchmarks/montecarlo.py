@@ -25,7 +25,7 @@ def paper_rhc(
     from sdjls_gym.systems.macro import HORIZON, PAPER_K, PAPER_RHC
 
     return RecedingHorizonController(
-        model, PAPER_K, PAPER_RHC["Psi"], xi=xi, alpha=PAPER_RHC["alpha"],
+        model, PAPER_K, Psi=PAPER_RHC["Psi"], xi=xi, alpha=PAPER_RHC["alpha"],
         nu_bound=PAPER_RHC["nu_bound"], constraint=constraint, horizon=horizon or HORIZON,
     )  # fmt: skip
 
@@ -44,7 +44,7 @@ def multistep_rhc(
     from sdjls_gym.systems.macro import HORIZON, PAPER_K, PAPER_RHC
 
     return ScenarioTreeController(
-        model, PAPER_K, PAPER_RHC["Psi"], xi=xi, alpha=PAPER_RHC["alpha"],
+        model, PAPER_K, Psi=PAPER_RHC["Psi"], xi=xi, alpha=PAPER_RHC["alpha"],
         nu_bound=PAPER_RHC["nu_bound"], steps=steps, constraint=constraint,
         horizon=horizon or HORIZON,
     )  # fmt: skip
