@@ -194,7 +194,10 @@ def aggregate_gaps(
         iqm_gap=iqm_gap,
         iqm_gap_ci95=(lo, hi),
         probability_of_improvement=float(poi["policy"][0]),
-        probability_of_improvement_ci95=tuple(float(v) for v in poi_ci["policy"][:, 0]),
+        probability_of_improvement_ci95=(
+            float(poi_ci["policy"][0, 0]),
+            float(poi_ci["policy"][1, 0]),
+        ),
         profile_taus=PROFILE_TAUS.copy(),
         profile=np.asarray(profile["policy"], dtype=np.float64),
         profile_ci95=np.asarray(profile_ci["policy"], dtype=np.float64),

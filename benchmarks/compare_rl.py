@@ -42,7 +42,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from tqdm import tqdm
@@ -382,9 +382,21 @@ def tuned_overrides(paths: list[Path] | None) -> dict[tuple[str, str, str], tupl
     return out
 
 
+_T = TypeVar("_T")
+
+
+def filled(name: str, value: _T | None) -> _T:
+    """``value`` of the option ``name``, which :func:`parse_args` fills in (a ValueError names
+    an ``Options`` built by hand and left incomplete)."""
+    if value is None:
+        raise ValueError(f"Options.{name} is None; expected it filled in (use parse_args)")
+    return value
+
+
 def specs_of(opts: Options) -> list[Any]:
     """The runs of ``opts`` (:func:`benchmarks.rl_train.run_specs`)."""
-    return run_specs(opts.config_pairs(), opts.seeds, opts.timesteps, opts.quick, opts.tasks,
+    return run_specs(opts.config_pairs(), filled("seeds", opts.seeds), opts.timesteps, opts.quick,
+                     filled("tasks", opts.tasks),
                      PRESETS[opts.preset]["budgets"], tuned_overrides(opts.tuned))  # fmt: skip
 
 
@@ -443,12 +455,18 @@ def main(argv: list[str] | None = None) -> Summary | dict[str, Any] | None:
     """
     argv = sys.argv[1:] if argv is None else list(argv)
     opts = parse_args(argv)
-    opts.out.mkdir(parents=True, exist_ok=True)
+    out, tasks, configs = (
+        filled("out", opts.out),
+        filled("tasks", opts.tasks),
+        filled("configs", opts.configs),
+    )
+    out.mkdir(parents=True, exist_ok=True)
     log = _log
     specs = specs_of(opts)
-    log(f"{len(specs)} training runs: {len(opts.tasks)} task(s) x {', '.join(opts.configs)} x "
+    log(f"{len(specs)} training runs: {len(tasks)} task(s) x {', '.join(configs)} x "
         f"{opts.seeds} seed(s)")  # fmt: skip
-    run_dir = opts.out / "runs"
+    run_dir = out / "runs"
+    trained: list[Any]
     if opts.score_only:  # what is kept; the report names the rest
         trained = kept_runs(specs, run_dir)
     else:
@@ -470,7 +488,8 @@ def report_macro(specs: list[Any], trained: list[Any], run_dir: Path, opts: Opti
                  argv: list[str]) -> Summary:  # fmt: skip
     """The comparison on the macro task: every agent and model-based controller scored on the
     same episodes; summary.json, summary.csv, the figures and REPORT.md."""
-    log, model = _log, macro()
+    log, model, out = _log, macro(), filled("out", opts.out)
+    algos, variants = filled("algos", opts.algos), filled("variants", opts.variants)
     # every controller is scored after the training, in this process: the same machine load
     # for the decision times of all of them
     log(f"scoring the model-based controllers on {opts.eval_episodes} episodes")
@@ -479,7 +498,10 @@ def report_macro(specs: list[Any], trained: list[Any], run_dir: Path, opts: Opti
     import torch
 
     torch.set_num_threads(1)  # as in training, and for the agents' decision times
-    policies = {s.name: load_policy(s, policy_path(kept_run_path(run_dir, s))) for s in specs}
+    policies = {
+        s.name: load_policy(s, policy_path(filled(f"the run {s.name}", kept_run_path(run_dir, s))))
+        for s in specs
+    }
     runs = [
         RunResult(run, evaluate(policies[s.name], episodes=opts.eval_episodes, seed=opts.seed))
         for s, run in zip(specs, trained, strict=True)
@@ -495,17 +517,17 @@ def report_macro(specs: list[Any], trained: list[Any], run_dir: Path, opts: Opti
     curves = [(c.family, c.color, [r for r in mb if r.family == c.family])
               for c in MODEL_BASED_CURVES]  # fmt: skip
     singles = [r for r in mb if r.xi is None]
-    figures = make_figures(opts.out, curves, singles, aggs, runs, status, panels,
-                           model.H(range(HORIZON + 1)), XI)  # fmt: skip
+    figures = make_figures(out, curves, singles, aggs, runs, status, panels,
+                           model.H(np.arange(HORIZON + 1)), XI)  # fmt: skip
     summary = Summary(
         command="python -m benchmarks.compare_rl" + ("" if not argv else " " + " ".join(argv)),
         options={k: str(v) if isinstance(v, Path) else v for k, v in asdict(opts).items()},
         versions=package_versions(),
         timesteps={
             a: {s.variant: s.timesteps for s in specs if s.algo == a and s.seed == specs[0].seed}
-            for a in opts.algos
+            for a in algos
         },  # fmt: skip
-        hyperparams=hyperparams_record(opts.algos, opts.variants),
+        hyperparams=hyperparams_record(algos, variants),
         model_based=mb,
         rl_runs=runs,
         rl_aggregates=aggs,
@@ -527,11 +549,11 @@ def report_macro(specs: list[Any], trained: list[Any], run_dir: Path, opts: Opti
     )
     # atomic (write, then rename), as the runs are: an interrupted run never leaves half a file
     write_atomic(
-        opts.out / "summary.json", json.dumps(stable_floats(summary.to_json()), indent=1) + "\n"
+        out / "summary.json", json.dumps(stable_floats(summary.to_json()), indent=1) + "\n"
     )
-    write_csv(opts.out / "summary.csv", mb + aggs + runs)
-    write_atomic(opts.out / "REPORT.md", write_report(summary, XI, MODEL_BASED_CURVES[0].family))
-    log(f"wrote {opts.out}/REPORT.md")
+    write_csv(out / "summary.csv", mb + aggs + runs)
+    write_atomic(out / "REPORT.md", write_report(summary, XI, MODEL_BASED_CURVES[0].family))
+    log(f"wrote {out}/REPORT.md")
     return summary
 
 

@@ -309,7 +309,8 @@ def evaluate_rollouts(
     stats = rollout_statistics(ro, spec.divergence_bound)
     states = decision_states(ro, min(TIMING_STATES, ro.runs * spec.horizon))
     batched, single = decision_time(controller, *states)
-    gap, points = None, ()
+    gap = None
+    points: tuple[dict[str, Any], ...] = ()
     if spec.task is None:
         reason: str | None = f"{env_id} is not a task of the suite: it has no reference curve"
     elif stats["diverged"]:

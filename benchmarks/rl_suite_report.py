@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -247,8 +248,8 @@ def score_task(env_id: str, runs: list[tuple[RunSpec, RunRecord | None]], run_di
     two model-based curves (see the module docstring)."""
     task = TASKS[env_id]
     spec = resolve_env(env_id, dict(task.env_kwargs))
-    kw = {"horizon": spec.horizon, "action_bound": spec.action_bound,
-          "divergence_bound": spec.divergence_bound}  # fmt: skip
+    kw: dict[str, Any] = {"horizon": spec.horizon, "action_bound": spec.action_bound,
+                          "divergence_bound": spec.divergence_bound}  # fmt: skip
     xi = float(task.rhc["xi"])
     rhc = reference_curve(task, episodes, seed, **kw)
     t_eps, t_xis = tree_plan(env_id, quick)
@@ -273,7 +274,10 @@ def score_task(env_id: str, runs: list[tuple[RunSpec, RunRecord | None]], run_di
             missing.setdefault(config, []).append(s.seed)
             continue
         c0 = time.process_time()
-        policy = load_policy(s, policy_path(kept_run_path(run_dir, s)))
+        kept = kept_run_path(run_dir, s)
+        if kept is None:  # the record was read from this path a moment ago
+            raise FileNotFoundError(f"the kept run of {s.name} left {run_dir} while scoring")
+        policy = load_policy(s, policy_path(kept))
         score = evaluate(policy, episodes=episodes, seed=seed, env_id=env_id,
                          env_kwargs=dict(task.env_kwargs))  # fmt: skip
         reason = gap_reason(score.violation, score.diverged, score.curve_gap, rhc.violations)
@@ -397,7 +401,7 @@ def sample_efficiency(reports: list[TaskReport], across: list[ConfigAcross],
 
 
 # ----------------------------------------------------------------------------- outputs
-def report_suite(specs: list[RunSpec], records: list[RunRecord | None], run_dir: Path,
+def report_suite(specs: list[RunSpec], records: Sequence[RunRecord | None], run_dir: Path,
                  opts: Any, argv: list[str], log: Any = print) -> dict[str, Any]:  # fmt: skip
     """Score the kept runs of ``specs`` (``records``: each spec's kept run or None) and write
     ``summary.json``, ``summary.csv``, the figures and ``REPORT.md`` into ``opts.out`` (each

@@ -26,7 +26,7 @@ __all__ = [
 
 def gap_text(g: CurveGap | None, reason: str | None) -> str:
     """A gap in % with its 95% interval and the curve's xi there, or why it has none."""
-    if g is None or g.relative is None:
+    if g is None or g.relative is None or g.relative_ci95 is None:
         return "none: " + (reason or "-")
     lo, hi = g.relative_ci95
     at = "" if g.xi is None else f" at xi {g.xi:.3f}"
@@ -153,7 +153,7 @@ CSV_HEADER = ["task", "name", "kind", "algo", "variant", "seed", "xi", "episodes
 
 
 def _gap_cells(g: CurveGap | None) -> list[Any]:
-    if g is None or g.relative is None:
+    if g is None or g.relative is None or g.relative_ci95 is None:
         return ["", "", ""]
     return [g.relative, *g.relative_ci95]
 
