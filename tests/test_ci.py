@@ -29,6 +29,7 @@ def test_ci_runs_the_readmes_test_command_lint_and_doctests():
     ci_lines = [line.strip() for line in ci.splitlines()]
     assert commands[1].strip() in ci_lines  # the README's test command, verbatim
     assert "ruff check ." in ci_lines and "ruff format --check ." in ci_lines
+    assert "mypy sdjls_gym controllers benchmarks" in ci_lines  # issue 32: typed end to end
     assert any("--doctest-modules sdjls_gym controllers" in line for line in ci_lines)
 
 
@@ -37,6 +38,7 @@ def test_pre_commit_runs_the_same_checks():
     for entry in (
         "entry: ruff check",
         "entry: ruff format --check",
+        "entry: mypy sdjls_gym controllers benchmarks",
         "--doctest-modules sdjls_gym controllers",
     ):
         assert entry in config, entry
@@ -55,7 +57,9 @@ def test_ci_builds_a_fresh_virtualenv_before_any_check():
     remove = next(i for i, line in enumerate(lines) if line.startswith("rm -rf .ci/venv"))
     make = next(i for i, line in enumerate(lines) if "-m venv .ci/venv" in line)
     activate = next(i for i, line in enumerate(lines) if line == ". .ci/venv/bin/activate")
-    checks = [i for i, line in enumerate(lines) if line.startswith(("ruff", "python -m pytest"))]
+    checks = [
+        i for i, line in enumerate(lines) if line.startswith(("ruff", "mypy", "python -m pytest"))
+    ]
     assert remove < make < activate < first_install < min(checks)
     assert "--system-site-packages" not in " ".join(lines)
 
@@ -94,7 +98,7 @@ def test_extras_are_bounded_below_the_next_breaking_release():
             if name == "torch":
                 assert requirement.replace(" ", "") == "torch>=2.3,<2.14", requirement
     dev = {_requirement_bounds(r)[0] for r in extras["dev"]}
-    assert {"pytest", "hypothesis", "ruff", "stable-baselines3", "ray", "rl-zoo3"} <= dev
+    assert {"pytest", "hypothesis", "ruff", "mypy", "stable-baselines3", "ray", "rl-zoo3"} <= dev
 
 
 def test_readme_test_times_say_what_was_measured():
