@@ -81,7 +81,9 @@ def median_time(
 def env_step_time(env_id: str, episodes: int, repeats: int) -> float:
     """Median time of one ``step`` (resets excluded) of ``gym.make(env_id)``."""
     env = gym.make(env_id)
-    action = np.zeros(env.action_space.shape, dtype=np.float32) + 0.5
+    shape = env.action_space.shape
+    assert shape is not None  # the environments' action spaces are Boxes
+    action = np.zeros(shape, dtype=np.float32) + 0.5
     env.reset(seed=0)
     T = 20
 

@@ -80,7 +80,7 @@ class DaqpFloor:
         if ws is None:
             ws = self._ws[id(fam)] = DaqpWorkspace(daqp_data(fam["P"], fam["A"], True))
         z, y, status = ws.solve(q, lo, hi)
-        if z is None:
+        if z is None or y is None:  # DAQP gives both or neither
             raise RuntimeError(f"DAQP failed on the floor's P3: {status}")
         m, r = self.p3.model.m, self.p3.model.r
         return fam["K"] @ x + z[:m], bool(np.any(y[: r + m] != 0.0))

@@ -45,7 +45,7 @@ def candidate_maps(P: np.ndarray, C: np.ndarray) -> list[ActiveSetMaps]:
     P = np.asarray(P, dtype=np.float64)
     C = np.asarray(C, dtype=np.float64)
     d, c = P.shape[0], C.shape[0]
-    pivots = ~P.any(axis=1)  # the slacks without curvature
+    pivots = np.asarray(~P.any(axis=1), dtype=bool)  # the slacks without curvature
     maps = []
     for size in range(min(d, c), -1, -1):  # largest active sets first
         for rows in combinations(range(c), size):

@@ -244,6 +244,7 @@ def check_magnitudes(s: HorizonSettings, families: Iterable[Family], limit: floa
         "model.B": model.B,
     }
     text = ", ".join(f"{k} up to {float(np.max(np.abs(v))):.3g}" for k, v in sizes.items())
+    assert where is not None  # set whenever worst > 0.0 (the callers' limit is positive)
     raise ValueError(
         f"the receding-horizon QP of mode {where[0]} has an entry of magnitude {worst:.3g} in "
         f"{where[1]} ({text}); every entry must be at most {limit:.0e} in magnitude so that "

@@ -158,6 +158,9 @@ class EnumerationBudget:
     controller's lock covers it); pickles empty."""
 
     def __init__(self, limit: int = ENUMERATION_BUDGET_FLOATS) -> None:
+        self._reset(limit)
+
+    def _reset(self, limit: int) -> None:
         self.limit = limit
         self._held: OrderedDict[int, tuple[QPFamily, int]] = OrderedDict()
         self._total = 0
@@ -166,7 +169,7 @@ class EnumerationBudget:
         return {"limit": self.limit}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__init__(state["limit"])
+        self._reset(state["limit"])
 
     def use(self, family: QPFamily, size: int) -> None:
         """Record that ``family`` holds an enumeration of ``size`` floats (now the most recently
@@ -272,7 +275,7 @@ class QPFamily(DaqpSolving):
         self._pool: np.ndarray | None = None  # the subset of the last screened solve
         #: the variables without curvature (zero rows of P: the slacks), which the exact solve
         #: of an active set takes from their rows (see controllers.kkt.active_set_factor)
-        self.pivots = ~self.P.any(axis=1)
+        self.pivots = np.asarray(~self.P.any(axis=1), dtype=bool)
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -342,7 +345,7 @@ class QPFamily(DaqpSolving):
             else:
                 self._osqp = None
         self.P = P
-        self.pivots = ~P.any(axis=1)
+        self.pivots = np.asarray(~P.any(axis=1), dtype=bool)
         self._maps.clear()
         self._seen = None
         self._enum = None
@@ -380,26 +383,26 @@ class QPFamily(DaqpSolving):
     def maps(self, rows: tuple[int, ...]) -> ActiveSetMaps | None:
         """The exact maps of an active set (cached, least recently used dropped first)."""
         cache = self._maps
-        out = cache.get(rows, False)
-        if out is False:
-            if len(cache) >= MAX_CACHED_MAPS:
-                cache.popitem(last=False)
-            out = cache[rows] = active_set_maps(self.P, self.C, rows, pivots=self.pivots)
-        else:
+        if rows in cache:
             cache.move_to_end(rows)
+            return cache[rows]
+        if len(cache) >= MAX_CACHED_MAPS:
+            cache.popitem(last=False)
+        out = cache[rows] = active_set_maps(self.P, self.C, rows, pivots=self.pivots)
         return out
 
     def seen(self) -> ActiveSetQP | None:
         """The active sets this family has met (the :data:`SEEN_SETS` most recently used of
         the cached exact maps) as an :class:`controllers.active_set.ActiveSetQP`, to test them
         on a batch at once; None when there is none. Largest sets first (as the enumeration)."""
-        keys = [rows for rows, m in reversed(self._maps.items()) if m is not None][:SEEN_SETS]
-        if not keys:
+        found = [(rows, m) for rows, m in reversed(self._maps.items()) if m is not None]
+        found = found[:SEEN_SETS]
+        if not found:
             return None
-        keys.sort(key=lambda rows: (-len(rows), rows))
-        key = tuple(keys)
+        found.sort(key=lambda item: (-len(item[0]), item[0]))
+        key = tuple(rows for rows, _ in found)
         if self._seen is None or self._seen[0] != key:
-            self._seen = (key, ActiveSetQP(self.C, [self._maps[rows] for rows in keys]))
+            self._seen = (key, ActiveSetQP(self.C, [m for _, m in found]))
         return self._seen[1]
 
     def verify(
@@ -561,8 +564,10 @@ class QPFamily(DaqpSolving):
     def warm_solve(self, w: np.ndarray) -> Solution | None:
         """The answer from the last active set :attr:`warm` (not None): that set, if it passes
         the KKT test at ``w``."""
-        z = self.verify(self.warm, w)
-        return None if z is None else Solution(z, self.warm, "warm")
+        rows = self.warm
+        assert rows is not None  # solve() calls this only with a warm active set
+        z = self.verify(rows, w)
+        return None if z is None else Solution(z, rows, "warm")
 
     def _enumerate_noted(self, w: np.ndarray, notes: list[str], note: bool) -> Solution | None:
         sol = self.enumerate_one(w)

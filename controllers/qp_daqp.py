@@ -10,7 +10,7 @@ variables (a large scenario tree) first gives DAQP a growing subset of its rows
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -69,6 +69,20 @@ class DaqpSolving:
     upper_idx: np.ndarray
     lower_idx: np.ndarray
 
+    if TYPE_CHECKING:  # QPFamily's methods (declared for the type checker only)
+
+        def bounds(self, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+        def rows_of_multipliers(self, y: np.ndarray) -> tuple[int, ...] | None: ...
+
+        def verify(
+            self, rows: tuple[int, ...], w: np.ndarray, report: dict | None = None
+        ) -> list[float] | None: ...
+
+        def local(
+            self, z: np.ndarray, w: np.ndarray, y: np.ndarray | None = None
+        ) -> Solution | None: ...
+
     def _solve_daqp(
         self, w: np.ndarray, start: tuple[int, ...] | None, notes: list[str]
     ) -> Solution | None:
@@ -91,14 +105,14 @@ class DaqpSolving:
         if self._daqp_scaling is not None:  # then once more with the scaling of this P
             attempts.append(("rescale", 0.0, True))
         for begin, mu, cold in attempts:
-            if begin == "rescale":
+            if isinstance(begin, str):  # "rescale"
                 self._daqp_scaling = self._daqp = None
                 begin = None
             z, y, status = self.run_daqp(w, begin, mu, cold)
-            if z is not None:
+            if z is not None and y is not None:  # DAQP gives both or neither
                 rows = self.rows_of_multipliers(y)
                 out = None if rows is None else self.verify(rows, w)
-                if out is not None:
+                if rows is not None and out is not None:
                     return Solution(out, rows, "daqp")
                 sol = self.local(z, w, y)
                 if sol is not None:
@@ -150,22 +164,24 @@ class DaqpSolving:
         round fails or after :data:`SCREEN_ROUNDS` rounds. Used only while the Hessian changes
         (a fixed one keeps DAQP's warm workspace, which sees every row)."""
         general = self._daqp_general_rows()
+        general_pos = self._general_pos
+        assert general_pos is not None  # set by _daqp_general_rows
         n_up = self.upper_idx.size
         # the rows DAQP needed at the family's last screened solve, a good start nearby
         take = np.zeros(general.size, dtype=bool) if self._pool is None else self._pool.copy()
         if start is not None:
             report: dict = {}
             self.verify(start, w, report)
-            rows = set(start) | set(report.get("add", ()))
-            for i in rows:
+            seed = set(start) | set(report.get("add", ()))
+            for i in seed:
                 a = self.upper_idx[i] if i < n_up else self.lower_idx[i - n_up]
-                take[self._general_pos[a]] = self._general_pos[a] >= 0
+                take[general_pos[a]] = general_pos[a] >= 0
         h = np.asarray(w[self.d :])
         begin = start
         for _ in range(SCREEN_ROUNDS):
             subset = np.flatnonzero(take)
             z, y, _ = self.run_daqp(w, begin, 0.0, False, subset)
-            if z is None:
+            if z is None or y is None:  # DAQP gives both or neither
                 return None
             slack = h - self.C @ z
             terms = self.absC @ np.abs(z) + np.abs(h)
@@ -175,14 +191,14 @@ class DaqpSolving:
                 violated |= slack < SCREEN_NEAR * terms
             for i in np.flatnonzero(violated).tolist():
                 a = self.upper_idx[i] if i < n_up else self.lower_idx[i - n_up]
-                pos = self._general_pos[a]
+                pos = general_pos[a]
                 if pos >= 0 and not take[pos]:
                     new[pos] = True
             rows = self.rows_of_multipliers(y)
             if not new.any():
                 self._pool = take
                 out = None if rows is None else self.verify(rows, w)
-                if out is not None:
+                if rows is not None and out is not None:
                     return Solution(out, rows, "daqp")
                 sol = self.local(z, w, y)
                 return None if sol is None else Solution(sol.z, sol.rows, "daqp")

@@ -88,6 +88,9 @@ __all__ = [
     "UnconstrainedRecedingHorizonController",
 ]
 
+#: ``(nu, rho, cost, status, path)`` of one decision (see RecedingHorizonController._info)
+_Answer = tuple[np.ndarray | list[float], float, float, Status, str]
+
 _PATHS = {
     "warm": "active_set_warm",
     "daqp": "daqp",
@@ -149,6 +152,7 @@ class RecedingHorizonController(RecedingHorizonBase):
         model = self.model
         self.tightening: np.ndarray | None = None
         if s.chance:
+            assert s.xi is not None  # checked whenever the chance constraints are imposed
             self.tightening = tightening(model, s.xi, s.constraint)
             self.tightening.setflags(write=False)
         # every family's matrices, built now so that bad magnitudes fail before any work
@@ -193,13 +197,15 @@ class RecedingHorizonController(RecedingHorizonBase):
             )
         if sol is not None:
             nu, rho, cost = exact_answer(fam, self.nu_bound, x, y.tolist(), w, sol)
-            answer = (nu, rho, cost, Status.SOLVED, _PATHS[sol.path])
+            answer: _Answer = (nu, rho, cost, Status.SOLVED, _PATHS[sol.path])
         else:
             answer = self._rescue(fam, x, k, w, notes)
         u = y[: self.model.m] + np.asarray(answer[0])  # eq. (eq:stabilization_input)
         return u, self._info(fam, *answer, notes)
 
-    def _answer(self, fam: Family, x: np.ndarray, k: int, nu: np.ndarray) -> tuple:
+    def _answer(
+        self, fam: Family, x: np.ndarray, k: int, nu: np.ndarray
+    ) -> tuple[np.ndarray, float, float]:
         """``(nu, rho, cost)`` for an offset found by a solver other than the exact path:
         ``nu`` projected on ``U`` and the smallest feasible ``rho``."""
         nu = project_nu(self.settings, np.asarray(nu, dtype=np.float64))
@@ -215,7 +221,7 @@ class RecedingHorizonController(RecedingHorizonBase):
         w: np.ndarray | None,
         notes: list[str],
         always: bool = False,
-    ) -> tuple:
+    ) -> _Answer:
         """The end of the fallback chain, and the whole of ``solver="cvxpy"`` (``always``):
         the cvxpy reference (unless ``cvxpy_fallback=False``; always for the second-order cone
         program), its active set verified by the engine's KKT test when it is a QP (else

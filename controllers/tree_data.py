@@ -382,16 +382,18 @@ def _node_laws(
         cov_next = 0.5 * (cov_next + cov_next.transpose(0, 2, 1))
         # tightening of each node's chance rows with its next covariance (section 4)
         std = np.sqrt(np.clip(np.einsum("jn,inm,jm->ij", model.G, cov_next, model.G), 0.0, None))
+        xi = s.xi
+        assert xi is not None  # the tree always imposes its chance constraints (xi checked)
         if s.constraint == "individual":
-            tight = special.ndtri(s.xi) * std  # eq. (constraint:det_univariate)
+            tight = special.ndtri(xi) * std  # eq. (constraint:det_univariate)
         elif s.constraint == "bonferroni":
-            tight = special.ndtri(1.0 - (1.0 - s.xi) / r) * std
+            tight = special.ndtri(1.0 - (1.0 - xi) / r) * std
         else:  # eq. (constraint:chi_square): an ellipsoid of the noise driving the next state
             dof = np.minimum(p * (tree.stage + 1), max(n, p))  # p at the root (section 4)
-            tight = np.sqrt(stats.chi2.ppf(s.xi, df=dof))[:, None] * std
+            tight = np.sqrt(stats.chi2.ppf(xi, df=dof))[:, None] * std
         if s.constraint == "joint":  # at the root exactly controllers.chance.tightening
             root = np.einsum("jn,np,pq->jq", model.G, model.E[mode], model.W_sqrt)
-            tight[0] = math.sqrt(stats.chi2.ppf(s.xi, df=p)) * np.linalg.norm(root, axis=-1)
+            tight[0] = math.sqrt(stats.chi2.ppf(xi, df=p)) * np.linalg.norm(root, axis=-1)
     return _NodeLaws(tree, P_row, Mx, Mz, cov, next_x, next_z, cov_next, tight, S)
 
 
@@ -566,6 +568,9 @@ class FamilyCache:
     """
 
     def __init__(self, build: Any, limit: int = FAMILY_BUDGET_FLOATS) -> None:
+        self._reset(build, limit)
+
+    def _reset(self, build: Any, limit: int) -> None:
         self._build = build
         self.limit = limit
         self._held: OrderedDict[tuple[int, bool], tuple[TreeFamily, int]] = OrderedDict()
@@ -576,7 +581,7 @@ class FamilyCache:
         return {"_build": self._build, "limit": self.limit}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__init__(state["_build"], state["limit"])
+        self._reset(state["_build"], state["limit"])
 
     def __getitem__(self, key: tuple[int, bool]) -> TreeFamily:
         held = self._held

@@ -160,11 +160,13 @@ class TreeQP(QPFamily):
         next state of a closed loop, move the optimum's active set by a few rows, which these
         steps find at the cost of a few exact solves (a DAQP run on a 111-node tree costs
         tens of them)."""
+        rows = self.warm
+        assert rows is not None  # solve() calls this only with a warm active set
         report: dict = {}
-        out = self.verify(self.warm, w, report)
+        out = self.verify(rows, w, report)
         if out is not None:
-            return Solution(out, self.warm, "warm")
-        sol = self.repair(set(self.warm), w, report)
+            return Solution(out, rows, "warm")
+        sol = self.repair(set(rows), w, report)
         return None if sol is None else Solution(sol.z, sol.rows, "repair")
 
     def repair(self, rows: set[int], w: np.ndarray, report: dict) -> Solution | None:

@@ -11,13 +11,19 @@ nodes of negligible probability, the cvxpy rescue, ``nu = 0``) and reads the ver
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .horizon import Status
+from .horizon import HorizonSettings, Status
 from .kkt import KKT_TOL
 from .tree_data import TreeFamily
 from .tree_qp import solve_condensed_cvxpy, solve_tree_cvxpy
+
+if TYPE_CHECKING:
+    from sdjls_gym.model import SDJLSModel
+
+    from .tree_region import RegionClasses
 
 __all__ = ["CONTINUATION_FROM", "CONTINUATION_STEP", "TINY_PROBABILITY", "TreeSolver"]
 
@@ -60,6 +66,17 @@ class TreeSolver:
     """The QP methods of :class:`controllers.ScenarioTreeController` (a mixin: it reads the
     controller's ``model``, ``settings``, ``steps``, ``alpha``, ``nu_bound``, ``solver``,
     ``cvxpy_fallback`` and ``_warm_start``)."""
+
+    # set by the controller (annotations only: no class attributes)
+    model: SDJLSModel
+    settings: HorizonSettings
+    steps: int
+    alpha: float
+    nu_bound: float
+    solver: str
+    cvxpy_fallback: bool
+    _warm_start: bool
+    _regions: RegionClasses
 
     @staticmethod
     def _row_weights(fam: TreeFamily, pr: _Probabilities) -> tuple[np.ndarray, np.ndarray]:
