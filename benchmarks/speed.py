@@ -53,8 +53,10 @@ from benchmarks.versions import package_versions
 from controllers import RecedingHorizonController, ScenarioTreeController
 from controllers.scenario_tree import PROB_TOL
 from sdjls_gym import SDJLSModel, SDJLSVectorEnv
+from sdjls_gym.systems import TASKS
 from sdjls_gym.systems.macro import PAPER_K, PAPER_RHC
 from sdjls_gym.systems.random_system import random_task
+from sdjls_gym.systems.task import Task
 
 
 def median_time(
@@ -321,11 +323,31 @@ SCALING_SIZES = (
 QUICK_SCALING_SIZES = ((2, 1, 2, 3), (4, 2, 8, 2))
 
 
+#: The suite's tasks in the scaling study (their own models, gains and settings); quick: two.
+SUITE_SCALING = tuple(sdjls_gym.SUITE)
+QUICK_SUITE_SCALING = ("SDJLS-Solar-v0", "SDJLS-Degradation-v0")
+
+
 def measure_p3_size(n: int, m: int, r: int, N: int, opts) -> dict[str, Any]:
     """One row of the scaling table: ``random_task(n, m, N, r, seed=0)`` with its receding-
-    horizon data, on the states of its own closed loop, against the DAQP floor of the same P3
-    (:class:`DaqpFloor`) in the same run; ``act_batch`` on the same states, per state."""
-    task = random_task(n=n, m=m, N=N, r=r, seed=0)
+    horizon data (see :func:`measure_p3_task`)."""
+    return {"n": n, "m": m, "r": r, "N": N,
+            **measure_p3_task(random_task(n=n, m=m, N=N, r=r, seed=0), opts)}  # fmt: skip
+
+
+def measure_suite_task(env_id: str, opts) -> dict[str, Any]:
+    """One row of the suite's scaling table: the task's own model, gains and receding-horizon
+    settings (``sdjls_gym.systems.TASKS``; see :func:`measure_p3_task`)."""
+    task = TASKS[env_id]
+    model = task.model
+    dims = {"n": model.n, "m": model.m, "r": model.r, "N": model.N}
+    return {"task": env_id, **dims, **measure_p3_task(task, opts)}
+
+
+def measure_p3_task(task: Task, opts) -> dict[str, Any]:
+    """``act()`` of the task's receding-horizon controller on the states of its own closed loop,
+    against the DAQP floor of the same P3 (:class:`DaqpFloor`) in the same run; ``act_batch``
+    on the same states, per state."""
     model = task.model
     ctrl = RecedingHorizonController(model, task.K, **task.rhc)
     floor = DaqpFloor(P3Data(model, task.K, dict(task.rhc)))
@@ -351,10 +373,6 @@ def measure_p3_size(n: int, m: int, r: int, N: int, opts) -> dict[str, Any]:
         diff_floor = max(diff_floor, float(np.max(np.abs(u_floor - u))) / scale)
         diff_batch = max(diff_batch, float(np.max(np.abs(u_batch[i] - u))))
     return {
-        "n": n,
-        "m": m,
-        "r": r,
-        "N": N,
         "states": B,
         "active_share": active / B,
         "act_us": 1e6 * t_act,
@@ -434,6 +452,10 @@ def measure_scaling(opts) -> dict[str, Any]:
     for n, m, r, N in sizes:
         print(f"  n={n} m={m} r={r} N={N}", flush=True)
         rows.append(measure_p3_size(n, m, r, N, opts))
+    suite = []
+    for env_id in QUICK_SUITE_SCALING if opts.quick else SUITE_SCALING:
+        print(f"  {env_id}", flush=True)
+        suite.append(measure_suite_task(env_id, opts))
     mc = []
     model = sdjls_gym.macro()
     ctrl = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
@@ -447,7 +469,7 @@ def measure_scaling(opts) -> dict[str, Any]:
         mc.append({"trajectories": runs, "seconds": time.perf_counter() - t0})
         del env, info
     peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return {"p3": rows, "monte_carlo": mc, "peak_rss_mb": peak_kb / 1024}
+    return {"p3": rows, "suite": suite, "monte_carlo": mc, "peak_rss_mb": peak_kb / 1024}
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:

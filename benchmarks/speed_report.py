@@ -149,6 +149,23 @@ def write_markdown(res: dict[str, Any], cmd: str) -> str:
             f"{row['act_batch_per_state_us']:.1f} us | {row['batch_vs_act']:.2f}x | "
             f"{row['max_rel_diff_u_vs_floor']:.1e} | {row['max_abs_diff_u_batch_vs_act']:.1e} |"
         )
+    lines += [
+        "",
+        "The same on the suite's tasks (`sdjls_gym.systems.TASKS`: each task's model, gains and "
+        "receding-horizon settings, on the states of its own closed loop):",
+        "",
+        "| task | n | m | r | N | states | active | act() | DAQP floor | act / floor "
+        "| act_batch per state | act_batch / act | max diff u, floor | max diff u, act_batch |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in s.get("suite", []):
+        lines.append(
+            f"| {row['task']} | {row['n']} | {row['m']} | {row['r']} | {row['N']} | "
+            f"{row['states']} | {100 * row['active_share']:.0f}% | {row['act_us']:.1f} us | "
+            f"{row['daqp_floor_us']:.1f} us | {row['act_vs_floor']:.2f}x | "
+            f"{row['act_batch_per_state_us']:.1f} us | {row['batch_vs_act']:.2f}x | "
+            f"{row['max_rel_diff_u_vs_floor']:.1e} | {row['max_abs_diff_u_batch_vs_act']:.1e} |"
+        )
     lines += ["", "| trajectories (20 steps) | seconds | per trajectory (us) |", "|---|---|---|"]
     for row in s["monte_carlo"]:
         lines.append(

@@ -307,15 +307,23 @@ def test_A_given_once_is_shared_by_every_mode(paper_kwargs, paper):
 
 
 def test_readme_sections_named_in_the_sources_exist():
-    """A pointer such as ``README, "Some section"`` in ``sdjls_gym`` names a real heading."""
+    """A pointer such as ``README, "Some section"`` or ``docs/page.md, "Some section"`` in
+    ``sdjls_gym`` names a real heading of that file."""
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    headings = set(re.findall(r"^#+ (.+?)\s*$", (root / "README.md").read_text("utf-8"), re.M))
+
+    def headings(name: str) -> set[str]:
+        path = root / ("README.md" if name == "README" else name)
+        return set(re.findall(r"^#+ (.+?)\s*$", path.read_text("utf-8"), re.M))
+
     pointers = []
     for path in sorted((root / "sdjls_gym").rglob("*.py")):
         text = " ".join(line.strip().lstrip("#:").strip() for line in path.read_text().splitlines())
-        pointers += [(path.name, name) for name in re.findall(r'README[^".]{0,40}"([^"]+)"', text)]
-    assert pointers, "no README pointer found: the test would be vacuous"
-    missing = [(file, name) for file, name in pointers if name not in headings]
+        pointers += [
+            (path.name, doc, name)
+            for doc, name in re.findall(r'(README|docs/[a-z-]+\.md)[^".]{0,40}"([^"]+)"', text)
+        ]
+    assert pointers, "no README or docs pointer found: the test would be vacuous"
+    missing = [(file, doc, name) for file, doc, name in pointers if name not in headings(doc)]
     assert missing == []

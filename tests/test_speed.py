@@ -88,6 +88,14 @@ def test_scaling_rows_agree_with_the_daqp_floor_and_act_batch(quick):
         assert row["max_rel_diff_u_vs_floor"] <= 1e-6, row
         assert row["max_abs_diff_u_batch_vs_act"] <= result["targets"]["agreement_tol"], row
     assert any(row["active_share"] > 0.0 for row in rows)
+    # issue 30: the suite's tasks in the scaling study, each on its own model and settings
+    suite = result["scaling"]["suite"]
+    assert [row["task"] for row in suite] == list(speed.QUICK_SUITE_SCALING)
+    for row in suite:
+        model = speed.TASKS[row["task"]].model
+        assert (row["n"], row["m"], row["r"], row["N"]) == (model.n, model.m, model.r, model.N)
+        assert row["max_rel_diff_u_vs_floor"] <= 1e-6, row
+        assert row["max_abs_diff_u_batch_vs_act"] <= result["targets"]["agreement_tol"], row
     big = result["tree"]["large"]
     assert big["nodes"] == 111 and big["ok_share"] == 1.0, big
 

@@ -23,7 +23,7 @@ HORIZON = 20
 
 #: Bound on |u_k| of ``SDJLS-Macro-v0``. The paper's controller stays far inside it: the
 #: largest |u_k| it uses is in ``results/paper/REPORT.md`` (``python -m benchmarks.reproduce_paper``)
-#: and in the action row of the README's table under "Dynamics and time indexing".
+#: and in the action row of the manual's table (docs/environment.md, "Dynamics and time indexing").
 ACTION_BOUND = 200.0
 
 #: The paper's solution of Proposition 2 (section 6), printed there to 4 decimals.
