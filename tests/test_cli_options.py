@@ -38,7 +38,8 @@ def parsed(monkeypatch, module: str, argv: list[str]):
 
 FLAGS = {
     "compare_rl": "--preset --tasks --configs --algos --variants --timesteps --seeds "
-    "--eval-episodes --seed --out --workers --backend --address --quick --train-only --tuned "
+    "--eval-episodes --seed --out --workers --backend --address --quick --train-only --score-only "
+    "--tuned "
     "--retrain --no-progress",
     "reproduce_paper": "--runs --stat-runs --seed --out --no-progress",
     "render_picture": "--out --seed --episodes --fps-only --before",
