@@ -17,7 +17,7 @@ import sys
 import textwrap
 
 import pytest
-from test_structure import ROOT, imports, modules
+from test_structure import ROOT, imports, internal_graph, modules
 
 PACKAGES = ("sdjls_gym", "controllers", "benchmarks")
 #: The package faces (``__init__`` files) hand names on; a cycle through one is a cycle of the
@@ -27,18 +27,7 @@ FACES = {"sdjls_gym", "sdjls_gym.systems", "controllers", "benchmarks", "benchma
 
 def import_graph() -> dict[str, set[str]]:
     """module -> the modules of the three packages it imports, anywhere in its source."""
-    known = modules(*PACKAGES)
-    graph: dict[str, set[str]] = {}
-    for name, path in known.items():
-        targets = set()
-        for module, imported in imports(path):
-            if imported is not None and f"{module}.{imported}" in known:
-                targets.add(f"{module}.{imported}")
-            elif module in known:
-                targets.add(module)
-        targets.discard(name)
-        graph[name] = targets
-    return graph
+    return internal_graph(*PACKAGES)
 
 
 def cycles(graph: dict[str, set[str]]) -> list[list[str]]:

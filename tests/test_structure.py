@@ -52,10 +52,10 @@ def imports(path: Path) -> list[tuple[str, str | None]]:
     return out
 
 
-def internal_graph() -> dict[str, set[str]]:
-    """module -> the modules of ``sdjls_gym`` it imports (a package's submodule imported by
-    ``from package import submodule`` counts as the submodule)."""
-    known = modules("sdjls_gym")
+def internal_graph(*packages: str) -> dict[str, set[str]]:
+    """module -> the modules of ``packages`` (default ``sdjls_gym``) it imports (a package's
+    submodule imported by ``from package import submodule`` counts as the submodule)."""
+    known = modules(*(packages or ("sdjls_gym",)))
     graph: dict[str, set[str]] = {}
     for name, path in known.items():
         targets = set()
