@@ -22,7 +22,6 @@ never violating (``xi = 0.999``), so that the curve covers as many policies as i
 from __future__ import annotations
 
 import json
-from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,6 +30,7 @@ import numpy as np
 from benchmarks.files import jsonable
 from benchmarks.montecarlo import rollout
 from benchmarks.stats import CurveGap, mean_ci, paired_curve_gap, wilson
+from controllers.lru import BudgetedLRU
 from sdjls_gym.model import SDJLSModel
 from sdjls_gym.systems import TASKS, Task, random_task
 
@@ -178,7 +178,9 @@ class ReferenceCurve:
         }
 
 
-_CACHE: OrderedDict[tuple[Any, ...], ReferenceCurve] = OrderedDict()
+#: Not functools: the key is what a curve depends on (the task as its JSON, the levels, ...), not
+#: the arguments (a Task does not hash; the progress bar is no part of a curve).
+_CACHE: BudgetedLRU[tuple[Any, ...], ReferenceCurve] = BudgetedLRU(CURVE_CACHE_SIZE)
 
 
 def reference_curve(
@@ -206,9 +208,13 @@ def reference_curve(
     bound = float(np.max(task.action_bound if action_bound is None else action_bound))
     key = (_task_key(task), episodes, seed, horizon, bound, float(divergence_bound), constraint,
            xis)  # fmt: skip
-    if key in _CACHE:
-        _CACHE.move_to_end(key)
-        return _CACHE[key]
+    return _CACHE.get(key, _curve, task, episodes, seed, horizon, bound, divergence_bound,
+                      constraint, xis, progress)  # fmt: skip
+
+
+def _curve(task: Task, episodes: int, seed: int, horizon: int, bound: float,
+           divergence_bound: float, constraint: str, xis: tuple[float, ...],
+           progress: Any) -> ReferenceCurve:  # fmt: skip
     costs, viols, diverged = [], [], []
     for xi in xis:
         ctrl = one_step_rhc(task, xi, constraint, horizon)
@@ -216,12 +222,8 @@ def reference_curve(
         costs.append(ro.episode_cost)
         viols.append(ro.any_violation.mean(axis=1))
         diverged.append(int(np.any(np.abs(ro.x) > divergence_bound, axis=(1, 2)).sum()))
-    curve = ReferenceCurve(task.env_id, xis, constraint, episodes, seed, horizon,
-                           np.stack(costs), np.stack(viols), np.array(diverged))  # fmt: skip
-    _CACHE[key] = curve
-    while len(_CACHE) > CURVE_CACHE_SIZE:
-        _CACHE.popitem(last=False)
-    return curve
+    return ReferenceCurve(task.env_id, xis, constraint, episodes, seed, horizon,
+                          np.stack(costs), np.stack(viols), np.array(diverged))  # fmt: skip
 
 
 def gap_reason(

@@ -24,8 +24,9 @@ enumeration only below the cap.
 
 from __future__ import annotations
 
-from collections import OrderedDict
+from functools import lru_cache, partial
 from itertools import combinations
+from typing import Any
 
 import numpy as np
 
@@ -36,6 +37,17 @@ __all__ = ["ActiveSetQP", "candidate_maps"]
 
 #: Candidate ranges whose stacked maps are kept (the two ranges of :meth:`ActiveSetQP.solve`).
 _MAX_RANGES = 2
+
+
+def _stacked_range(R: np.ndarray, Z: np.ndarray, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+    """Residual and solution maps of candidates ``lo .. hi-1`` as row blocks: row
+    ``j * (hi - lo) + c`` of the first is residual ``j`` of candidate ``lo + c``, row
+    ``c * d + i`` of the second is ``z_i`` of candidate ``lo + c``."""
+    r = R[lo:hi]
+    return (
+        r.transpose(1, 0, 2).reshape(-1, r.shape[2]).copy(),
+        Z[lo:hi].reshape(-1, r.shape[2]).copy(),
+    )
 
 
 def candidate_maps(P: np.ndarray, C: np.ndarray) -> list[ActiveSetMaps]:
@@ -103,27 +115,22 @@ class ActiveSetQP:
         # the largest tolerance any residual of a candidate can get for |w| <= 1 (per candidate):
         # a residual above loose * max|w| fails without computing its own tolerance
         self._loose = KKT_TOL * (T.sum(axis=2).max(axis=1) if maps else np.zeros(0))
-        self._ranges: OrderedDict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = OrderedDict()
+        self._set_range_cache()
         self._guess = self.n_candidates - 1  # first call: one pass over every candidate
 
-    def _range(self, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
-        """Residual and solution maps of candidates ``lo .. hi-1`` as row blocks: row
-        ``j * (hi - lo) + c`` of the first is residual ``j`` of candidate ``lo + c``, row
-        ``c * d + i`` of the second is ``z_i`` of candidate ``lo + c`` (a bounded cache)."""
-        key = (lo, hi)
-        cache = self._ranges
-        if key in cache:
-            cache.move_to_end(key)
-            return cache[key]
-        r = self._R[lo:hi]
-        out = (
-            r.transpose(1, 0, 2).reshape(-1, r.shape[2]).copy(),
-            self._Z[lo:hi].reshape(-1, r.shape[2]).copy(),
-        )
-        cache[key] = out
-        if len(cache) > _MAX_RANGES:
-            cache.popitem(last=False)
-        return out
+    def _set_range_cache(self) -> None:
+        # functools' LRU does this cache's job (a count of entries keyed by the range); over
+        # the arrays, not self, so that no reference cycle keeps a dropped enumeration alive
+        self._range = lru_cache(maxsize=_MAX_RANGES)(partial(_stacked_range, self._R, self._Z))
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        del state["_range"]  # an lru_cache does not pickle; a copy starts empty
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._set_range_cache()
 
     def _exact_ok(self, cand: np.ndarray, wr: np.ndarray) -> np.ndarray:
         """KKT test with per-residual tolerances for pairs (candidate ``cand[i]``, column i):

@@ -50,9 +50,9 @@ thread-safe by itself: the controllers hold a lock around every call (see
 from __future__ import annotations
 
 import math
-from collections import OrderedDict
 from functools import lru_cache
 from itertools import chain, combinations
+from operator import attrgetter
 from typing import Any
 
 import numpy as np
@@ -66,6 +66,7 @@ from .active_set import ActiveSetQP, candidate_maps
 from .dual_qp import DaqpData, DaqpWorkspace
 from .kkt import KKT_TOL
 from .kkt_maps import ActiveSetMaps, active_set_maps
+from .lru import BudgetedLRU
 from .qp_daqp import NEAR_ACTIVE_TOL, SCREEN_RATIO, DaqpSolving, Solution
 
 __all__ = [
@@ -152,38 +153,24 @@ def candidate_count(rows: int, d: int) -> int:
     return sum(math.comb(rows, s) for s in range(min(rows, d) + 1))
 
 
-class EnumerationBudget:
+def _forget_enumeration(family: QPFamily) -> None:
+    family._enum = None
+
+
+class EnumerationBudget(BudgetedLRU[int, "QPFamily"]):
     """The enumerations of several families (one controller's) kept within
-    :data:`ENUMERATION_BUDGET_FLOATS`; least recently used first out. Not thread-safe (the
-    controller's lock covers it); pickles empty."""
+    :data:`ENUMERATION_BUDGET_FLOATS`; least recently used first out (its enumeration dropped,
+    built again when needed). Not thread-safe (the controller's lock covers it); pickles empty.
+
+    Not ``functools``: the budget is in floats, and dropping a family frees its enumeration."""
 
     def __init__(self, limit: int = ENUMERATION_BUDGET_FLOATS) -> None:
-        self._reset(limit)
+        super().__init__(limit, attrgetter("enumeration_floats"), _forget_enumeration)
 
-    def _reset(self, limit: int) -> None:
-        self.limit = limit
-        self._held: OrderedDict[int, tuple[QPFamily, int]] = OrderedDict()
-        self._total = 0
-
-    def __getstate__(self) -> dict[str, Any]:
-        return {"limit": self.limit}
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self._reset(state["limit"])
-
-    def use(self, family: QPFamily, size: int) -> None:
-        """Record that ``family`` holds an enumeration of ``size`` floats (now the most recently
-        used) and drop the least recently used others while the total is above the limit."""
-        key = id(family)
-        if key in self._held:
-            self._held.move_to_end(key)
-            return
-        self._held[key] = (family, size)
-        self._total += size
-        while self._total > self.limit and len(self._held) > 1:
-            _, (old, s) = self._held.popitem(last=False)
-            old._enum = None
-            self._total -= s
+    def use(self, family: QPFamily) -> None:
+        """Record that ``family`` holds its enumeration (now the most recently used) and drop
+        the least recently used others' while the total is above the limit."""
+        self.get(id(family), lambda: family)
 
 
 class QPFamily(DaqpSolving):
@@ -279,7 +266,10 @@ class QPFamily(DaqpSolving):
         self._reset_state()
 
     def _reset_state(self) -> None:
-        self._maps: OrderedDict[tuple[int, ...], ActiveSetMaps | None] = OrderedDict()
+        # not functools: seen() reads the cached maps in order of use, update_P clears them
+        self._maps: BudgetedLRU[tuple[int, ...], ActiveSetMaps | None] = BudgetedLRU(
+            MAX_CACHED_MAPS
+        )
         self._seen: tuple[tuple, ActiveSetQP] | None = None  # seen(): its key and its stack
         self._osqp: osqp.OSQP | None = None
         self._enum: Any = None  # the ActiveSetQP of a full enumeration, built on first use
@@ -382,14 +372,9 @@ class QPFamily(DaqpSolving):
     # ------------------------------------------------------------------ exact solves
     def maps(self, rows: tuple[int, ...]) -> ActiveSetMaps | None:
         """The exact maps of an active set (cached, least recently used dropped first)."""
-        cache = self._maps
-        if rows in cache:
-            cache.move_to_end(rows)
-            return cache[rows]
-        if len(cache) >= MAX_CACHED_MAPS:
-            cache.popitem(last=False)
-        out = cache[rows] = active_set_maps(self.P, self.C, rows, pivots=self.pivots)
-        return out
+        return self._maps.get(
+            rows, lambda: active_set_maps(self.P, self.C, rows, pivots=self.pivots)
+        )
 
     def seen(self) -> ActiveSetQP | None:
         """The active sets this family has met (the :data:`SEEN_SETS` most recently used of
@@ -421,7 +406,7 @@ class QPFamily(DaqpSolving):
             return None
         if self._enum is None:
             self._enum = ActiveSetQP(self.C, candidate_maps(self.P, self.C))
-        self.budget.use(self, self.enumeration_floats)
+        self.budget.use(self)
         return self._enum
 
     def near_active(self, z: np.ndarray, w: np.ndarray, loose: bool = False) -> np.ndarray:

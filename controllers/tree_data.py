@@ -44,7 +44,6 @@ magnitudes fail before any work.
 from __future__ import annotations
 
 import math
-from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
@@ -53,6 +52,7 @@ import scipy.sparse as sp
 from scipy import special, stats
 
 from .horizon import HorizonSettings
+from .lru import BudgetedLRU
 from .tree_qp import OSQP_MAX_VARIABLES, TreeQP
 from .tree_region import RegionClasses
 
@@ -556,10 +556,12 @@ def _floats(fam: TreeFamily) -> int:
     return total + fam.engine.A.size + fam.engine.C.size
 
 
-class FamilyCache:
+class FamilyCache(BudgetedLRU[tuple[int, bool], TreeFamily]):
     """The families of one controller, built on first use (``cache[(mode, inside)]``) and kept
     within :data:`FAMILY_BUDGET_FLOATS` floats, least recently used first out (the one in use
     is always kept). Not thread-safe (the controller's lock covers it); pickles empty.
+
+    Not ``functools``: the budget is in floats, and a controller pickles without its families.
 
     Attributes
     ----------
@@ -568,41 +570,13 @@ class FamilyCache:
     """
 
     def __init__(self, build: Any, limit: int = FAMILY_BUDGET_FLOATS) -> None:
-        self._reset(build, limit)
-
-    def _reset(self, build: Any, limit: int) -> None:
+        super().__init__(limit, _floats)
         self._build = build
-        self.limit = limit
-        self._held: OrderedDict[tuple[int, bool], tuple[TreeFamily, int]] = OrderedDict()
-        self._total = 0
-        self.built = 0
-
-    def __getstate__(self) -> dict[str, Any]:
-        return {"_build": self._build, "limit": self.limit}
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self._reset(state["_build"], state["limit"])
 
     def __getitem__(self, key: tuple[int, bool]) -> TreeFamily:
-        held = self._held
-        if key in held:
-            held.move_to_end(key)
-            return held[key][0]
-        fam = self._build(*key)
-        size = _floats(fam)
-        self.built += 1
-        held[key] = (fam, size)
-        self._total += size
-        while self._total > self.limit and len(held) > 1:
-            _, (_, old) = held.popitem(last=False)
-            self._total -= old
-        return fam
-
-    def values(self) -> list[TreeFamily]:
-        """The families built and held now."""
-        return [fam for fam, _ in self._held.values()]
+        return self.get(key, self._build, *key)
 
     @property
     def floats(self) -> int:
         """Floats held by the built families."""
-        return self._total
+        return self.total

@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections import OrderedDict
 from typing import Any
 
 import numpy as np
 
 from .horizon import HorizonSettings
 from .kkt import ActiveSetFactor, active_set_factor, check_active_set
+from .lru import BudgetedLRU
 from .p3 import CLARABEL_SETTINGS
 from .qp import QPFamily, Solution
 
@@ -58,6 +58,10 @@ TREE_CLARABEL_SETTINGS: dict[str, Any] = {
 }
 
 
+def _factor_floats(factor: ActiveSetFactor | None) -> int:
+    return 0 if factor is None else factor.floats
+
+
 class TreeQP(QPFamily):
     """A :class:`controllers.qp.QPFamily` whose exact active-set solves are per instance.
 
@@ -82,15 +86,17 @@ class TreeQP(QPFamily):
 
     def _reset_state(self) -> None:
         super()._reset_state()
-        self._factors: OrderedDict[tuple, ActiveSetFactor | None] = OrderedDict()
+        # not functools: the budget is in floats
+        self._factors: BudgetedLRU[tuple, ActiveSetFactor | None] = BudgetedLRU(
+            FACTOR_CACHE_FLOATS, _factor_floats
+        )
         self._freed: tuple[bytes, list] | None = None  # see _slack_bounds
         self._pivot_key = self.pivots.tobytes()
-        self._factor_floats = 0
         self._osqp_P: np.ndarray | None = None  # the Hessian the OSQP object holds (None: P)
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
-        for key in ("_factors", "_factor_floats", "_osqp_P", "_freed"):
+        for key in ("_factors", "_osqp_P", "_freed"):
             state.pop(key, None)
         return state
 
@@ -124,19 +130,9 @@ class TreeQP(QPFamily):
         """The active set's factor (:func:`controllers.kkt.active_set_factor`, a function of the
         rows and of which variables have no curvature; cached within
         :data:`FACTOR_CACHE_FLOATS`), or None when its rows are dependent."""
-        cache = self._factors
-        key = (rows, self._pivot_key)
-        if key in cache:
-            cache.move_to_end(key)
-            return cache[key]
-        out = active_set_factor(self.C, rows, self.pivots)
-        cache[key] = out
-        self._factor_floats += 0 if out is None else out.floats
-        while self._factor_floats > FACTOR_CACHE_FLOATS and len(cache) > 1:
-            _, old = cache.popitem(last=False)
-            if old is not None:
-                self._factor_floats -= old.floats
-        return out
+        return self._factors.get(
+            (rows, self._pivot_key), active_set_factor, self.C, rows, self.pivots
+        )
 
     def verify(
         self, rows: tuple[int, ...], w: np.ndarray, report: dict | None = None

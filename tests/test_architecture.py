@@ -254,9 +254,21 @@ def test_a_state_row_is_not_called_xi():
     assert not found, found
 
 
-def test_module_sizes_of_benchmarks():
+@pytest.mark.parametrize("package", ["controllers", "benchmarks"])
+def test_module_sizes(package):
     sizes = {
         name: len(path.read_text(encoding="utf-8").splitlines())
-        for name, path in modules("benchmarks").items()
+        for name, path in modules(package).items()
     }
     assert max(sizes.values()) <= 600, {k: v for k, v in sizes.items() if v > 600}
+
+
+def test_one_hand_written_lru():
+    """The caches functools cannot be share controllers/lru.py's BudgetedLRU; no module keeps
+    another hand-written one (an OrderedDict moved to its end and popped from its start)."""
+    found = [
+        name
+        for name, path in modules(*PACKAGES).items()
+        if name != "controllers.lru" and "OrderedDict" in path.read_text(encoding="utf-8")
+    ]
+    assert not found, found
