@@ -3,6 +3,8 @@
 * the paper's example (``paper``, ``paper_kwargs``, ``quiet_paper_model``, ``paper_policy``),
   another model (``other_model``) and small hand-made models (``noiseless_model``,
   ``doubling_model``);
+* random systems (``random_sdjls``), random problems P3 of the receding-horizon tests
+  (``random_problem``) and two checks of an answer (``paper_cost``, ``assert_feasible``);
 * ``raises_naming``: the one way the tests check an error (its type, the argument's name and
   the offending value, never the whole sentence), and ``no_solver`` / ``raised_by_library``
   for the error catalogues (``test_errors_*.py``).
@@ -217,6 +219,76 @@ def doubling_model() -> SDJLSModel:
         A=[[[2.0]]], B=[[1.0]], P_in=[[1.0]], P_out=[[1.0]], G=[[1.0]], H0=[100.0],
         Q=[[1.0]], R=[[1.0]], x0=[1.0], W=[[0.0]],
     )  # fmt: skip
+
+
+# -------------------------------------------------------------------------- random P3 problems
+def random_sdjls(
+    rng: np.random.Generator,
+    N: int,
+    n: int,
+    m: int,
+    p: int,
+    r: int,
+    *,
+    a_scale: float = 0.7,
+    weights: bool = True,
+) -> SDJLSModel:
+    """A random SDJLS with E != I and W != I (full rank W), ``A`` of entries ``N(0, a_scale^2)``;
+    random weights ``Q``, ``R`` (``weights``) or identities."""
+    L = rng.normal(size=(p, p))
+    M = rng.normal(size=(N, m, m)) if weights else None
+    return SDJLSModel(
+        A=rng.normal(size=(N, n, n)) * a_scale,
+        B=rng.normal(size=(N, n, m)),
+        E=rng.normal(size=(N, n, p)),
+        W=L @ L.T + 0.2 * np.eye(p),
+        P_in=rng.dirichlet(np.ones(N), size=N),
+        P_out=rng.dirichlet(np.ones(N), size=N),
+        G=rng.normal(size=(r, n)),
+        H0=rng.uniform(1.0, 3.0, size=r),
+        H_rate=rng.uniform(-0.1, 0.1, size=r),
+        Q=np.eye(n) * rng.uniform(0.5, 2.0) if weights else np.eye(n),
+        R=np.eye(m) if M is None else M @ M.transpose(0, 2, 1) + 0.3 * np.eye(m),
+        x0=np.zeros(n),
+    )
+
+
+def random_problem(seed: int):
+    """A random system (n <= 4, m <= 2, N <= 3, r <= 4), random K (stabilising or not), Psi."""
+    rng = np.random.default_rng(seed)
+    N, n, m = int(rng.integers(1, 4)), int(rng.integers(1, 5)), int(rng.integers(1, 3))
+    p, r = int(rng.integers(1, 5)), int(rng.integers(1, 5))
+    model = random_sdjls(rng, N, n, m, p, r)
+    K = rng.normal(size=(N, m, n))
+    S = rng.normal(size=(N, n, n))
+    Psi = S @ S.transpose(0, 2, 1) + 0.5 * np.eye(n)
+    return rng, model, K, Psi
+
+
+def paper_cost(model, K, Psi, alpha, x, mode, k, nu, rho):
+    """J_k of P3 written out term by term: stage cost + sum_j pi_j E[x' Psi_j x] + alpha rho."""
+    u = K[mode] @ x + nu
+    pi = model.transition_rows(x, mode, k)
+    mean = model.next_state(x, mode, u, np.zeros(model.p))
+    cov = model.E[mode] @ model.W @ model.E[mode].T
+    terminal = sum(pi[j] * (mean @ Psi[j] @ mean + np.trace(Psi[j] @ cov)) for j in range(model.N))
+    return x @ model.Q[mode] @ x + u @ model.R[mode] @ u + terminal + alpha * rho
+
+
+def assert_feasible(ctrl, x, mode, k, u, info, tol=1e-7):
+    """(nu, rho) satisfies nu in U, rho >= 0 and every tightened row on x_{k+1}."""
+    model = ctrl.model
+    nu, rho = info["nu"], info["rho"]
+    np.testing.assert_allclose(u, ctrl.K[mode] @ x + nu, rtol=0, atol=1e-12)
+    assert rho >= 0.0
+    if ctrl.nu_set == "box" or model.m == 1:
+        assert np.all(np.abs(nu) <= ctrl.nu_bound + tol)
+    else:
+        assert np.linalg.norm(nu) <= ctrl.nu_bound + tol
+    if ctrl.tightening is not None:
+        mean = model.next_state(x, mode, u, np.zeros(model.p))
+        slack = model.H(k + 1) - ctrl.tightening[mode] + rho - model.G @ mean
+        assert np.all(slack >= -tol * max(1.0, np.max(np.abs(model.H(k + 1))))), slack
 
 
 # ------------------------------------------------------------------------------------ errors

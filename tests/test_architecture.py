@@ -263,6 +263,13 @@ def test_module_sizes(package):
     assert max(sizes.values()) <= 600, {k: v for k, v in sizes.items() if v > 600}
 
 
+def test_no_test_file_passes_800_lines():
+    sizes = {
+        p.name: len(p.read_text(encoding="utf-8").splitlines()) for p in ROOT.glob("tests/*.py")
+    }
+    assert max(sizes.values()) <= 800, {k: v for k, v in sizes.items() if v > 800}
+
+
 def test_one_hand_written_lru():
     """The caches functools cannot be share controllers/lru.py's BudgetedLRU; no module keeps
     another hand-written one (an OrderedDict moved to its end and popped from its start)."""

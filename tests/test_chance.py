@@ -3,35 +3,20 @@
 from __future__ import annotations
 
 import math
+from functools import partial
 
 import cvxpy as cp
 import numpy as np
 import pytest
-from conftest import raises_naming
+from conftest import raises_naming, random_sdjls
 from scipy import stats
 
 from controllers.chance import row_satisfaction_probability, tightened_set_empty, tightening
 from sdjls_gym import SDJLSModel
 from sdjls_gym.systems.macro import macro
 
-
-def random_model(rng: np.random.Generator, N: int, n: int, m: int, p: int, r: int) -> SDJLSModel:
-    """A random SDJLS with E != I and W != I (full rank W)."""
-    L = rng.normal(size=(p, p))
-    return SDJLSModel(
-        A=rng.normal(size=(N, n, n)) * 0.6,
-        B=rng.normal(size=(N, n, m)),
-        E=rng.normal(size=(N, n, p)),
-        W=L @ L.T + 0.2 * np.eye(p),
-        P_in=rng.dirichlet(np.ones(N), size=N),
-        P_out=rng.dirichlet(np.ones(N), size=N),
-        G=rng.normal(size=(r, n)),
-        H0=rng.uniform(1.0, 3.0, size=r),
-        H_rate=rng.uniform(-0.1, 0.1, size=r),
-        Q=np.eye(n),
-        R=np.eye(m),
-        x0=np.zeros(n),
-    )
+#: A random SDJLS with E != I and W != I (full rank W), identity weights.
+random_model = partial(random_sdjls, a_scale=0.6, weights=False)
 
 
 # ---------------------------------------------------------------------- the paper's example
