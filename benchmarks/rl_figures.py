@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.figure_parts import errbars
 from benchmarks.rl_report import Aggregate, ControllerResult, RunResult, curve_xi
 from benchmarks.rl_train import VARIANTS
 from benchmarks.score_table import fmt_steps
@@ -15,13 +16,6 @@ from benchmarks.stats import CurveStatus
 ALGO_COLORS = {"ppo": "C0", "sac": "C1", "td3": "C2"}
 VARIANT_MARKERS = dict(zip(VARIANTS, ("o", "v", "^", "<", "*", "X"), strict=True))
 SINGLE_MARKERS = ("s", "D", "P", "h", "8")
-
-
-def errbars(ax: Any, s: Any, **kw: Any) -> None:
-    """A point with its violation (x) and cost (y) intervals; ``s`` a Score or an Aggregate."""
-    v, (vlo, vhi), c, (clo, chi) = s.violation, s.violation_wilson95, s.cost_mean, s.cost_ci95
-    ax.errorbar(v, c, xerr=[[v - vlo], [vhi - v]],
-                yerr=[[max(c - clo, 0.0)], [max(chi - c, 0.0)]], capsize=2, **kw)  # fmt: skip
 
 
 def shared_legend_entries(axes: Any) -> tuple[list[Any], list[str]]:

@@ -15,8 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.figure_parts import cost_violation_axes, errbars, interval_point
 from benchmarks.files import write_atomic
-from benchmarks.rl_figures import ALGO_COLORS, VARIANT_MARKERS, errbars
+from benchmarks.rl_figures import ALGO_COLORS, VARIANT_MARKERS
 from benchmarks.rl_report import fmt_steps
 
 __all__ = ["CONFIG_COLORS", "across_figures", "task_figures"]
@@ -73,11 +74,8 @@ def task_figures(out: Path, r: Any) -> list[str]:
                 lw=1.2, label=f"{label} ({curve.episodes} episodes), xi = "
                 f"{min(curve.xis):g}..{max(curve.xis):g}")  # fmt: skip
         for p in pts:
-            v, (vlo, vhi), c, (clo, chi) = (p["violation"], p["violation_wilson95"],
-                                            p["cost_mean"], p["cost_ci95"])  # fmt: skip
-            ax.errorbar(v, c, xerr=[[max(v - vlo, 0)], [max(vhi - v, 0)]],
-                        yerr=[[max(c - clo, 0)], [max(chi - c, 0)]], fmt="o", ms=3.5,
-                        color=color, capsize=2)  # fmt: skip
+            interval_point(ax, p["violation"], p["violation_wilson95"], p["cost_mean"],
+                           p["cost_ci95"], fmt="o", ms=3.5, color=color)  # fmt: skip
     flat = {(s.algo, s.variant): s.flat for s in r.status}
     for a in r.aggregates:
         config = f"{a.algo}_{a.variant}"
@@ -89,14 +87,9 @@ def task_figures(out: Path, r: Any) -> list[str]:
             if ag.config == config:
                 s = ag.result.score
                 ax.plot(s.violation, s.cost_mean, ".", color=_color(config), alpha=0.5)
-    ax.axvline(1 - r.xi, color="r", ls=":", lw=1, label=f"1 - xi = {1 - r.xi:.2f}")
-    ax.set_yscale("log")
-    ax.set_xlim(-0.02, 1.02)
-    ax.set_xlabel("per-step violation frequency (95% Wilson interval)")
-    ax.set_ylabel("mean episode cost (95% interval), log scale")
-    ax.set_title(f"{r.env_id}: agents (seeds pooled; dots: each seed) against both curves")
-    ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=7)
+    cost_violation_axes(
+        ax, r.xi, f"{r.env_id}: agents (seeds pooled; dots: each seed) against both curves"
+    )
     _save(fig, out, f"fig_{r.env_id}_cost_violation.png", names)
 
     fig, axes = plt.subplots(2, 1, figsize=(8, 7), sharex=True)

@@ -8,18 +8,12 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.figure_parts import cost_violation_axes, errbars
 from benchmarks.files import write_atomic
 
 COLORS = {"RHC individual": "k", "RHC joint": "0.55", "RHC 3-step": "C4",
           "Linear feedback": "C1", "MJLS LQ": "C2"}  # fmt: skip
 MARKERS = {"Linear feedback": "s", "MJLS LQ": "D"}
-
-
-def _errbars(ax: Any, p: Any, **kw: Any) -> None:
-    """A point with its violation (x, 95% Wilson) and cost (y, 95% t) intervals."""
-    v, (vlo, vhi), c, (clo, chi) = p.violation, p.violation_wilson95, p.cost_mean, p.cost_ci95
-    ax.errorbar(v, c, xerr=[[max(v - vlo, 0.0)], [max(vhi - v, 0.0)]],
-                yerr=[[max(c - clo, 0.0)], [max(chi - c, 0.0)]], capsize=2, **kw)  # fmt: skip
 
 
 def make_figures(out: Path, refs: list[Any], aggs: dict[str, Any]) -> list[str]:
@@ -49,21 +43,15 @@ def make_figures(out: Path, refs: list[Any], aggs: dict[str, Any]) -> list[str]:
             ax.plot([p.violation for p in pts], [p.cost_mean for p in pts], "-",
                     color=COLORS[family], lw=1.2, label=text)  # fmt: skip
             for p in pts:
-                _errbars(ax, p, fmt="o", color=COLORS[family], ms=3.5)
+                errbars(ax, p, fmt="o", color=COLORS[family], ms=3.5)
                 if family == "RHC individual" and p.xi == t.xi:
                     ax.annotate(f"xi={p.xi:g}", (p.violation, p.cost_mean), fontsize=7,
                                 textcoords="offset points", xytext=(4, 6))  # fmt: skip
         for family, marker in MARKERS.items():
             p = t.at(family)
-            _errbars(ax, p, fmt=marker, color=COLORS[family], ms=7, label=family)
-        ax.axvline(1 - t.xi, color="r", ls=":", lw=1, label=f"1 - xi = {1 - t.xi:.2f}")
-        ax.set_yscale("log")
-        ax.set_xlim(-0.02, 1.02)
-        ax.set_xlabel("per-step violation frequency (95% Wilson interval)")
-        ax.set_ylabel("mean episode cost (95% interval), log scale")
-        ax.set_title(f"{t.env_id}: n={t.n}, m={t.m}, N={t.N}, r={t.r}, horizon {t.horizon}")
-        ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7)
+            errbars(ax, p, fmt=marker, color=COLORS[family], ms=7, label=family)
+        title = f"{t.env_id}: n={t.n}, m={t.m}, N={t.N}, r={t.r}, horizon {t.horizon}"
+        cost_violation_axes(ax, t.xi, title)
         save(fig, f"fig_{t.env_id}.png")
 
     # across tasks: each controller's gap per task, and rliable's performance profiles
