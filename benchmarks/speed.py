@@ -386,8 +386,8 @@ def measure_p3_task(task: Task, opts) -> dict[str, Any]:
 
 
 def large_tree_model(seed: int = 11, N: int = 10, r: int = 20) -> SDJLSModel:
-    """The system of issue 28's 111-node tree (``tests/test_tree_reliability.large_model``):
-    N = 10 modes, n = 4, m = 1, r = 20 random rows, zero gains."""
+    """The system of issue 28's 111-node tree: N = 10 modes, n = 4, m = 1, r = 20 random rows
+    (the large trees of ``tests/test_tree_reliability.py`` too, with zero gains)."""
     rng = np.random.default_rng(seed)
     n, m = 4, 1
     return SDJLSModel(

@@ -27,6 +27,7 @@ import pytest
 from exact_p3 import exact_p3
 from scipy import optimize, special
 
+from benchmarks.speed import large_tree_model
 from controllers import (
     RecedingHorizonController,
     ScenarioTreeController,
@@ -311,29 +312,12 @@ def test_one_step_tree_is_p3_at_huge_states_and_times(x, mode, k):
 
 
 # ----------------------------------------------------------------------------- large trees
-def large_model(rng: np.random.Generator, N: int, r: int) -> tuple[SDJLSModel, np.ndarray]:
-    n, m = 4, 1
-    return SDJLSModel(
-        A=rng.normal(size=(N, n, n)) * 0.4,
-        B=rng.normal(size=(N, n, m)),
-        E=np.tile(np.eye(n) * 0.3, (N, 1, 1)),
-        W=np.eye(n),
-        P_in=rng.dirichlet(np.ones(N), size=N),
-        P_out=rng.dirichlet(np.ones(N), size=N),
-        G=rng.normal(size=(r, n)),
-        H0=rng.uniform(1.0, 3.0, size=r),
-        Q=np.tile(np.eye(n), (N, 1, 1)),
-        R=np.tile(np.eye(m), (N, 1, 1)),
-        x0=np.zeros(n),
-    ), np.zeros((N, m, n))
-
-
 def test_families_are_built_on_first_use_within_a_budget():
     """A 157-node tree (N = 12, n = 4, m = 1, r = 49, steps = 3) built all 24 families up front
     (12 s, 2.2 GB). Construction now builds none (peak traced memory < 50 MB: only the
     magnitudes of each family are computed), a decision builds one, and the built families
     are kept within FAMILY_BUDGET_FLOATS."""
-    model, K = large_model(np.random.default_rng(5), 12, 49)
+    model, K = large_tree_model(seed=5, N=12, r=49), np.zeros((12, 1, 4))
     Psi = np.tile(np.eye(4), (12, 1, 1))
     tracemalloc.start()
     try:
@@ -360,7 +344,7 @@ def test_no_osqp_on_a_tree_too_large_for_it(monkeypatch):
     OSQP ran to its iteration limit twice (7 s) before the cvxpy rescue. DAQP now answers, and
     when DAQP fails (forced here) the chain goes to the cvxpy rescue without running OSQP
     (counted)."""
-    model, K = large_model(np.random.default_rng(11), 10, 20)
+    model, K = large_tree_model(seed=11, N=10, r=20), np.zeros((10, 1, 4))
     Psi = np.tile(np.eye(4), (10, 1, 1))
     runs = {"osqp": 0, "daqp": 0}
     run_osqp, run_daqp = QPFamily.run_osqp, QPFamily.run_daqp
