@@ -106,14 +106,21 @@ def env_step_blocks(env_id: str, episodes: int) -> Callable[[], float]:
     return block
 
 
-def paired_times(blocks: Sequence[Callable[[], float]], repeats: int) -> tuple[list[float], float]:
+def paired_times(
+    blocks: Sequence[Callable[[], float]],
+    repeats: int,
+    after_warmup: Callable[[], Any] | None = None,
+) -> tuple[list[float], float]:
     """Time the ``blocks`` (each returns its own time per call) in turn, ``repeats`` rounds
     after a warm-up round: ``(medians, ratio)``, each block's median time and the median over
     the rounds of the first block's time over the second's. Interleaving puts both blocks of a
     ratio under the same load (two separate medians taken minutes apart on a shared machine
-    moved a ratio from 1.4x to 3.2x between runs)."""
+    moved a ratio from 1.4x to 3.2x between runs). ``after_warmup`` is called between the
+    warm-up and the timed rounds, untimed."""
     for block in blocks:
         block()
+    if after_warmup is not None:
+        after_warmup()
     rounds = [[block() for block in blocks] for _ in range(repeats)]
     medians = [statistics.median(r[i] for r in rounds) for i in range(len(blocks))]
     ratio = statistics.median(r[0] / r[1] for r in rounds)
@@ -270,13 +277,19 @@ def measure_batched(opts) -> dict[str, Any]:
 TREES = ((1, None), (2, None), (3, None), (5, None), (10, 2))
 
 
-def measure_tree(opts, act_one_step_us: float) -> dict[str, Any]:
+def measure_tree(opts) -> dict[str, Any]:
     """One decision of ``ScenarioTreeController`` per tree of :data:`TREES` on closed-loop
     states of the paper's controller, against its cvxpy reference and one-step ``act()``."""
     model = sdjls_gym.macro()
     p3 = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
     x, mode, k = closed_loop_states(model, p3, 400, seed=6)
     idx = np.arange(len(x))
+    cycle_one = iter(np.resize(idx, 10**7))
+
+    def one_step() -> None:
+        i = next(cycle_one)
+        p3.act(x[i], int(mode[i]), int(k[i]))
+
     rows = []
     for steps, branching in TREES:
         fast = ScenarioTreeController(model, PAPER_K, **PAPER_RHC, steps=steps, branching=branching)
@@ -295,7 +308,12 @@ def measure_tree(opts, act_one_step_us: float) -> dict[str, Any]:
             gaps.append(info["fixed_point_gap"])
 
         number = (10 if large else 40) if opts.quick else (60 if large else 200)
-        t_fast = median_time(one, opts.repeats, number, after_warmup=fast.reset_path_counts)
+        # in rounds alternating with one-step act() on the same states (the ratio under one load)
+        (t_fast, t_one), vs_one = paired_times(
+            [calls_block(one, number), calls_block(one_step, 200)],
+            opts.repeats,
+            after_warmup=fast.reset_path_counts,
+        )
         counts = fast.path_counts
         n_cvx = (1 if large else 3) if opts.quick else (8 if large else 20)
         t_ref, diff = [], 0.0
@@ -320,7 +338,8 @@ def measure_tree(opts, act_one_step_us: float) -> dict[str, Any]:
                 "warm_start_share": counts.get("active_set_warm", 0) / max(1, sum(counts.values())),
                 "cvxpy_us": 1e6 * t_cvx,
                 "speedup_vs_cvxpy": t_cvx / t_fast,
-                "vs_one_step_act": 1e6 * t_fast / act_one_step_us,
+                "one_step_act_us": 1e6 * t_one,
+                "vs_one_step_act": vs_one,
                 "max_abs_diff_u_vs_cvxpy": diff,
                 "cvxpy_states": n_cvx,
             }
@@ -540,7 +559,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     print("batched closed loop ...", flush=True)
     res["batched"] = measure_batched(opts)
     print("multi-step (scenario tree) ...", flush=True)
-    res["tree"] = measure_tree(opts, res["act"]["act_us"])
+    res["tree"] = measure_tree(opts)
     print("the 111-node tree ...", flush=True)
     res["tree"]["large"] = measure_large_tree(opts, res["act"]["act_us"])
     print("scaling ...", flush=True)
