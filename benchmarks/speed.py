@@ -1,7 +1,8 @@
 """Speed of the environment and the controllers, as ratios against references in the same run.
 
 ``python -m benchmarks.speed [--out results/speed] [--quick]`` measures, in one process, with
-warm-up and medians over repeats:
+warm-up and medians over repeats (the env against Pendulum and each ``act()`` against its DAQP
+floor in alternating rounds, the ratio the median of the rounds' ratios; :func:`paired_times`):
 
 1. one env step of ``SDJLS-Macro-v0`` against ``Pendulum-v1`` (both from ``gym.make`` with
    their default wrappers; resets are not timed);
@@ -39,7 +40,7 @@ import resource
 import statistics
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -80,8 +81,9 @@ def median_time(
     return statistics.median(times)
 
 
-def env_step_time(env_id: str, episodes: int, repeats: int) -> float:
-    """Median time of one ``step`` (resets excluded) of ``gym.make(env_id)``."""
+def env_step_blocks(env_id: str, episodes: int) -> Callable[[], float]:
+    """A function that times ``episodes`` episodes of ``gym.make(env_id)`` (20 steps at most)
+    and returns the mean time of one ``step`` (resets excluded)."""
     env = gym.make(env_id)
     shape = env.action_space.shape
     assert shape is not None  # the environments' action spaces are Boxes
@@ -101,8 +103,40 @@ def env_step_time(env_id: str, episodes: int, repeats: int) -> float:
             total += time.perf_counter() - t0
         return total / steps
 
-    block()
-    return statistics.median(block() for _ in range(repeats))
+    return block
+
+
+def paired_times(
+    blocks: Sequence[Callable[[], float]],
+    repeats: int,
+    after_warmup: Callable[[], Any] | None = None,
+) -> tuple[list[float], float]:
+    """Time the ``blocks`` (each returns its own time per call) in turn, ``repeats`` rounds
+    after a warm-up round: ``(medians, ratio)``, each block's median time and the median over
+    the rounds of the first block's time over the second's. Interleaving puts both blocks of a
+    ratio under the same load (two separate medians taken minutes apart on a shared machine
+    moved a ratio from 1.4x to 3.2x between runs). ``after_warmup`` is called between the
+    warm-up and the timed rounds, untimed."""
+    for block in blocks:
+        block()
+    if after_warmup is not None:
+        after_warmup()
+    rounds = [[block() for block in blocks] for _ in range(repeats)]
+    medians = [statistics.median(r[i] for r in rounds) for i in range(len(blocks))]
+    ratio = statistics.median(r[0] / r[1] for r in rounds)
+    return medians, ratio
+
+
+def calls_block(fn: Callable[[], Any], number: int) -> Callable[[], float]:
+    """A block for :func:`paired_times`: ``number`` calls of ``fn``, their mean time."""
+
+    def block() -> float:
+        t0 = time.perf_counter()
+        for _ in range(number):
+            fn()
+        return (time.perf_counter() - t0) / number
+
+    return block
 
 
 def closed_loop_states(model: SDJLSModel, ctrl, count: int, seed: int):
@@ -144,7 +178,10 @@ def measure_act(opts) -> dict[str, Any]:
     t_cold = median_time(cycle(cold_ctrl.act), opts.repeats, 200)
     t_osqp = median_time(cycle(osqp_ctrl.act), opts.repeats, 200)
     t_exact = median_time(cycle(exact_ctrl.act), opts.repeats, 200)
-    t_floor = median_time(cycle(floor.solve), opts.repeats, 200)
+    # act() again, in rounds alternating with the floor's (the ratio under one load)
+    (t_act_paired, t_floor), act_vs_floor = paired_times(
+        [calls_block(cycle(ctrl.act), 200), calls_block(cycle(floor.solve), 200)], opts.repeats
+    )
     t_rebuild = median_time(cycle(rebuild_ctrl.act), 3, n_cvx)
     params = {}
     t_param_runs = []
@@ -175,6 +212,7 @@ def measure_act(opts) -> dict[str, Any]:
         "act_osqp_us": 1e6 * t_osqp,
         "act_active_set_us": 1e6 * t_exact,
         "daqp_floor_us": 1e6 * t_floor,
+        "act_paired_us": 1e6 * t_act_paired,  # act() in the rounds alternating with the floor
         "warm_start_share": warm_share,
         "timed_calls_by_path": counts,
         "cvxpy_rebuild_us": 1e6 * t_rebuild,
@@ -182,7 +220,7 @@ def measure_act(opts) -> dict[str, Any]:
         "speedup_vs_rebuild": t_rebuild / t_act,
         "speedup_active_set_vs_rebuild": t_rebuild / t_exact,
         "speedup_vs_parametric": t_param / t_act,
-        "act_vs_daqp_floor": t_act / t_floor,
+        "act_vs_daqp_floor": act_vs_floor,
         "max_abs_diff_u": diffs,
         "states": int(n_cvx),
     }
@@ -239,13 +277,19 @@ def measure_batched(opts) -> dict[str, Any]:
 TREES = ((1, None), (2, None), (3, None), (5, None), (10, 2))
 
 
-def measure_tree(opts, act_one_step_us: float) -> dict[str, Any]:
+def measure_tree(opts) -> dict[str, Any]:
     """One decision of ``ScenarioTreeController`` per tree of :data:`TREES` on closed-loop
     states of the paper's controller, against its cvxpy reference and one-step ``act()``."""
     model = sdjls_gym.macro()
     p3 = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
     x, mode, k = closed_loop_states(model, p3, 400, seed=6)
     idx = np.arange(len(x))
+    cycle_one = iter(np.resize(idx, 10**7))
+
+    def one_step() -> None:
+        i = next(cycle_one)
+        p3.act(x[i], int(mode[i]), int(k[i]))
+
     rows = []
     for steps, branching in TREES:
         fast = ScenarioTreeController(model, PAPER_K, **PAPER_RHC, steps=steps, branching=branching)
@@ -264,7 +308,12 @@ def measure_tree(opts, act_one_step_us: float) -> dict[str, Any]:
             gaps.append(info["fixed_point_gap"])
 
         number = (10 if large else 40) if opts.quick else (60 if large else 200)
-        t_fast = median_time(one, opts.repeats, number, after_warmup=fast.reset_path_counts)
+        # in rounds alternating with one-step act() on the same states (the ratio under one load)
+        (t_fast, t_one), vs_one = paired_times(
+            [calls_block(one, number), calls_block(one_step, 200)],
+            opts.repeats,
+            after_warmup=fast.reset_path_counts,
+        )
         counts = fast.path_counts
         n_cvx = (1 if large else 3) if opts.quick else (8 if large else 20)
         t_ref, diff = [], 0.0
@@ -289,7 +338,8 @@ def measure_tree(opts, act_one_step_us: float) -> dict[str, Any]:
                 "warm_start_share": counts.get("active_set_warm", 0) / max(1, sum(counts.values())),
                 "cvxpy_us": 1e6 * t_cvx,
                 "speedup_vs_cvxpy": t_cvx / t_fast,
-                "vs_one_step_act": 1e6 * t_fast / act_one_step_us,
+                "one_step_act_us": 1e6 * t_one,
+                "vs_one_step_act": vs_one,
                 "max_abs_diff_u_vs_cvxpy": diff,
                 "cvxpy_states": n_cvx,
             }
@@ -359,8 +409,9 @@ def measure_p3_task(task: Task, opts) -> dict[str, Any]:
         it = iter(np.resize(idx, 10**7))
         return lambda: fn(x[(i := next(it))], int(mode[i]), int(k[i]))
 
-    t_act = median_time(cycle(ctrl.act), opts.repeats, B)
-    t_floor = median_time(cycle(floor.solve), opts.repeats, B)
+    (t_act, t_floor), act_vs_floor = paired_times(
+        [calls_block(cycle(ctrl.act), B), calls_block(cycle(floor.solve), B)], opts.repeats
+    )
     t_batch = median_time(lambda: ctrl.act_batch(x, mode, k), opts.repeats, 1) / B
     u_batch = ctrl.act_batch(x, mode, k)[0]
     diff_floor = diff_batch = 0.0
@@ -378,7 +429,7 @@ def measure_p3_task(task: Task, opts) -> dict[str, Any]:
         "act_us": 1e6 * t_act,
         "act_batch_per_state_us": 1e6 * t_batch,
         "daqp_floor_us": 1e6 * t_floor,
-        "act_vs_floor": t_act / t_floor,
+        "act_vs_floor": act_vs_floor,
         "batch_vs_act": t_batch / t_act,
         "max_rel_diff_u_vs_floor": diff_floor,
         "max_abs_diff_u_batch_vs_act": diff_batch,
@@ -494,21 +545,21 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     opts.out.mkdir(parents=True, exist_ok=True)
     episodes = 50 if opts.quick else 500
     print("env step ...", flush=True)
-    pend = env_step_time("Pendulum-v1", episodes, opts.repeats)
-    sdj = env_step_time("SDJLS-Macro-v0", episodes, opts.repeats)
+    blocks = [env_step_blocks(env_id, episodes) for env_id in ("SDJLS-Macro-v0", "Pendulum-v1")]
+    (sdj, pend), env_ratio = paired_times(blocks, opts.repeats)
     res: dict[str, Any] = {
         "command": "python -m benchmarks.speed" + ("" if not argv else " " + " ".join(argv)),
         "machine": f"{platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}",
         "versions": package_versions(),
         "targets": TARGETS,
-        "env_step": {"pendulum_us": 1e6 * pend, "sdjls_us": 1e6 * sdj, "ratio": sdj / pend},
+        "env_step": {"pendulum_us": 1e6 * pend, "sdjls_us": 1e6 * sdj, "ratio": env_ratio},
     }
     print("act ...", flush=True)
     res["act"] = measure_act(opts)
     print("batched closed loop ...", flush=True)
     res["batched"] = measure_batched(opts)
     print("multi-step (scenario tree) ...", flush=True)
-    res["tree"] = measure_tree(opts, res["act"]["act_us"])
+    res["tree"] = measure_tree(opts)
     print("the 111-node tree ...", flush=True)
     res["tree"]["large"] = measure_large_tree(opts, res["act"]["act_us"])
     print("scaling ...", flush=True)

@@ -160,27 +160,28 @@ class SDJLSModel:
             object.__setattr__(self, name, value)
 
     # ------------------------------------------------------------------ sizes
-    @property
+    # the sizes are read on every step: cached, an attribute lookup after the first read
+    @cached_property
     def N(self) -> int:
         """Number of modes."""
         return self.A.shape[0]
 
-    @property
+    @cached_property
     def n(self) -> int:
         """Number of states."""
         return self.A.shape[1]
 
-    @property
+    @cached_property
     def m(self) -> int:
         """Number of inputs."""
         return self.B.shape[2]
 
-    @property
+    @cached_property
     def p(self) -> int:
         """Number of noise inputs (columns of E)."""
         return self.E.shape[2]
 
-    @property
+    @cached_property
     def r(self) -> int:
         """Number of rows of the region ``G x <= H_k``."""
         return self.G.shape[0]
