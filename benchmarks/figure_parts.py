@@ -1,16 +1,34 @@
 """The pieces every cost-against-violation figure of the benchmarks shares: a point with its two
-intervals, and the axes (the ``1 - xi`` line, scales, labels, grid, legend).
+intervals, and the axes (the ``1 - xi`` line, scales, labels, grid, legend); and the atomic PNG
+write of the report figures.
 
 Used by :mod:`benchmarks.suite_figures`, :mod:`benchmarks.rl_figures` and
-:mod:`benchmarks.rl_suite_figures`; it imports none of them (nor matplotlib: it draws on the
-axes it is given).
+:mod:`benchmarks.rl_suite_figures`; it imports none of them (nor matplotlib at import: it draws on
+the axes it is given).
 """
 
 from __future__ import annotations
 
+import io
+from pathlib import Path
 from typing import Any
 
-__all__ = ["cost_violation_axes", "errbars", "interval_point"]
+from benchmarks.files import write_atomic
+
+__all__ = ["cost_violation_axes", "errbars", "interval_point", "save_figure"]
+
+
+def save_figure(fig: Any, out: Path, name: str, names: list[str]) -> None:
+    """Write ``fig`` as ``out / name`` (PNG at 100 dpi, after ``tight_layout``), atomically
+    (:func:`benchmarks.files.write_atomic`), close it and append ``name`` to ``names``."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    write_atomic(out / name, buf.getvalue())
+    names.append(name)
 
 
 def interval_point(

@@ -9,14 +9,12 @@ normalized gap along training). Each is written atomically.
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchmarks.figure_parts import cost_violation_axes, errbars, interval_point
-from benchmarks.files import write_atomic
+from benchmarks.figure_parts import cost_violation_axes, errbars, interval_point, save_figure
 from benchmarks.rl_figures import ALGO_COLORS, VARIANT_MARKERS
 from benchmarks.rl_report import fmt_steps
 
@@ -39,16 +37,6 @@ def _plt() -> Any:
     import matplotlib.pyplot as plt
 
     return plt
-
-
-def _save(fig: Any, out: Path, name: str, names: list[str]) -> None:
-    plt = _plt()
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    plt.close(fig)
-    write_atomic(out / name, buf.getvalue())
-    names.append(name)
 
 
 def _steps_axis(ax: Any, first: float) -> None:
@@ -90,7 +78,7 @@ def task_figures(out: Path, r: Any) -> list[str]:
     cost_violation_axes(
         ax, r.xi, f"{r.env_id}: agents (seeds pooled; dots: each seed) against both curves"
     )
-    _save(fig, out, f"fig_{r.env_id}_cost_violation.png", names)
+    save_figure(fig, out, f"fig_{r.env_id}_cost_violation.png", names)
 
     fig, axes = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
     ref = r.rhc.point(r.rhc.xis.index(r.xi))
@@ -117,7 +105,7 @@ def task_figures(out: Path, r: Any) -> list[str]:
         ax.grid(alpha=0.3, which="both")
     axes[0].legend(fontsize=7)
     axes[0].set_title(f"{r.env_id}: learning curves")
-    _save(fig, out, f"fig_{r.env_id}_learning_curves.png", names)
+    save_figure(fig, out, f"fig_{r.env_id}_learning_curves.png", names)
     return names
 
 
@@ -158,7 +146,7 @@ def across_figures(out: Path, across: list[Any], efficiency: dict[str, dict[str,
     axes[1].set_xlim(-0.02, 1.02)
     axes[1].set_xlabel("probability of improvement (95% CI)")
     axes[1].set_title("P(agent cheaper than the curve at its violation frequency)")
-    _save(fig, out, "fig_aggregate.png", names)
+    save_figure(fig, out, "fig_aggregate.png", names)
 
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.8))
     for ax, key, what in ((axes[0], "vs_rhc", "one-step RHC"), (axes[1], "vs_tree", "3-step tree")):
@@ -178,7 +166,7 @@ def across_figures(out: Path, across: list[Any], efficiency: dict[str, dict[str,
         )  # fmt: skip
         ax.legend(fontsize=8)
         ax.set_title(f"Performance profiles against the {what} (rliable)")
-    _save(fig, out, "fig_profiles.png", names)
+    save_figure(fig, out, "fig_profiles.png", names)
 
     fig, axes = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
     for config, e in efficiency.items():
@@ -204,5 +192,5 @@ def across_figures(out: Path, across: list[Any], efficiency: dict[str, dict[str,
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
     axes[0].set_title(f"Sample efficiency across {len(reports)} task(s): IQM along training")
-    _save(fig, out, "fig_sample_efficiency.png", names)
+    save_figure(fig, out, "fig_sample_efficiency.png", names)
     return names

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchmarks.figure_parts import cost_violation_axes, errbars
-from benchmarks.files import write_atomic
+from benchmarks.figure_parts import cost_violation_axes, errbars, save_figure
 
 COLORS = {"RHC individual": "k", "RHC joint": "0.55", "RHC 3-step": "C4",
           "Linear feedback": "C1", "MJLS LQ": "C2"}  # fmt: skip
@@ -26,14 +24,6 @@ def make_figures(out: Path, refs: list[Any], aggs: dict[str, Any]) -> list[str]:
     from benchmarks.aggregate import SuiteAggregate
 
     names: list[str] = []
-
-    def save(fig: Any, name: str) -> None:
-        fig.tight_layout()
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=100)
-        plt.close(fig)
-        write_atomic(out / name, buf.getvalue())
-        names.append(name)
 
     for t in refs:
         fig, ax = plt.subplots(figsize=(7.5, 5))
@@ -52,7 +42,7 @@ def make_figures(out: Path, refs: list[Any], aggs: dict[str, Any]) -> list[str]:
             errbars(ax, p, fmt=marker, color=COLORS[family], ms=7, label=family)
         title = f"{t.env_id}: n={t.n}, m={t.m}, N={t.N}, r={t.r}, horizon {t.horizon}"
         cost_violation_axes(ax, t.xi, title)
-        save(fig, f"fig_{t.env_id}.png")
+        save_figure(fig, out, f"fig_{t.env_id}.png", names)
 
     # across tasks: each controller's gap per task, and rliable's performance profiles
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.8))
@@ -102,5 +92,5 @@ def make_figures(out: Path, refs: list[Any], aggs: dict[str, Any]) -> list[str]:
         axes[1].set_title("Performance profiles (rliable; controllers with a gap on every task)")
     else:
         axes[1].set_axis_off()
-    save(fig, "fig_aggregate.png")
+    save_figure(fig, out, "fig_aggregate.png", names)
     return names
