@@ -68,17 +68,11 @@ def median_time(
 ) -> float:
     """Median over ``repeats`` of the mean time of ``number`` calls (after one warm-up round;
     ``after_warmup`` is called between the warm-up and the timed rounds, untimed)."""
-    for _ in range(number):
-        fn()
+    block = calls_block(fn, number)
+    block()
     if after_warmup is not None:
         after_warmup()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for _ in range(number):
-            fn()
-        times.append((time.perf_counter() - t0) / number)
-    return statistics.median(times)
+    return statistics.median(block() for _ in range(repeats))
 
 
 def env_step_blocks(env_id: str, episodes: int) -> Callable[[], float]:
@@ -139,6 +133,15 @@ def calls_block(fn: Callable[[], Any], number: int) -> Callable[[], float]:
     return block
 
 
+def cycling(
+    fn: Callable[..., Any], x: np.ndarray, mode: np.ndarray, k: np.ndarray
+) -> Callable[[], Any]:
+    """A function that calls ``fn(x[i], int(mode[i]), int(k[i]))`` on the states in turn (from
+    the first, wrapping around): the timed calls of a controller on closed-loop states."""
+    it = iter(np.resize(np.arange(len(x)), 10**7))
+    return lambda: fn(x[(i := next(it))], int(mode[i]), int(k[i]))
+
+
 def closed_loop_states(model: SDJLSModel, ctrl, count: int, seed: int):
     """States, modes and times visited by the closed loop (realistic inputs for timing)."""
     env = SDJLSVectorEnv(num_envs=max(1, count // 20), model=model)
@@ -166,11 +169,9 @@ def measure_act(opts) -> dict[str, Any]:
     floor = DaqpFloor(p3)
     x, mode, k = closed_loop_states(model, ctrl, 400, seed=1)
     n_cvx = 10 if opts.quick else 60
-    idx = np.arange(len(x))
 
     def cycle(fn):
-        it = iter(np.resize(idx, 10**7))
-        return lambda: fn(x[(i := next(it))], int(mode[i]), int(k[i]))
+        return cycling(fn, x, mode, k)
 
     t_act = median_time(cycle(ctrl.act), opts.repeats, 200, after_warmup=ctrl.reset_path_counts)
     counts = ctrl.path_counts  # the timed calls (and the warm-up's last round) by path
@@ -284,12 +285,7 @@ def measure_tree(opts) -> dict[str, Any]:
     p3 = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
     x, mode, k = closed_loop_states(model, p3, 400, seed=6)
     idx = np.arange(len(x))
-    cycle_one = iter(np.resize(idx, 10**7))
-
-    def one_step() -> None:
-        i = next(cycle_one)
-        p3.act(x[i], int(mode[i]), int(k[i]))
-
+    one_step = cycling(p3.act, x, mode, k)
     rows = []
     for steps, branching in TREES:
         fast = ScenarioTreeController(model, PAPER_K, **PAPER_RHC, steps=steps, branching=branching)
@@ -403,11 +399,9 @@ def measure_p3_task(task: Task, opts) -> dict[str, Any]:
     floor = DaqpFloor(P3Data(model, task.K, dict(task.rhc)))
     x, mode, k = closed_loop_states(model, ctrl, 100 if opts.quick else 400, seed=7)
     B = len(x)
-    idx = np.arange(B)
 
     def cycle(fn):
-        it = iter(np.resize(idx, 10**7))
-        return lambda: fn(x[(i := next(it))], int(mode[i]), int(k[i]))
+        return cycling(fn, x, mode, k)
 
     (t_act, t_floor), act_vs_floor = paired_times(
         [calls_block(cycle(ctrl.act), B), calls_block(cycle(floor.solve), B)], opts.repeats
