@@ -24,7 +24,11 @@ one test, for problem P3 and for the scenario tree alike:
   every negated multiplier is at most :data:`KKT_TOL` times the magnitude of the terms summed to
   compute it. The magnitudes are carried through every product with absolute values (so a
   cancellation is not mistaken for a small term), in the equilibrated variables, which makes
-  the test invariant under a scaling of the rows, of the variables or of the objective.
+  the test invariant under a scaling of the rows, of the variables or of the objective;
+* a multiplier accepted below zero is computed again, densely, and must be nonnegative to
+  :data:`KKT_TOL` of the gradient's scale (:func:`confirm_multipliers`): an ill-conditioned
+  reduced Hessian can make the magnitudes so large (1e10 for a multiplier of -3.8) that a point
+  above the optimum would pass.
 
 Two forms compute the same numbers: :func:`controllers.kkt_maps.active_set_maps` (the maps as matrices over the
 whole ``w``, for families with a fixed Hessian that solve many instances, e.g. P3 and its
@@ -46,6 +50,7 @@ __all__ = [
     "ActiveSetFactor",
     "active_set_factor",
     "check_active_set",
+    "confirm_multipliers",
     "reduce_hessian",
     "solve_stacked",
     "snap_bounds",
@@ -499,6 +504,34 @@ def solve_stacked(fac: ActiveSetFactor, red: tuple, P: np.ndarray, W2: np.ndarra
     return z2, lam2
 
 
+def confirm_multipliers(
+    P: np.ndarray,
+    C: np.ndarray,
+    rows: tuple[int, ...],
+    w: np.ndarray,
+    which: np.ndarray,
+    z: np.ndarray,
+) -> bool:
+    """Whether the multipliers ``which`` (a mask over the sorted ``rows``), computed again from
+    the dense KKT system ``[[P, C_S'], [C_S, 0]] [z; lam] = [-q; h_S]``, have each
+    ``-lam_i max_j |C_ij| <= KKT_TOL max(|P| |z| + |q|)`` at the returned ``z`` (False when the
+    system is singular or a number not finite). Called only for multipliers found below 0."""
+    d, idx = P.shape[0], np.asarray(rows, dtype=np.int64)
+    CS = C[idx]
+    K = np.zeros((d + idx.size, d + idx.size))
+    K[:d, :d], K[:d, d:], K[d:, :d] = P, CS.T, CS
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            lam = np.linalg.solve(K, np.concatenate([-w[:d], w[d + idx]]))[d:][which]
+    except np.linalg.LinAlgError:
+        return False
+    scale = float(np.max(np.abs(P) @ np.abs(z) + np.abs(w[:d]), initial=0.0))
+    size = np.abs(CS[which]).max(axis=1, initial=0.0)
+    if not (np.all(np.isfinite(lam)) and math.isfinite(scale)):
+        return False
+    return bool(np.all(-lam * size <= KKT_TOL * scale))
+
+
 def check_active_set(
     fac: ActiveSetFactor,
     P: np.ndarray,
@@ -558,5 +591,10 @@ def check_active_set(
             add = np.flatnonzero(inactive > 0.0)
             report["add"] = add[np.argsort(-inactive[add], kind="stable")].tolist()
             report["drop"] = fac.idx[excess[c:] > 0.0].tolist()
+        return None
+    negative = lam < 0.0
+    if negative.any() and not confirm_multipliers(P, C, fac.rows, w, negative, z):
+        if report is not None:
+            report["drop"] = fac.idx[negative].tolist()
         return None
     return z.tolist()

@@ -19,6 +19,7 @@ from .kkt import (
     KKT_TOL,
     ActiveSetFactor,
     active_set_factor,
+    confirm_multipliers,
     reduce_hessian,
     snap_bounds,
     solve_stacked,
@@ -45,6 +46,8 @@ class ActiveSetMaps:
         the magnitude of the terms summed to compute them).
     C, absC : (c, d)
         The rows and their absolute values (the primal test is made at the returned ``z``).
+    P : (d, d) or None
+        The Hessian, for :func:`controllers.kkt.confirm_multipliers` (None: not confirmed).
     """
 
     rows: tuple[int, ...]
@@ -54,6 +57,7 @@ class ActiveSetMaps:
     C: np.ndarray
     absC: np.ndarray
     bounds: tuple = ()  # see ActiveSetFactor.bounds
+    P: np.ndarray | None = None
     RZ: np.ndarray = field(init=False, repr=False)  # [R; Z]: residuals and z in one product
     active: list = field(init=False, repr=False)  # (C_i as a list, index of h_i in w) per row
     #: ``KKT_TOL`` times the largest row sum of ``T``: no residual's tolerance exceeds
@@ -91,8 +95,17 @@ class ActiveSetMaps:
             tol = KKT_TOL * (self.absC @ np.abs(za) + np.abs(h))
             if not np.all(primal <= tol):
                 return None
+            neg_lam = np.asarray(v[c:nr])
             lam_tol = KKT_TOL * (self.T[c:] @ np.abs(w))
-            if not np.all(np.asarray(v[c:nr]) <= lam_tol):
+            if not np.all(neg_lam <= lam_tol):
+                return None
+            # a multiplier accepted below zero is computed again (see controllers.kkt)
+            negative = neg_lam > 0.0
+            if (
+                negative.any()
+                and self.P is not None
+                and not confirm_multipliers(self.P, self.C, self.rows, w, negative, za)
+            ):
                 return None
         return z
 
@@ -149,4 +162,4 @@ def active_set_maps(
     T = np.vstack([primal_T, T_lam])
     if not (np.all(np.isfinite(R)) and np.all(np.isfinite(T)) and np.all(np.isfinite(Z))):
         return None
-    return ActiveSetMaps(fac.rows, Z, R, T, C, absC, fac.bounds)
+    return ActiveSetMaps(fac.rows, Z, R, T, C, absC, fac.bounds, P)
