@@ -101,7 +101,9 @@ def write_markdown(res: dict[str, Any], cmd: str) -> str:
         "against one-step act() on the same states (timed in alternating rounds with the tree's; "
         "the ratio is the median of the rounds' ratios). A decision solves the tree's QP once per fixed-point "
         "iteration on the branch probabilities (at most 10, the default; 'converged': no region probability "
-        f"moved by more than {PROB_TOL:g} at the last one); the fast path re-solves the last "
+        f"moved by more than {PROB_TOL:g} at the last one), starting from the plan of nu = 0 with "
+        "each node's mean moved into the interval its parent's chance rows allow, with Aitken's "
+        "extrapolation of linearly converging iterates; the fast path re-solves the last "
         "active set exactly first (warm start), then tries a few primal-dual active-set steps "
         "from it, and runs DAQP only when neither verifies.",
         "",

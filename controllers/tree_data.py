@@ -305,6 +305,7 @@ class TreeFamily:
     proj_z: np.ndarray  # (S * classes, d)
     proj_sd: np.ndarray  # (S, classes) their standard deviations
     q_time: np.ndarray  # (S,) stage of the nodes tree.sq (the band H_{k + stage})
+    q_tightening: np.ndarray  # (S, r) the tightening of their parents' chance rows
     mean_x: np.ndarray  # (M * n, n)  node means: mean = mean_x x + mean_z z
     mean_z: np.ndarray  # (M * n, d)
     cov: np.ndarray  # (M, n, n) covariance of each node's state
@@ -523,6 +524,7 @@ def build_tree_family(
         proj_z=_frozen(proj_z),
         proj_sd=_frozen(proj_sd),
         q_time=_frozen(tree.stage[sq].astype(np.float64)),
+        q_tightening=_frozen(tight[tree.parent[sq]]),
         mean_x=_frozen(Mx.reshape(M * n, n)),
         mean_z=_frozen(Mz.reshape(M * n, d)),
         cov=_frozen(cov),

@@ -60,6 +60,7 @@ class _Context:
     h_chance: np.ndarray  # (M r,) the chance rows' bounds: band - tightening + chance_x x
     proj0: np.ndarray  # (S, classes) the projections of the nodes tree.sq's means at nu = 0
     limits: tuple  # RegionClasses.limits of the bands H_{k + t} of those nodes
+    bands: np.ndarray  # (S, r) those bands
 
 
 class TreeSolver:
@@ -93,7 +94,7 @@ class TreeSolver:
         h_chance = (band - fam.tightening).ravel() + fam.chance_x @ x
         H = model.H0 + (k + fam.q_time)[:, None] * model.H_rate  # H_{k + t}
         proj0 = (fam.proj_x @ x).reshape(fam.proj_sd.shape)
-        return _Context(fam.Lx @ x, h_chance, proj0, self._regions.limits(H))
+        return _Context(fam.Lx @ x, h_chance, proj0, self._regions.limits(H), H)
 
     def _qp(
         self,
