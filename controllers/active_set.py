@@ -219,14 +219,16 @@ class ActiveSetQP:
             self._guess = int(counts.argmax()) if counts.any() else self._guess
         return z, found
 
-    def solve_one(self, w: np.ndarray) -> tuple[int, ...] | None:
-        """The active set of the lowest-index candidate that passes the KKT test at one instance
-        ``w`` (d + c,), or None. Independent of earlier calls."""
+    def solve_one(self, w: np.ndarray) -> tuple[tuple[int, ...], list[float]] | None:
+        """``(rows, z)``: the active set of the lowest-index candidate that passes the KKT test
+        (:meth:`controllers.kkt_maps.ActiveSetMaps.check`) at one instance ``w`` (d + c,) and
+        the solution that test returned, or None. Independent of earlier calls."""
         w = np.asarray(w, dtype=np.float64)
         res = (self._R_flat @ w).reshape(self.n_candidates, -1)  # (nc, nres)
         worst = res.max(axis=1)
         loose = self._loose * float(np.max(np.abs(w), initial=0.0))
         for cand in np.flatnonzero(worst <= loose).tolist():
-            if self._maps[cand].check(w) is not None:
-                return self.active_sets[cand]
+            z = self._maps[cand].check(w)
+            if z is not None:
+                return self.active_sets[cand], z
         return None

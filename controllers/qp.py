@@ -564,12 +564,12 @@ class QPFamily(DaqpSolving):
 
     def enumerate_one(self, w: np.ndarray) -> Solution | None:
         """Full enumeration for one instance (None if the family is too large or nothing
-        verifies): the lowest-index candidate that passes the KKT test."""
+        verifies): the lowest-index candidate that passes the KKT test. The candidates' maps
+        are the family's own (:func:`controllers.kkt_maps.active_set_maps` of this ``P``, ``C``
+        and pivots; the enumeration is forbidden once ``P`` changes), so the test that chose
+        the candidate is :meth:`verify`'s and is not run twice."""
         enum = self.enumeration()
         if enum is None:
             return None
-        rows = enum.solve_one(w)
-        if rows is None:
-            return None
-        z = self.verify(rows, w)
-        return None if z is None else Solution(z, rows, "enumeration")
+        found = enum.solve_one(w)
+        return None if found is None else Solution(found[1], found[0], "enumeration")

@@ -216,8 +216,9 @@ def test_active_set_solve_of_a_batch_equals_the_single_instance_path():
     z2, ok2 = qp.solve(np.ascontiguousarray(w.T).T)
     assert ok1.all() and np.array_equal(ok1, ok2) and np.array_equal(z1, z2)
     for i in range(50):
-        rows = qp.solve_one(w[i])
+        rows, z_one = qp.solve_one(w[i])
         np.testing.assert_allclose(fam.verify(rows, w[i]), z1[i], rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(z_one, fam.verify(rows, w[i]))
         z = cp.Variable(2)
         prob = cp.Problem(
             cp.Minimize(cp.square(z[0]) + q[i] @ z),
