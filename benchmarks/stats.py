@@ -218,7 +218,15 @@ def paired_curve_gap(
         span = x1 - x0
         w = np.where(span == 0, 1.0, (x1 - v) / np.where(span == 0, 1.0, span))
         ref = w * y0 + (1 - w) * y1  # weight w on the lower point
-        return weights @ costs - ref, ref, v, order, j[:, 0], w
+        mean = weights @ costs
+        gap = mean - ref
+        # A controller on the curve (a curve point itself) differs from it only by the order of
+        # its E-term sums and the interpolation's rounding, which depend on the CPU's kernels:
+        # within that bound the gap is a tie, exactly 0 (rliable's probability of improvement
+        # counts exact ties as 1/2)
+        bound = (2 * costs.size + 4) * np.finfo(np.float64).eps * (np.abs(mean) + np.abs(y0) + np.abs(y1))
+        gap = np.where(np.abs(gap) <= bound, 0.0, gap)
+        return gap, ref, v, order, j[:, 0], w
 
     E = costs.size
     (gap,), (ref,), (v,), (order,), (j,), (w,) = gaps(np.full((1, E), 1.0 / E))

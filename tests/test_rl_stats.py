@@ -236,3 +236,23 @@ def test_paired_curve_gap_at_the_curves_end_point_is_inside_its_range():
     costs, viols = _curve([(0.2, noise + 400), (0.7, noise)])
     g = paired_curve_gap(noise, np.full(400, 0.7), costs, viols, (0.9, 0.3))
     assert g is not None and g.mean == pytest.approx(0.0, abs=1e-9) and g.xi == pytest.approx(0.3)
+
+
+def test_paired_curve_gap_of_a_curve_point_is_an_exact_tie():
+    """A controller whose episode costs are a curve point's, each moved by a few units in the
+    last place (the round-off of another CPU's kernels), has a gap of exactly 0 (a tie for
+    rliable's probability of improvement); a difference of 1e-10 of the costs is not a tie."""
+    rng = np.random.default_rng(4)
+    noise = rng.lognormal(8.0, 0.5, 400)
+    costs, viols = _curve([(0.2, noise + 400), (0.3, noise + 250), (0.5, noise + 100)])
+    at = np.full(400, 0.3)
+    moved = noise + 250
+    for _ in range(3):
+        moved = np.nextafter(moved, np.where(rng.random(400) < 0.5, 0.0, np.inf))
+    assert not np.array_equal(moved, noise + 250)
+    assert np.mean(moved) != np.mean(noise + 250)  # the plain difference is round-off, not 0
+    g = paired_curve_gap(moved, at, costs, viols)
+    assert g.mean == 0.0 and g.relative == 0.0
+    assert paired_curve_gap(noise + 250, at, costs, viols).mean == 0.0
+    off = paired_curve_gap((noise + 250) * (1 + 1e-10), at, costs, viols)
+    assert off.mean == pytest.approx(1e-10 * np.mean(noise + 250), rel=1e-3)
