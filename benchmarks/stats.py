@@ -224,7 +224,11 @@ def paired_curve_gap(
         # its E-term sums and the interpolation's rounding, which depend on the CPU's kernels:
         # within that bound the gap is a tie, exactly 0 (rliable's probability of improvement
         # counts exact ties as 1/2)
-        bound = (2 * costs.size + 4) * np.finfo(np.float64).eps * (np.abs(mean) + np.abs(y0) + np.abs(y1))
+        bound = (
+            (2 * costs.size + 4)
+            * np.finfo(np.float64).eps
+            * (np.abs(mean) + np.abs(y0) + np.abs(y1))
+        )
         gap = np.where(np.abs(gap) <= bound, 0.0, gap)
         return gap, ref, v, order, j[:, 0], w
 
