@@ -66,19 +66,26 @@ def same_info(info: dict, expected: dict, what: str, exact: bool = False) -> Non
         same(info[key], value, f"{what} info[{key!r}]", exact)
 
 
+def _replay(case) -> list:
+    """The reset and every step of a recorded case's seed and actions, in a new environment."""
+    env = make(case["kind"], case["constructor"], dict(case["kwargs"]))
+    dtype = env.action_space.dtype
+    out = [env.reset(seed=case["seed"])]
+    out += [env.step(np.array(step["action"], dtype=dtype)) for step in case["steps"]]
+    return out
+
+
 @pytest.mark.parametrize("name", list(CASES))
 def test_seeded_episode_replays_the_recording(name):
     case = CASES[name]
     single = case["kind"] == "single"
-    env = make(case["kind"], case["constructor"], dict(case["kwargs"]))
-    dtype = env.action_space.dtype
-    obs, info = env.reset(seed=case["seed"])
+    (obs, info), *steps = _replay(case)
     same(obs, case["reset"]["obs"], "reset obs")
     same_info(info, case["reset"]["info"], "reset")
     if single:
         assert {k: type(v).__name__ for k, v in info.items()} == case["reset_types"]
-    for t, step in enumerate(case["steps"]):
-        obs, reward, terminated, truncated, info = env.step(np.array(step["action"], dtype=dtype))
+    for t, (step, out) in enumerate(zip(case["steps"], steps, strict=True)):
+        obs, reward, terminated, truncated, info = out
         what = f"step {t}"
         assert obs.dtype == np.float32
         same(obs, step["obs"], f"{what} obs")
@@ -89,15 +96,6 @@ def test_seeded_episode_replays_the_recording(name):
         assert type(reward).__name__ == step["reward_type"]
         if single:
             assert {k: type(v).__name__ for k, v in info.items()} == step["types"]
-
-
-def _replay(case) -> list:
-    """The reset and every step of a recorded case's seed and actions, in a new environment."""
-    env = make(case["kind"], case["constructor"], dict(case["kwargs"]))
-    dtype = env.action_space.dtype
-    out = [env.reset(seed=case["seed"])]
-    out += [env.step(np.array(step["action"], dtype=dtype)) for step in case["steps"]]
-    return out
 
 
 @pytest.mark.parametrize("name", list(CASES))
