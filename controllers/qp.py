@@ -572,4 +572,7 @@ class QPFamily(DaqpSolving):
         if enum is None:
             return None
         found = enum.solve_one(w)
-        return None if found is None else Solution(found[1], found[0], "enumeration")
+        if found is None:
+            return None
+        rows, z = found
+        return Solution(z, rows, "enumeration")
