@@ -1,8 +1,9 @@
 """Speed of the environment and the controllers, as ratios against references in the same run.
 
 ``python -m benchmarks.speed [--out results/speed] [--quick]`` measures, in one process, with
-warm-up and medians over repeats (the env against Pendulum and each ``act()`` against its DAQP
-floor in alternating rounds, the ratio the median of the rounds' ratios; :func:`paired_times`):
+warm-up and medians over repeats (the env against Pendulum, each ``act()`` against its DAQP
+floor, and the cvxpy rebuild with each ``act()`` path in alternating rounds, a ratio the median
+of the rounds' ratios; :func:`paired_times`, :func:`timed_rounds`):
 
 1. one env step of ``SDJLS-Macro-v0`` against ``Pendulum-v1`` (both from ``gym.make`` with
    their default wrappers; resets are not timed);
@@ -111,14 +112,28 @@ def paired_times(
     ratio under the same load (two separate medians taken minutes apart on a shared machine
     moved a ratio from 1.4x to 3.2x between runs). ``after_warmup`` is called between the
     warm-up and the timed rounds, untimed."""
+    rounds = timed_rounds(blocks, repeats, after_warmup)
+    medians = [statistics.median(r[i] for r in rounds) for i in range(len(blocks))]
+    return medians, round_ratio(rounds, 0, 1)
+
+
+def timed_rounds(
+    blocks: Sequence[Callable[[], float]],
+    repeats: int,
+    after_warmup: Callable[[], Any] | None = None,
+) -> list[list[float]]:
+    """The times of the ``blocks`` in ``repeats`` rounds, each round timing every block in
+    turn, after a warm-up round (``after_warmup`` called after it, untimed)."""
     for block in blocks:
         block()
     if after_warmup is not None:
         after_warmup()
-    rounds = [[block() for block in blocks] for _ in range(repeats)]
-    medians = [statistics.median(r[i] for r in rounds) for i in range(len(blocks))]
-    ratio = statistics.median(r[0] / r[1] for r in rounds)
-    return medians, ratio
+    return [[block() for block in blocks] for _ in range(repeats)]
+
+
+def round_ratio(rounds: list[list[float]], i: int, j: int) -> float:
+    """The median over the rounds of block ``i``'s time over block ``j``'s."""
+    return statistics.median(r[i] / r[j] for r in rounds)
 
 
 def calls_block(fn: Callable[[], Any], number: int) -> Callable[[], float]:
@@ -173,17 +188,24 @@ def measure_act(opts) -> dict[str, Any]:
     def cycle(fn):
         return cycling(fn, x, mode, k)
 
-    t_act = median_time(cycle(ctrl.act), opts.repeats, 200, after_warmup=ctrl.reset_path_counts)
+    median_time(cycle(ctrl.act), opts.repeats, 200, after_warmup=ctrl.reset_path_counts)
     counts = ctrl.path_counts  # the timed calls (and the warm-up's last round) by path
     warm_share = counts.get("active_set_warm", 0) / sum(counts.values())
-    t_cold = median_time(cycle(cold_ctrl.act), opts.repeats, 200)
-    t_osqp = median_time(cycle(osqp_ctrl.act), opts.repeats, 200)
-    t_exact = median_time(cycle(exact_ctrl.act), opts.repeats, 200)
+    # the cvxpy rebuild and each act() path in alternating rounds: every speedup is the median
+    # of the rounds' ratios (the rebuild's time moved 6.7-11.2 ms between two runs minutes apart)
+    paths = [rebuild_ctrl, ctrl, cold_ctrl, osqp_ctrl, exact_ctrl]
+    rounds = timed_rounds(
+        [calls_block(cycle(c.act), n_cvx if c is rebuild_ctrl else 200) for c in paths],
+        3 if opts.quick else max(3, opts.repeats),
+    )
+    t_rebuild, t_act, t_cold, t_osqp, t_exact = (
+        statistics.median(r[i] for r in rounds) for i in range(len(paths))
+    )
+    speedup = {name: round_ratio(rounds, 0, i) for i, name in enumerate(paths) if i}
     # act() again, in rounds alternating with the floor's (the ratio under one load)
     (t_act_paired, t_floor), act_vs_floor = paired_times(
         [calls_block(cycle(ctrl.act), 200), calls_block(cycle(floor.solve), 200)], opts.repeats
     )
-    t_rebuild = median_time(cycle(rebuild_ctrl.act), 3, n_cvx)
     params = {}
     t_param_runs = []
     others = {"active_set": exact_ctrl, "every_call": cold_ctrl, "osqp": osqp_ctrl}
@@ -218,8 +240,10 @@ def measure_act(opts) -> dict[str, Any]:
         "timed_calls_by_path": counts,
         "cvxpy_rebuild_us": 1e6 * t_rebuild,
         "cvxpy_parametric_us": 1e6 * t_param,
-        "speedup_vs_rebuild": t_rebuild / t_act,
-        "speedup_active_set_vs_rebuild": t_rebuild / t_exact,
+        "speedup_vs_rebuild": speedup[ctrl],
+        "speedup_every_call_vs_rebuild": speedup[cold_ctrl],
+        "speedup_osqp_vs_rebuild": speedup[osqp_ctrl],
+        "speedup_active_set_vs_rebuild": speedup[exact_ctrl],
         "speedup_vs_parametric": t_param / t_act,
         "act_vs_daqp_floor": act_vs_floor,
         "max_abs_diff_u": diffs,
