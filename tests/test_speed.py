@@ -107,3 +107,17 @@ def test_no_controller_privates_are_read():
 
     source = Path(speed.__file__).read_text(encoding="utf-8")
     assert not re.findall(r"(?:ctrl|fast|fam|engine)\._[a-z]", source)
+
+
+def test_round_ratio_is_the_median_of_each_rounds_ratio():
+    """A ratio of two blocks is read within each round, then the median over the rounds: a
+    round where the machine was slow for both blocks moves neither the ratio nor the answer,
+    while the ratio of the two blocks' own medians would (here 5 / 1.75 = 2.86 instead of 2)."""
+    rounds = [[2.0, 1.0], [4.0, 2.0], [20.0, 10.0], [6.0, 1.5]]
+    assert speed.round_ratio(rounds, 0, 1) == 2.0
+    assert speed.round_ratio(rounds, 1, 0) == 0.5
+    calls: list[str] = []
+    blocks = [lambda: calls.append("a") or 1.0, lambda: calls.append("b") or 2.0]
+    got = speed.timed_rounds(blocks, 3, after_warmup=lambda: calls.append("warm"))
+    assert got == [[1.0, 2.0]] * 3
+    assert calls == ["a", "b", "warm", "a", "b", "a", "b", "a", "b"]  # alternating, warm-up first
