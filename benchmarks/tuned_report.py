@@ -1,0 +1,283 @@
+"""Tuned against default: the runs retrained with a ``benchmarks.tune`` study's best
+hyperparameters against the suite's runs of the same task, algorithm and variant.
+
+``python -m benchmarks.tuned_report --tuned results/tune/STUDY.json [...]`` reads, for each
+study summary, the kept runs of the configuration on seeds 0 .. ``--seeds - 1`` twice: with the
+suite's default hyperparameters and with the study's best overrides (the runs that
+``python -m benchmarks.compare_rl --tasks TASK --configs ALGO_VARIANT --tuned STUDY.json
+--train-only`` trains into the same ``--runs`` folder; the tuning's own seeds start at
+:data:`benchmarks.tune.TUNE_SEED0`, so these seeds are fresh). Both groups are scored as the
+suite's report scores a task (:func:`benchmarks.rl_suite_report.score_task`: the same
+evaluation episodes, the paired gaps to the one-step RHC curve and to the 3-step tree's curve
+with their 95% intervals) and compared with rliable (:func:`benchmarks.aggregate.compare_gaps`:
+the IQM difference of the gaps and the probability that a tuned run has the lower gap, each with
+its stratified-bootstrap 95% interval). A group in which a run has no gap (diverged, or outside
+a curve's range) is not summarized: the table says why, as the suite's report does.
+
+Writes ``TUNED.md`` and ``tuned.json`` to ``--out`` (default ``results/tune``; with
+``--quick``, a temporary folder, and the quick budgets of ``compare_rl --quick``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.aggregate import AGGREGATE_RESAMPLES, compare_gaps, iqm_interval
+from benchmarks.files import stable_floats, write_atomic
+from benchmarks.rl_suite_report import QUICK_RESAMPLES, AgentScore, kept_runs, score_task
+from benchmarks.rl_suite_tables import gap_text
+from benchmarks.rl_train import RunSpec, run_specs
+
+__all__ = ["DEFAULT_OUT", "QUICK_OUT", "compare_study", "main", "read_study"]
+
+DEFAULT_OUT = Path("results/tune")
+#: Where ``--quick`` writes by default: outside the repository.
+QUICK_OUT = Path(tempfile.gettempdir()) / "sdjls-gym" / "tuned-quick"
+#: The gaps compared: to the one-step RHC curve and to the 3-step tree's curve.
+WHICH = (("rhc", "one-step RHC"), ("tree", "3-step tree"))
+
+
+def read_study(path: Path) -> tuple[str, str, str, dict[str, Any], dict[str, Any]]:
+    """``(task, algo, variant, overrides, summary)`` of a ``benchmarks.tune`` summary; a
+    ValueError names a file that is not one or whose study has no complete trial."""
+    try:
+        data = json.loads(Path(path).read_text())
+        settings, best = data["settings"], data["best"]
+        key = (str(settings["task"]), str(settings["algo"]), str(settings["variant"]))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"--tuned {path}: not a benchmarks.tune summary ({exc!r})") from None
+    if best is None or not isinstance(best.get("overrides"), dict):
+        raise ValueError(f"--tuned {path}: the study has no complete trial")
+    return (*key, dict(best["overrides"]), data)
+
+
+def _trial_states(summary: dict[str, Any]) -> dict[str, int]:
+    """How many of the study's trials ended in each state (COMPLETE, PRUNED, ...)."""
+    states: dict[str, int] = {}
+    for trial in summary.get("trials", []):
+        state = str(trial.get("state", "?"))
+        states[state] = states.get(state, 0) + 1
+    return states
+
+
+def _gap(a: AgentScore, which: str) -> tuple[float | None, str | None]:
+    g, reason = (a.gap, a.reason) if which == "rhc" else (a.tree_gap, a.tree_reason)
+    value = None if g is None else g.relative
+    return value, (reason or ("no relative gap" if value is None else None))
+
+
+def _group(agents: list[AgentScore], resamples: int) -> dict[str, Any]:
+    """Per-seed rows of one group and, per curve, the IQM of its gaps (None, with the reasons,
+    when a run has none)."""
+    agents = sorted(agents, key=lambda a: a.run.seed)  # rows and gaps in the order of seeds
+    rows = []
+    for a in agents:
+        s = a.result.score
+        rows.append({"seed": a.run.seed, "cost_mean": s.cost_mean, "violation": s.violation,
+                     "diverged": s.diverged, "rhc": gap_text(a.gap, a.reason),
+                     "tree": gap_text(a.tree_gap, a.tree_reason)})  # fmt: skip
+    out: dict[str, Any] = {"rows": rows}
+    for which, _ in WHICH:
+        gaps = [_gap(a, which) for a in agents]
+        missing = [
+            f"seed {a.run.seed}: {r}" for a, (g, r) in zip(agents, gaps, strict=True) if g is None
+        ]
+        values = np.array([[g] for g, _ in gaps if g is not None])
+        if missing or not values.size:
+            out[which] = {"gaps": None, "left_out": missing or ["no kept run"],
+                          "no_gap_seeds": [a.run.seed for a, (g, _) in zip(agents, gaps, strict=True)
+                                           if g is None]}  # fmt: skip
+            continue
+        iqm, ci = iqm_interval(values, resamples)
+        out[which] = {"gaps": values[:, 0].tolist(), "iqm": iqm, "iqm_ci95": ci}
+    return out
+
+
+def compare_study(path: Path, run_dir: Path, seeds: int, episodes: int, seed: int,
+                  quick: bool, log: Any = print) -> dict[str, Any]:  # fmt: skip
+    """The comparison of one study's tuned runs with the default ones (see the module
+    docstring): the study, both groups and, per curve, rliable's comparison or why there is
+    none."""
+    task, algo, variant, overrides, summary = read_study(path)
+    pair = [(algo, variant)]
+    default = run_specs(pair, seeds, None, quick, [task])
+    tuned = run_specs(pair, seeds, None, quick, [task], tuned={
+        (task, algo, variant): tuple(sorted(overrides.items()))})  # fmt: skip
+    specs: list[RunSpec] = [*default, *tuned]
+    records = kept_runs(specs, run_dir)
+    log(f"{task} {algo}_{variant}: {sum(r is not None for r in records)} of {len(specs)} "
+        f"run(s) kept in {run_dir}; scoring on {episodes} episodes")  # fmt: skip
+    report = score_task(task, list(zip(specs, records, strict=True)), run_dir, episodes, seed,
+                        quick, log)  # fmt: skip
+    tuned_ids = {id(r) for r in records[len(default) :] if r is not None}
+    groups = {
+        "default": [a for a in report.agents if id(a.run) not in tuned_ids],
+        "tuned": [a for a in report.agents if id(a.run) in tuned_ids],
+    }
+    resamples = QUICK_RESAMPLES if quick else AGGREGATE_RESAMPLES
+    out: dict[str, Any] = {
+        "study": str(path),
+        "task": task,
+        "config": f"{algo}_{variant}",
+        "overrides": overrides,
+        "trials": _trial_states(summary),
+        "best_trial": summary["best"].get("number"),
+        "budget": {k: summary["settings"].get(k) for k in ("timesteps", "seeds")},
+        "seeds": list(range(seeds)),
+        "missing": {
+            name: [s.seed for s, r in zip(group, recs, strict=True) if r is None]
+            for name, group, recs in (
+                ("default", default, records[: len(default)]),
+                ("tuned", tuned, records[len(default) :]),
+            )
+        },
+        "groups": {name: _group(agents, resamples) for name, agents in groups.items()},
+    }
+    for which, _ in WHICH:
+        t, d = out["groups"]["tuned"][which], out["groups"]["default"][which]
+        if t["gaps"] is None or d["gaps"] is None:
+            out[f"compare_{which}"] = None
+            continue
+        out[f"compare_{which}"] = compare_gaps(np.array(t["gaps"])[:, None],
+                                               np.array(d["gaps"])[:, None], resamples)  # fmt: skip
+    return out
+
+
+def _summary_cell(group: dict[str, Any]) -> str:
+    if group["gaps"] is None:
+        seeds = group.get("no_gap_seeds")
+        if not seeds:
+            return "none: no kept run"
+        return f"none: no gap for seed(s) {', '.join(map(str, seeds))} (see the rows)"
+    lo, hi = group["iqm_ci95"]
+    return f"{group['iqm']:+.1f} ({lo:+.1f} to {hi:+.1f})"
+
+
+def _states_text(states: dict[str, int]) -> str:
+    total = sum(states.values())
+    return f"{total} (" + ", ".join(f"{n} {k.lower()}" for k, n in sorted(states.items())) + ")"
+
+
+def _compare_cell(c: dict[str, Any] | None) -> list[str]:
+    if c is None:
+        return ["-", "-"]
+    lo, hi = c["iqm_difference_ci95"]
+    plo, phi = c["probability_of_improvement_ci95"]
+    return [f"{c['iqm_difference']:+.1f} ({lo:+.1f} to {hi:+.1f})",
+            f"{c['probability_of_improvement']:.2f} ({plo:.2f} to {phi:.2f})"]  # fmt: skip
+
+
+def write_markdown(results: list[dict[str, Any]], command: str, episodes: int) -> str:
+    """``TUNED.md``: per study, the runs of both groups and rliable's comparison."""
+    lines = [
+        "# Tuned against default",
+        "",
+        f"Generated by `{command}`. Each study's best hyperparameters, retrained on fresh seeds "
+        "(the tuning used seeds from 100 on), against the suite's default runs of the same "
+        f"configuration on the same seeds, all scored on the same {episodes} evaluation "
+        "episodes (common random numbers). Gaps in % of the curve's cost at the run's "
+        "violation frequency (negative: cheaper at equal risk), with their 95% interval over "
+        "episodes; IQM over seeds with rliable's stratified-bootstrap 95% interval; "
+        "'P(tuned better)': the probability that a tuned run has a lower gap than a default "
+        "one.",
+    ]
+    for r in results:
+        lines += ["", f"## {r['task']}, {r['config']}", "",
+                  f"Study `{r['study']}`: trials {_states_text(r['trials'])} of "
+                  f"{r['budget']['timesteps']} steps x {r['budget']['seeds']} seed(s); best "
+                  f"trial {r['best_trial']}: `{json.dumps(r['overrides'], sort_keys=True)}`.", ""]  # fmt: skip
+        for name in ("default", "tuned"):
+            if r["missing"][name]:
+                lines.append(f"Missing {name} runs: seeds {r['missing'][name]}.")
+        lines += ["", "| group | seed | mean cost | violation | diverged | gap to one-step RHC "
+                  "(%) | gap to 3-step tree (%) |", "|---|---|---|---|---|---|---|"]  # fmt: skip
+        for name in ("default", "tuned"):
+            for row in r["groups"][name]["rows"]:
+                lines.append(f"| {name} | {row['seed']} | {row['cost_mean']:.1f} | "
+                             f"{row['violation']:.3f} | {row['diverged']} | {row['rhc']} | "
+                             f"{row['tree']} |")  # fmt: skip
+        lines += ["", "| against | IQM gap, default | IQM gap, tuned | tuned - default (IQM) | "
+                  "P(tuned better) |", "|---|---|---|---|---|"]  # fmt: skip
+        for which, label in WHICH:
+            g = r["groups"]
+            lines.append("| " + " | ".join([label, _summary_cell(g["default"][which]),
+                                            _summary_cell(g["tuned"][which]),
+                                            *_compare_cell(r[f"compare_{which}"])]) + " |")  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    """The options; a parser error (exit 2) names a bad one before any scoring."""
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.tuned_report",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--tuned", type=Path, nargs="+", required=True, metavar="STUDY.json",
+                        help="summaries of benchmarks.tune studies (<out>/<study>.json)")  # fmt: skip
+    parser.add_argument("--runs", type=Path, default=None,
+                        help="the kept runs (default results/rl_suite/runs; with --quick, "
+                        "compare_rl --quick's folder)")  # fmt: skip
+    parser.add_argument("--seeds", type=int, default=5, help="seeds 0 .. SEEDS - 1 per group")
+    parser.add_argument("--eval-episodes", type=int, default=None,
+                        help="evaluation episodes (default 1000, 200 with --quick)")  # fmt: skip
+    parser.add_argument("--seed", type=int, default=0, help="noise seed of the evaluation")
+    parser.add_argument("--out", type=Path, default=None,
+                        help=f"folder of TUNED.md and tuned.json (default {DEFAULT_OUT}, "
+                        f"{QUICK_OUT} with --quick)")  # fmt: skip
+    parser.add_argument("--quick", action="store_true",
+                        help="the quick budgets of compare_rl --quick (a smoke test)")  # fmt: skip
+    opts = parser.parse_args(argv)
+    if opts.seeds < 1:
+        parser.error(f"--seeds = {opts.seeds}; expected a positive integer")
+    if opts.eval_episodes is None:
+        opts.eval_episodes = 200 if opts.quick else 1000
+    if opts.eval_episodes < 2:
+        parser.error(f"--eval-episodes = {opts.eval_episodes}; expected an integer >= 2")
+    for path in opts.tuned:
+        try:
+            read_study(path)
+        except ValueError as exc:
+            parser.error(str(exc))
+    if opts.runs is None:
+        from benchmarks import compare_rl
+
+        opts.runs = (compare_rl.QUICK_OUT if opts.quick else Path("results/rl_suite")) / "runs"
+    if opts.out is None:
+        opts.out = QUICK_OUT if opts.quick else DEFAULT_OUT
+    return opts
+
+
+def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
+    """Compare each study of ``--tuned`` (:func:`compare_study`), write ``tuned.json`` and
+    ``TUNED.md`` to ``--out``, and return the comparisons."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    opts = parse_args(argv)
+    import torch
+
+    torch.set_num_threads(1)  # as in training
+
+    def log(msg: str) -> None:
+        print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
+
+    results = [compare_study(p, opts.runs, opts.seeds, opts.eval_episodes, opts.seed,
+                             opts.quick, log) for p in opts.tuned]  # fmt: skip
+    command = "python -m benchmarks.tuned_report" + ("" if not argv else " " + " ".join(argv))
+    opts.out.mkdir(parents=True, exist_ok=True)
+    write_atomic(opts.out / "tuned.json",
+                 json.dumps(stable_floats({"command": command, "studies": results}), indent=1))  # fmt: skip
+    write_atomic(opts.out / "TUNED.md", write_markdown(results, command, opts.eval_episodes))
+    log(f"wrote {opts.out / 'TUNED.md'}")
+    return results
+
+
+if __name__ == "__main__":
+    main()

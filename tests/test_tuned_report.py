@@ -1,0 +1,129 @@
+"""``benchmarks.tuned_report``: tuned runs against the default runs of the same configuration.
+
+The comparison's numbers are checked on synthetic scores against a hand computation (rliable's
+IQM is scipy's 25% trimmed mean; the probability of improvement is the share of (tuned,
+default) pairs with the lower tuned gap); the command runs end to end on quick runs.
+"""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from scipy.stats import trim_mean
+
+from benchmarks import compare_rl, tuned_report
+from benchmarks.stats import CurveGap
+
+STUDY = {
+    "settings": {"task": "SDJLS-Macro-v0", "algo": "ppo", "variant": "residual",
+                 "timesteps": 600000, "seeds": 1},
+    "trials": [{"number": 0, "state": "COMPLETE"}, {"number": 1, "state": "PRUNED"}],
+    "best": {"number": 0, "value": -0.01, "params": {}, "overrides": {"learning_rate": 1e-3}},
+}  # fmt: skip
+
+
+def _study(tmp_path):
+    path = tmp_path / "study.json"
+    path.write_text(json.dumps(STUDY))
+    return path
+
+
+def _gap(value: float) -> CurveGap:
+    return CurveGap(mean=value, ci95=(value - 1, value + 1), curve_cost=100.0, violation=0.1,
+                    xi=0.9, relative=value, relative_ci95=(value - 1, value + 1))  # fmt: skip
+
+
+def _agent(record, gap: float | None, tree: float):
+    score = SimpleNamespace(cost_mean=100.0, violation=0.1, diverged=0)
+    return SimpleNamespace(run=record, result=SimpleNamespace(score=score),
+                           gap=None if gap is None else _gap(gap),
+                           reason="diverged in 3 episode(s)" if gap is None else None,
+                           tree_gap=_gap(tree), tree_reason=None)  # fmt: skip
+
+
+def _fake_scoring(monkeypatch, default_gaps, tuned_gaps, tree=0.0):
+    """kept_runs gives one record per spec; score_task scores them with the given gaps (in the
+    order default seeds, then tuned seeds) and returns the agents shuffled."""
+
+    def kept_runs(specs, run_dir):
+        return [SimpleNamespace(seed=s.seed, overrides=s.overrides) for s in specs]
+
+    def score_task(task, pairs, *args, **kwargs):
+        gaps = [*default_gaps, *tuned_gaps]
+        agents = [
+            _agent(r, g, tree + i) for i, ((_, r), g) in enumerate(zip(pairs, gaps, strict=True))
+        ]
+        return SimpleNamespace(agents=agents[::-1])
+
+    monkeypatch.setattr(tuned_report, "kept_runs", kept_runs)
+    monkeypatch.setattr(tuned_report, "score_task", score_task)
+
+
+def test_groups_are_split_by_run_and_compared_as_by_hand(monkeypatch, tmp_path):
+    default = [-2.0, 5.0, 1.0, 3.0, 30.0]
+    tuned = [-9.0, -4.0, 2.0, -6.0, -5.0]
+    _fake_scoring(monkeypatch, default, tuned)
+    out = tuned_report.compare_study(_study(tmp_path), tmp_path, 5, 200, 0, True, log=str)
+    assert out["groups"]["default"]["rhc"]["gaps"] == default
+    assert out["groups"]["tuned"]["rhc"]["gaps"] == tuned
+    assert out["trials"] == {"COMPLETE": 1, "PRUNED": 1}
+    assert out["missing"] == {"default": [], "tuned": []}
+    c = out["compare_rhc"]
+    iqm_t, iqm_d = trim_mean(tuned, 0.25), trim_mean(default, 0.25)
+    assert out["groups"]["tuned"]["rhc"]["iqm"] == pytest.approx(iqm_t, abs=1e-12)
+    assert c["iqm_difference"] == pytest.approx(iqm_t - iqm_d, abs=1e-12)
+    pairs = np.array(tuned)[:, None] - np.array(default)[None, :]
+    by_hand = np.mean(pairs < 0) + 0.5 * np.mean(pairs == 0)
+    assert c["probability_of_improvement"] == pytest.approx(by_hand, abs=1e-12)
+    lo, hi = c["iqm_difference_ci95"]
+    assert lo <= c["iqm_difference"] <= hi and lo < hi
+    # the tree's gaps: default seeds got 0..4, tuned 5..9
+    assert c is not out["compare_tree"]
+    assert out["compare_tree"]["iqm_difference"] == pytest.approx(5.0, abs=1e-12)
+
+
+def test_a_run_without_a_gap_leaves_its_group_unsummarized(monkeypatch, tmp_path):
+    _fake_scoring(monkeypatch, [1.0, None, 2.0], [0.0, -1.0, -2.0])
+    out = tuned_report.compare_study(_study(tmp_path), tmp_path, 3, 200, 0, True, log=str)
+    d = out["groups"]["default"]["rhc"]
+    assert d["gaps"] is None and d["no_gap_seeds"] == [1] and "diverged" in d["left_out"][0]
+    assert out["compare_rhc"] is None  # not the lucky seeds alone
+    assert out["compare_tree"] is not None  # every run has a gap to the tree
+    text = tuned_report.write_markdown([out], "python -m benchmarks.tuned_report", 200)
+    assert "none: no gap for seed(s) 1 (see the rows)" in text
+
+
+def test_bad_options_are_parser_errors(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{}")
+    for argv, words in (
+        (["--tuned", str(bad)], ["bad.json", "not a benchmarks.tune summary"]),
+        (["--tuned", str(_study(tmp_path)), "--seeds", "0"], ["--seeds = 0"]),
+        (["--tuned", str(_study(tmp_path)), "--eval-episodes", "1"], ["--eval-episodes = 1"]),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            tuned_report.parse_args(argv)
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and all(w in err for w in words), err
+
+
+@pytest.mark.slow  # two quick trainings and their scoring (about 30 s)
+def test_quick_command_scores_default_and_tuned_runs(tmp_path):
+    study = _study(tmp_path)
+    base = ["--quick", "--tasks", "SDJLS-Macro-v0", "--configs", "ppo_residual", "--seeds", "1",
+            "--train-only", "--no-progress", "--out", str(tmp_path / "cmp")]  # fmt: skip
+    compare_rl.main(base)
+    compare_rl.main([*base, "--tuned", str(study)])
+    results = tuned_report.main(["--quick", "--seeds", "1", "--tuned", str(study), "--runs",
+                                 str(tmp_path / "cmp" / "runs"), "--out", str(tmp_path / "rep")])  # fmt: skip
+    (r,) = results
+    assert r["missing"] == {"default": [], "tuned": []}
+    assert [len(r["groups"][g]["rows"]) for g in ("default", "tuned")] == [1, 1]
+    text = (tmp_path / "rep" / "TUNED.md").read_text()
+    assert "| default | 0 |" in text and "| tuned | 0 |" in text
+    assert json.loads((tmp_path / "rep" / "tuned.json").read_text())["studies"][0]["task"] == (
+        "SDJLS-Macro-v0"
+    )
