@@ -296,7 +296,8 @@ class Options:
         metadata={
             "help": "summaries of benchmarks.tune studies (<out>/<study>.json): their best "
             "hyperparameters replace the defaults of that task's configuration (seeds from 0: "
-            "never the tuning's)",
+            "never the tuning's); with --train-only (then python -m benchmarks.tuned_report), "
+            "--out or --quick",
             "metavar": "STUDY.json",
         },
     )
@@ -352,6 +353,13 @@ def parse_args(argv: list[str] | None = None) -> Options:
         tuned_overrides(opts.tuned)
     except ValueError as exc:
         parser.error(str(exc))
+    if opts.tuned and not (opts.train_only or opts.quick) and opts.out is None:
+        # the report would replace the committed one of the default runs with one of the tuned
+        parser.error(
+            "--tuned without --train-only or --out: the report would replace the default "
+            "runs' report in the preset's folder; train with --train-only and compare with "
+            "python -m benchmarks.tuned_report, or give --out"
+        )
     if opts.out is None:
         opts.out = QUICK_OUT if opts.quick else preset["out"]
     elif opts.quick and _holds_a_full_comparison(opts.out):

@@ -383,7 +383,9 @@ def test_tuned_hyperparameters_reach_only_their_configuration(tmp_path, capsys):
     args = ["--tasks", "SDJLS-Macro-v0", "SDJLS-Solar-v0", "--configs", "ppo_residual",
             "ppo_reward", "--seeds", "2"]  # fmt: skip
     default = {s.label: s for s in compare_rl.specs_of(compare_rl.parse_args(args))}
-    tuned = compare_rl.specs_of(compare_rl.parse_args([*args, "--tuned", str(path)]))
+    tuned = compare_rl.specs_of(
+        compare_rl.parse_args([*args, "--tuned", str(path), "--train-only"])
+    )
     for s in tuned:
         if (s.task, s.algo, s.variant) == ("SDJLS-Macro-v0", "ppo", "residual"):
             assert dict(s.overrides) == summary["best"]["overrides"] and s.seed in (0, 1)
@@ -393,8 +395,13 @@ def test_tuned_hyperparameters_reach_only_their_configuration(tmp_path, capsys):
             assert s == default[s.label]
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(SystemExit) as exc:
-        compare_rl.parse_args([*args, "--tuned", str(tmp_path / "bad.json")])
+        compare_rl.parse_args([*args, "--tuned", str(tmp_path / "bad.json"), "--train-only"])
     assert exc.value.code == 2 and "bad.json" in capsys.readouterr().err
+    # scoring tuned runs into the preset's folder would replace the default runs' report
+    with pytest.raises(SystemExit) as exc:
+        compare_rl.parse_args([*args, "--tuned", str(path)])
+    assert exc.value.code == 2 and "--train-only" in capsys.readouterr().err
+    assert compare_rl.parse_args([*args, "--tuned", str(path), "--out", str(tmp_path)]).tuned
 
 
 def test_a_worker_whose_main_process_died_stops(monkeypatch):
