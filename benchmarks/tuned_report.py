@@ -193,10 +193,10 @@ def write_markdown(results: list[dict[str, Any]], command: str, episodes: int) -
         lines += ["", f"## {r['task']}, {r['config']}", "",
                   f"Study `{r['study']}`: trials {_states_text(r['trials'])} of "
                   f"{r['budget']['timesteps']} steps x {r['budget']['seeds']} seed(s); best "
-                  f"trial {r['best_trial']}: `{json.dumps(r['overrides'], sort_keys=True)}`.", ""]  # fmt: skip
+                  f"trial {r['best_trial']}: `{json.dumps(r['overrides'], sort_keys=True)}`."]  # fmt: skip
         for name in ("default", "tuned"):
             if r["missing"][name]:
-                lines.append(f"Missing {name} runs: seeds {r['missing'][name]}.")
+                lines += ["", f"Missing {name} runs: seeds {r['missing'][name]}."]
         lines += ["", "| group | seed | mean cost | violation | diverged | gap to one-step RHC "
                   "(%) | gap to 3-step tree (%) |", "|---|---|---|---|---|---|---|"]  # fmt: skip
         for name in ("default", "tuned"):
