@@ -79,6 +79,7 @@ from benchmarks.rl_train import (
     run_specs,
 )
 from benchmarks.stats import curve_status, interval_check
+from benchmarks.tune import read_summary
 from benchmarks.versions import package_versions
 from controllers import (
     LinearFeedbackController,
@@ -377,16 +378,12 @@ def tuned_overrides(paths: list[Path] | None) -> dict[tuple[str, str, str], tupl
     out: dict[tuple[str, str, str], tuple] = {}
     for path in paths or []:
         try:
-            data = json.loads(Path(path).read_text())
-            settings, best = data["settings"], data["best"]
-            key = (settings["task"], settings["algo"], settings["variant"])
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise ValueError(f"--tuned {path}: not a benchmarks.tune summary ({exc!r})") from None
-        if best is None:
-            raise ValueError(f"--tuned {path}: the study has no complete trial")
+            key, overrides, _ = read_summary(path)
+        except ValueError as exc:
+            raise ValueError(f"--tuned {exc}") from None
         if key in out:
             raise ValueError(f"--tuned {path}: a second study of {key}")
-        out[key] = tuple(sorted((k, v) for k, v in best["overrides"].items()))
+        out[key] = overrides
     return out
 
 

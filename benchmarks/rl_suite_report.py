@@ -94,6 +94,7 @@ __all__ = [
     "gap_table",
     "kept_runs",
     "point_gap",
+    "relative_gap",
     "report_suite",
     "sample_efficiency",
     "score_task",
@@ -336,20 +337,21 @@ def gap_table(
     return table, tuple(tasks), tuple(seeds), tuple(left)
 
 
+def relative_gap(agent: AgentScore, which: str) -> tuple[float | None, str | None]:
+    """``(gap in %, None)`` of a scored run against the one-step RHC curve (``which = "rhc"``)
+    or the 3-step tree's (``"tree"``), or ``(None, why there is none)``."""
+    if which == "rhc":
+        g, reason = agent.gap, agent.reason
+    else:
+        g, reason = agent.tree_gap, agent.tree_reason
+    value = None if g is None or g.relative is None else g.relative
+    return value, reason or ("no relative gap" if value is None else None)
+
+
 def _cells(reports: list[TaskReport], config: str, which: str) -> dict[str, dict]:
     out: dict[str, dict] = {}
     for r in reports:
-        out[r.env_id] = {}
-        for a in r.agents:
-            if a.config != config:
-                continue
-            if which == "rhc":
-                g, reason = a.gap, a.reason
-            else:
-                g, reason = a.tree_gap, a.tree_reason
-            value = None if g is None or g.relative is None else g.relative
-            out[r.env_id][a.run.seed] = (value, reason or ("no relative gap" if value is None
-                                                           else None))  # fmt: skip
+        out[r.env_id] = {a.run.seed: relative_gap(a, which) for a in r.agents if a.config == config}
     return out
 
 

@@ -30,33 +30,28 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks import compare_rl
 from benchmarks.aggregate import AGGREGATE_RESAMPLES, compare_gaps, iqm_interval
+from benchmarks.evaluate import check_evaluation
 from benchmarks.files import stable_floats, write_atomic
-from benchmarks.rl_suite_report import QUICK_RESAMPLES, AgentScore, kept_runs, score_task
+from benchmarks.rl_suite_report import (
+    QUICK_RESAMPLES,
+    AgentScore,
+    kept_runs,
+    relative_gap,
+    score_task,
+)
 from benchmarks.rl_suite_tables import gap_text
 from benchmarks.rl_train import RunSpec, run_specs
+from benchmarks.tune import read_summary
 
-__all__ = ["DEFAULT_OUT", "QUICK_OUT", "compare_study", "main", "read_study"]
+__all__ = ["DEFAULT_OUT", "QUICK_OUT", "compare_study", "main"]
 
 DEFAULT_OUT = Path("results/tune")
 #: Where ``--quick`` writes by default: outside the repository.
 QUICK_OUT = Path(tempfile.gettempdir()) / "sdjls-gym" / "tuned-quick"
 #: The gaps compared: to the one-step RHC curve and to the 3-step tree's curve.
 WHICH = (("rhc", "one-step RHC"), ("tree", "3-step tree"))
-
-
-def read_study(path: Path) -> tuple[str, str, str, dict[str, Any], dict[str, Any]]:
-    """``(task, algo, variant, overrides, summary)`` of a ``benchmarks.tune`` summary; a
-    ValueError names a file that is not one or whose study has no complete trial."""
-    try:
-        data = json.loads(Path(path).read_text())
-        settings, best = data["settings"], data["best"]
-        key = (str(settings["task"]), str(settings["algo"]), str(settings["variant"]))
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"--tuned {path}: not a benchmarks.tune summary ({exc!r})") from None
-    if best is None or not isinstance(best.get("overrides"), dict):
-        raise ValueError(f"--tuned {path}: the study has no complete trial")
-    return (*key, dict(best["overrides"]), data)
 
 
 def _trial_states(summary: dict[str, Any]) -> dict[str, int]:
@@ -66,12 +61,6 @@ def _trial_states(summary: dict[str, Any]) -> dict[str, int]:
         state = str(trial.get("state", "?"))
         states[state] = states.get(state, 0) + 1
     return states
-
-
-def _gap(a: AgentScore, which: str) -> tuple[float | None, str | None]:
-    g, reason = (a.gap, a.reason) if which == "rhc" else (a.tree_gap, a.tree_reason)
-    value = None if g is None else g.relative
-    return value, (reason or ("no relative gap" if value is None else None))
 
 
 def _group(agents: list[AgentScore], resamples: int) -> dict[str, Any]:
@@ -86,16 +75,14 @@ def _group(agents: list[AgentScore], resamples: int) -> dict[str, Any]:
                      "tree": gap_text(a.tree_gap, a.tree_reason)})  # fmt: skip
     out: dict[str, Any] = {"rows": rows}
     for which, _ in WHICH:
-        gaps = [_gap(a, which) for a in agents]
-        missing = [
-            f"seed {a.run.seed}: {r}" for a, (g, r) in zip(agents, gaps, strict=True) if g is None
-        ]
-        values = np.array([[g] for g, _ in gaps if g is not None])
-        if missing or not values.size:
-            out[which] = {"gaps": None, "left_out": missing or ["no kept run"],
-                          "no_gap_seeds": [a.run.seed for a, (g, _) in zip(agents, gaps, strict=True)
-                                           if g is None]}  # fmt: skip
+        gaps = [(a.run.seed, *relative_gap(a, which)) for a in agents]
+        missing = [(seed, reason) for seed, g, reason in gaps if g is None]
+        if missing or not gaps:
+            out[which] = {"gaps": None,
+                          "left_out": [f"seed {seed}: {r}" for seed, r in missing] or ["no kept run"],
+                          "no_gap_seeds": [seed for seed, _ in missing]}  # fmt: skip
             continue
+        values = np.array([[g] for _, g, _ in gaps])
         iqm, ci = iqm_interval(values, resamples)
         out[which] = {"gaps": values[:, 0].tolist(), "iqm": iqm, "iqm_ci95": ci}
     return out
@@ -106,11 +93,11 @@ def compare_study(path: Path, run_dir: Path, seeds: int, episodes: int, seed: in
     """The comparison of one study's tuned runs with the default ones (see the module
     docstring): the study, both groups and, per curve, rliable's comparison or why there is
     none."""
-    task, algo, variant, overrides, summary = read_study(path)
+    key, overrides, summary = read_summary(path)
+    task, algo, variant = key
     pair = [(algo, variant)]
     default = run_specs(pair, seeds, None, quick, [task])
-    tuned = run_specs(pair, seeds, None, quick, [task], tuned={
-        (task, algo, variant): tuple(sorted(overrides.items()))})  # fmt: skip
+    tuned = run_specs(pair, seeds, None, quick, [task], tuned={key: overrides})
     specs: list[RunSpec] = [*default, *tuned]
     records = kept_runs(specs, run_dir)
     log(f"{task} {algo}_{variant}: {sum(r is not None for r in records)} of {len(specs)} "
@@ -127,7 +114,7 @@ def compare_study(path: Path, run_dir: Path, seeds: int, episodes: int, seed: in
         "study": str(path),
         "task": task,
         "config": f"{algo}_{variant}",
-        "overrides": overrides,
+        "overrides": dict(overrides),
         "trials": _trial_states(summary),
         "best_trial": summary["best"].get("number"),
         "budget": {k: summary["settings"].get(k) for k in ("timesteps", "seeds")},
@@ -240,16 +227,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error(f"--seeds = {opts.seeds}; expected a positive integer")
     if opts.eval_episodes is None:
         opts.eval_episodes = 200 if opts.quick else 1000
-    if opts.eval_episodes < 2:
-        parser.error(f"--eval-episodes = {opts.eval_episodes}; expected an integer >= 2")
-    for path in opts.tuned:
-        try:
-            read_study(path)
-        except ValueError as exc:
-            parser.error(str(exc))
+    try:  # evaluate()'s own limits, and the study summaries, before any scoring
+        check_evaluation(opts.eval_episodes, opts.seed)
+    except ValueError as exc:
+        text = str(exc).replace("episodes = ", "--eval-episodes = ", 1)
+        parser.error(text.replace("seed = ", "--seed = ", 1))
+    try:
+        compare_rl.tuned_overrides(opts.tuned)
+    except ValueError as exc:
+        parser.error(str(exc))
     if opts.runs is None:
-        from benchmarks import compare_rl
-
         opts.runs = (compare_rl.QUICK_OUT if opts.quick else Path("results/rl_suite")) / "runs"
     if opts.out is None:
         opts.out = QUICK_OUT if opts.quick else DEFAULT_OUT
