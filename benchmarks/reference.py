@@ -29,7 +29,7 @@ import numpy as np
 
 from benchmarks.files import jsonable
 from benchmarks.montecarlo import rollout
-from benchmarks.stats import CurveGap, mean_ci, paired_curve_gap, wilson
+from benchmarks.stats import CurveGap, efficient_points, mean_ci, paired_curve_gap, wilson
 from controllers.lru import BudgetedLRU
 from sdjls_gym.model import SDJLSModel
 from sdjls_gym.systems import TASKS, Task, random_task
@@ -227,14 +227,24 @@ def _curve(task: Task, episodes: int, seed: int, horizon: int, bound: float,
 
 
 def gap_reason(
-    violation: float, diverged: int, gap: CurveGap | None, curve_violations: np.ndarray
+    violation: float,
+    diverged: int,
+    gap: CurveGap | None,
+    curve_violations: np.ndarray,
+    curve_costs: np.ndarray | None = None,
 ) -> str | None:
     """Why a controller with this violation frequency and these diverged episodes has no
     normalized gap ``gap`` to a curve whose points' shares of violated steps are
-    ``curve_violations`` (P, E); None if it has one."""
+    ``curve_violations`` (P, E) and episode costs ``curve_costs`` (P, E); None if it has one.
+    The range named is that of the curve's efficient points
+    (:func:`benchmarks.stats.efficient_points`, the points the gap is measured against); all
+    points' without ``curve_costs``."""
     if diverged:
         return f"{diverged} episode(s) diverged"
-    lo, hi = (float(f(np.asarray(curve_violations).mean(axis=1))) for f in (np.min, np.max))
+    means = np.asarray(curve_violations).mean(axis=1)
+    if curve_costs is not None:
+        means = means[efficient_points(means, np.asarray(curve_costs).mean(axis=1))]
+    lo, hi = float(np.min(means)), float(np.max(means))
     if gap is None and violation > hi:
         return (f"violation frequency {violation:.3f} is above the curve's range "
                 f"{lo:.3f}..{hi:.3f} (more than the RHC at its loosest level)")  # fmt: skip

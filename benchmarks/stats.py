@@ -2,6 +2,8 @@
 
 * :func:`wilson`, :func:`mean_ci`: 95% Wilson and Student-t intervals;
 * :func:`two_proportion_p`, :func:`format_p`: a one-sided test of two frequencies;
+* :func:`efficient_points`: the points of a cost-violation curve that no other point beats on
+  both (its efficient frontier, which the gaps are measured against);
 * :func:`paired_curve_gap`: a controller's cost against a cost-violation curve at its own
   violation frequency, paired over common episodes, with a bootstrap interval;
 * :func:`paired_difference`: the mean paired cost difference of two controllers, bootstrapped;
@@ -26,6 +28,7 @@ __all__ = [
     "CurveStatus",
     "IntervalCheck",
     "curve_status",
+    "efficient_points",
     "format_p",
     "interval_check",
     "mean_ci",
@@ -143,6 +146,37 @@ class CurveGap:
         return self.relative, self.relative_ci95
 
 
+def efficient_points(violations: np.ndarray, costs: np.ndarray) -> np.ndarray:
+    """The indices of a curve's efficient points, in order of violation frequency.
+
+    A point is dropped when another point has a violation frequency and a mean cost no larger and
+    one of them smaller: the controller's family reaches both at once with that other level, so a
+    gap measured against the dropped point would credit a controller with beating a level nobody
+    would choose. (At high ``xi`` a receding-horizon controller can pay for its slacks with both:
+    the generated task's 3-step tree at xi 0.99 costs 5.5x its cost at 0.97 and violates more.)
+    Points that tie on both are kept. On the efficient points, cost falls strictly as the
+    violation frequency grows.
+
+    Parameters
+    ----------
+    violations, costs : (P,) arrays
+        Each point's violation frequency and mean cost.
+    """
+    v = np.asarray(violations, dtype=np.float64)
+    c = np.asarray(costs, dtype=np.float64)
+    if v.ndim != 1 or v.shape != c.shape or v.size == 0:
+        raise ValueError(
+            f"violations {v.shape} and costs {c.shape}: expected two non-empty (P,) arrays"
+        )
+    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(c))):
+        raise ValueError(f"violations {v} and costs {c}: expected finite values")
+    no_worse = (v[None, :] <= v[:, None]) & (c[None, :] <= c[:, None])  # [i, j]: j <= i on both
+    better = (v[None, :] < v[:, None]) | (c[None, :] < c[:, None])
+    dominated = np.any(no_worse & better, axis=1)
+    keep = np.flatnonzero(~dominated)
+    return keep[np.argsort(v[keep], kind="stable")]
+
+
 def paired_curve_gap(
     costs: np.ndarray,
     violations: np.ndarray,
@@ -156,7 +190,10 @@ def paired_curve_gap(
 
     The curve is a set of ``P`` controllers (e.g. the receding-horizon controller over a sweep of
     ``xi``) scored on the same ``E`` episodes (the same noise) as the controller, linear between
-    the two points whose violation frequencies bracket the controller's.
+    the two points whose violation frequencies bracket the controller's. Only the curve's
+    efficient points count (:func:`efficient_points`, on the means over all ``E`` episodes): a
+    point that another beats on both cost and violation frequency is left out, and the range is
+    that of the efficient points.
 
     Parameters
     ----------
@@ -204,6 +241,14 @@ def paired_curve_gap(
         )
     if curve_xis is not None and len(curve_xis) != c_cost.shape[0]:
         raise ValueError(f"curve_xis has {len(curve_xis)} entries; expected {c_cost.shape[0]}")
+    # in the curve's own order: the resamples sort by violation anyway, and exact ties there
+    # (discrete frequencies) break by this order, as they did before points were dropped
+    keep = np.sort(efficient_points(c_viol.mean(axis=1), c_cost.mean(axis=1)))
+    if keep.size == 1:  # one point beats all others: the curve is that point (twice)
+        keep = np.repeat(keep, 2)
+    c_cost, c_viol = c_cost[keep], c_viol[keep]
+    if curve_xis is not None:
+        curve_xis = [curve_xis[i] for i in keep]
 
     def gaps(weights: np.ndarray) -> tuple[np.ndarray, ...]:
         """Gap, curve cost, frequency, and the interpolation (order, j, w) per row of episode

@@ -264,7 +264,7 @@ def evaluate_suite(
         gaps, reasons = [], []
         for s in scores:
             g = None if s.diverged else curve.gap(s.episode_costs, s.episode_violations)
-            reason = gap_reason(s.violation, s.diverged, g, curve.violations)
+            reason = gap_reason(s.violation, s.diverged, g, curve.violations, curve.costs)
             gaps.append(g if reason is None else None)
             reasons.append(reason)
         results.append(TaskResult(task.env_id, tuple(scores), tuple(gaps), tuple(reasons),

@@ -133,7 +133,7 @@ def _point(family: str, xi: float | None, episodes: int, stats: dict[str, Any],
 def _against(curve: Any, costs: np.ndarray, violations: np.ndarray, violation: float,
              diverged: int) -> tuple[CurveGap | None, str | None]:  # fmt: skip
     g = None if diverged else curve.gap(costs, violations)
-    reason = gap_reason(violation, diverged, g, curve.violations)
+    reason = gap_reason(violation, diverged, g, curve.violations, curve.costs)
     return (g if reason is None else None), reason
 
 

@@ -44,6 +44,7 @@ from benchmarks.cli_options import options_parser, parse_options
 from benchmarks.files import stable_floats, write_atomic
 from benchmarks.rl_envs import get_task, task_settings
 from benchmarks.rl_train import ALGOS, VARIANTS, CurvePoint, RunSpec, save_run, train_run
+from benchmarks.stats import efficient_points
 from sdjls_gym import SUITE
 
 __all__ = [
@@ -161,7 +162,8 @@ def overrides(params: dict[str, Any], task: str) -> tuple[tuple[str, Any], ...]:
 def reference_curve(task: str, episodes: int, seed: int) -> tuple[np.ndarray, np.ndarray, float]:
     """The task's receding-horizon controller over ``benchmarks.evaluate.REFERENCE_XIS`` on
     ``episodes`` episodes from noise seed ``seed``: ``(violations (P,), mean costs (P,),
-    cost at the task's xi)``, sorted by violation frequency."""
+    cost at the task's xi)`` of its efficient points (:func:`benchmarks.stats.efficient_points`),
+    sorted by violation frequency."""
     from benchmarks.evaluate import REFERENCE_XIS, resolve_env, rollout_statistics
     from benchmarks.montecarlo import rollout
     from controllers import RecedingHorizonController
@@ -176,8 +178,9 @@ def reference_curve(task: str, episodes: int, seed: int) -> tuple[np.ndarray, np
         s = rollout_statistics(ro, env.divergence_bound)
         points.append((s["violation"], s["cost_mean"], xi))
     ref = next(c for v, c, xi in points if xi == float(t.rhc["xi"]))
-    points.sort()
-    return np.array([p[0] for p in points]), np.array([p[1] for p in points]), float(ref)
+    viols, costs = np.array([p[0] for p in points]), np.array([p[1] for p in points])
+    keep = efficient_points(viols, costs)  # sorted by violation frequency
+    return viols[keep], costs[keep], float(ref)
 
 
 def point_objective(
@@ -413,10 +416,13 @@ def optimize_optuna(study: Any, opts: Options, log: Any) -> None:
             if trial.should_prune():
                 raise optuna.TrialPruned(f"pruned at {step} steps (value {value:.4g})")
 
-        t0 = time.perf_counter()
-        value, names = run_trial(params, opts, report)
+        t0, c0 = time.perf_counter(), time.process_time()
+        try:
+            value, names = run_trial(params, opts, report)
+        finally:  # a pruned trial's time too (the budget it spent)
+            trial.set_user_attr("wall_s", time.perf_counter() - t0)
+            trial.set_user_attr("cpu_s", time.process_time() - c0)
         trial.set_user_attr("runs", names)
-        trial.set_user_attr("wall_s", time.perf_counter() - t0)
         return value
 
     def logged(study: Any, trial: Any) -> None:
@@ -508,6 +514,15 @@ def optimize_ray(study: Any, opts: Options, log: Any) -> None:
 
 
 # ----------------------------------------------------------------------------- summary
+def _trial_times(trial: Any) -> dict[str, float | None]:
+    """A finished trial's wall time from Optuna's start and end stamps (every trial has them)
+    and its CPU time where the trial recorded it (``cpu_s``: trials run since 2026-12-04)."""
+    start, end = trial.datetime_start, trial.datetime_complete
+    wall = None if start is None or end is None else (end - start).total_seconds()
+    cpu = trial.user_attrs.get("cpu_s")
+    return {"wall_s": wall, "cpu_s": None if cpu is None else float(cpu)}
+
+
 def summarize(study: Any, opts: Options) -> dict[str, Any]:
     """The study as ``<out>/<study>.json`` holds it: settings, space, trials, best."""
     import optuna
@@ -515,7 +530,7 @@ def summarize(study: Any, opts: Options) -> dict[str, Any]:
     trials = [
         {"number": t.number, "state": t.state.name, "value": t.value, "params": t.params,
          "intermediate": {str(k): v for k, v in sorted(t.intermediate_values.items())},
-         "runs": t.user_attrs.get("runs", [])}
+         "runs": t.user_attrs.get("runs", []), **_trial_times(t)}
         for t in study.get_trials(deepcopy=False)
     ]  # fmt: skip
     complete = [t for t in study.get_trials(deepcopy=False)
