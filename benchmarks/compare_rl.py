@@ -361,6 +361,19 @@ def parse_args(argv: list[str] | None = None) -> Options:
             "runs' report in the preset's folder; train with --train-only and compare with "
             "python -m benchmarks.tuned_report, or give --out"
         )
+    partial = [flag for flag, differs in (
+        ("--tasks", set(opts.tasks) != set(preset["tasks"])),
+        ("--configs", set(opts.configs) != set(preset["configs"])),
+        ("--seeds", opts.seeds != preset["seeds"]),
+        ("--timesteps", opts.timesteps is not None),
+    ) if differs]  # fmt: skip
+    if partial and not (opts.train_only or opts.quick) and opts.out is None:
+        # the report of these runs would replace the preset's committed report of all of them
+        parser.error(
+            f"{', '.join(partial)} other than the preset's ({opts.preset!r}) without --out: the "
+            f"report of these runs would replace the full report in {preset['out']}; give --out "
+            "(or --train-only to train into the preset's runs)"
+        )
     if opts.out is None:
         opts.out = QUICK_OUT if opts.quick else preset["out"]
     elif opts.quick and _holds_a_full_comparison(opts.out):

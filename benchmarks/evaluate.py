@@ -43,8 +43,9 @@ refused (:func:`benchmarks.policies.check_spaces`). A ``predict`` with SB3's ``s
 
 Command line: ``python -m benchmarks.evaluate --policy PATH.zip --algo ppo`` (an SB3 model;
 ``--train-env package.module:attribute`` names its training environment, ``--vec-normalize
-PATH.pkl`` its VecNormalize statistics) or ``--policy package.module:attribute``; ``--json PATH``
-writes the score. Every input is checked before the evaluation; a bad one is a parser error
+PATH.pkl`` its VecNormalize statistics), ``--policy package.module:attribute``, or ``--run
+runs/NAME.json`` (a kept run of the RL comparison, rebuilt by :func:`benchmarks.runs.load_agent`
+and scored on its own task); ``--json PATH`` writes the score. Every input is checked before the evaluation; a bad one is a parser error
 (exit status 2) naming the file, module, attribute or option.
 """
 
@@ -321,7 +322,7 @@ def evaluate_rollouts(
             divergence_bound=spec.divergence_bound,
         )  # fmt: skip
         gap = curve.gap(stats["episode_costs"], stats["episode_violations"])
-        reason = gap_reason(stats["violation"], 0, gap, curve.violations)
+        reason = gap_reason(stats["violation"], 0, gap, curve.violations, curve.costs)
         points = tuple(curve.point(i) for i in range(len(curve.xis)))
     score = Score(
         curve_gap_reason=reason,
@@ -427,9 +428,14 @@ def main(argv: list[str] | None = None) -> Score:
         description="Score a policy with the benchmarks' evaluation protocol.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("--policy", required=True,
-                        help="a stable-baselines3 .zip file (with --algo), or "
-                        "package.module:attribute (an object with predict, or a callable)")  # fmt: skip
+    which = parser.add_mutually_exclusive_group(required=True)
+    which.add_argument("--policy",
+                       help="a stable-baselines3 .zip file (with --algo), or "
+                       "package.module:attribute (an object with predict, or a callable)")  # fmt: skip
+    which.add_argument("--run", type=Path,
+                       help="a kept run of the RL comparison (runs/NAME.json, .pt or NAME): its "
+                       "agent rebuilt with its wrappers (benchmarks.runs.load_agent) and scored "
+                       "on its own task")  # fmt: skip
     parser.add_argument("--algo", choices=SB3_ALGOS, help="algorithm of a .zip file")
     parser.add_argument("--train-env", help="package.module:attribute: the .zip agent's training "
                         "environment (or a function making it), whose wrappers RawEnvPolicy "
@@ -438,7 +444,9 @@ def main(argv: list[str] | None = None) -> Score:
                         "agent was trained under (with --train-env)")  # fmt: skip
     parser.add_argument("--episodes", type=int, default=1000, help="evaluation episodes")
     parser.add_argument("--seed", type=int, default=0, help="noise seed")
-    parser.add_argument("--env-id", default="SDJLS-Macro-v0", help="registered environment")
+    parser.add_argument("--env-id", default=None,
+                        help="registered environment (default: SDJLS-Macro-v0; with --run, the "
+                        "run's task)")  # fmt: skip
     parser.add_argument("--json", type=Path, help="write the score (and the versions) here")
     opts = parser.parse_args(argv)
     # every input is checked before the evaluation, each error naming its option
@@ -454,22 +462,45 @@ def main(argv: list[str] | None = None) -> Score:
             + ("is a folder" if opts.json.is_dir() else f"the folder {opts.json.parent} does not exist")
             + "; expected a file path in an existing folder"
         )  # fmt: skip
+    env_kwargs: dict[str, Any] = {}
+    if opts.run is not None:
+        for flag in ("algo", "train_env", "vec_normalize"):
+            if getattr(opts, flag) is not None:
+                parser.error(f"--{flag.replace('_', '-')} does not apply to --run (a kept run "
+                             "records its algorithm and training environment)")  # fmt: skip
+        from benchmarks.runs import load_agent, run_env
+
+        try:
+            run_id, env_kwargs = run_env(opts.run)
+            if opts.env_id is not None and opts.env_id != run_id:
+                parser.error(f"--env-id {opts.env_id}: the run at {opts.run} acts on {run_id}; "
+                             "leave --env-id out (a kept run is scored on its own task)")  # fmt: skip
+            opts.env_id = run_id
+        except (TypeError, ValueError) as exc:
+            parser.error(str(exc).replace("run_path = ", "--run "))
+    elif opts.env_id is None:
+        opts.env_id = "SDJLS-Macro-v0"
+    name = opts.policy if opts.run is None else str(opts.run)
     try:
-        spec = resolve_env(opts.env_id, {})
-        policy = load_cli_policy(opts.policy, opts.algo, opts.train_env, opts.vec_normalize)
+        spec = resolve_env(opts.env_id, dict(env_kwargs))
+        if opts.run is not None:
+            policy = load_agent(opts.run)
+        else:
+            policy = load_cli_policy(opts.policy, opts.algo, opts.train_env, opts.vec_normalize)
         as_controller(policy, spec)  # the agent's spaces against the environment's
     except (CliError, TypeError, ValueError) as exc:
-        message = str(exc)
+        message = str(exc).replace("run_path = ", "--run ")
         if isinstance(exc, ValueError) and "RawEnvPolicy(agent, train_env)" in message:
             message = f"--policy {opts.policy}: {message}"
         parser.error(message.replace("env_id = ", "--env-id = "))
     try:
-        score = evaluate(policy, episodes=opts.episodes, seed=opts.seed, env_id=opts.env_id)
+        score = evaluate(policy, episodes=opts.episodes, seed=opts.seed, env_id=opts.env_id,
+                         env_kwargs=env_kwargs)  # fmt: skip
     except (TypeError, ValueError) as exc:
         parser.error(str(exc))
-    print("\n".join(describe_score(opts.policy, score)))
+    print("\n".join(describe_score(name, score)))
     if opts.json is not None:
-        data = {**score.to_dict(), "policy": opts.policy, "versions": package_versions()}
+        data = {**score.to_dict(), "policy": name, "versions": package_versions()}
         write_atomic(opts.json, json.dumps(data, indent=1) + "\n")
     return score
 

@@ -63,6 +63,19 @@ def _trial_states(summary: dict[str, Any]) -> dict[str, int]:
     return states
 
 
+def _spent(summary: dict[str, Any]) -> dict[str, Any]:
+    """What a study spent: its trials' env steps (each trial's last learning-curve point, a
+    pruned trial's where it stopped, times the seeds per trial), the sum of their wall times
+    and of the CPU times they recorded (trials run before 2026-12-04 recorded none)."""
+    seeds = int(summary["settings"].get("seeds") or 1)
+    trials = summary.get("trials", [])
+    steps = sum(max((int(k) for k in t.get("intermediate", {})), default=0) for t in trials)
+    walls = [t["wall_s"] for t in trials if t.get("wall_s") is not None]
+    cpus = [t["cpu_s"] for t in trials if t.get("cpu_s") is not None]
+    return {"env_steps": steps * seeds, "wall_h": sum(walls) / 3600, "wall_trials": len(walls),
+            "cpu_h": sum(cpus) / 3600, "cpu_trials": len(cpus), "trials": len(trials)}  # fmt: skip
+
+
 def _group(agents: list[AgentScore], resamples: int) -> dict[str, Any]:
     """Per-seed rows of one group and, per curve, the IQM of its gaps (None, with the reasons,
     when a run has none)."""
@@ -118,6 +131,8 @@ def compare_study(path: Path, run_dir: Path, seeds: int, episodes: int, seed: in
         "trials": _trial_states(summary),
         "best_trial": summary["best"].get("number"),
         "budget": {k: summary["settings"].get(k) for k in ("timesteps", "seeds")},
+        "search_space": list(summary.get("search_space", [])),
+        "spent": _spent(summary),
         "seeds": list(range(seeds)),
         "missing": {
             name: [s.seed for s, r in zip(group, recs, strict=True) if r is None]
@@ -181,6 +196,16 @@ def write_markdown(results: list[dict[str, Any]], command: str, episodes: int) -
                   f"Study `{r['study']}`: trials {_states_text(r['trials'])} of "
                   f"{r['budget']['timesteps']} steps x {r['budget']['seeds']} seed(s); best "
                   f"trial {r['best_trial']}: `{json.dumps(r['overrides'], sort_keys=True)}`."]  # fmt: skip
+        sp = r["spent"]
+        lines += ["", f"Spent: {sp['env_steps'] / 1e6:.2f}M env steps over its {sp['trials']} "
+                  "trials (a pruned trial's up to where it stopped); their wall times sum to "
+                  f"{sp['wall_h']:.2f} h ({sp['wall_trials']} trials; one torch thread each, so "
+                  "their CPU time is at most this)"
+                  + (f"; the {sp['cpu_trials']} trials that recorded their CPU time used "
+                     f"{sp['cpu_h']:.2f} CPU-hours" if sp["cpu_trials"] else "") + "."]  # fmt: skip
+        if r["search_space"]:
+            lines += ["", "Search space (`python -m benchmarks.tune --algo ALGO --variant VARIANT "
+                      "--print-space`):", "", *[f"- {line}" for line in r["search_space"]]]  # fmt: skip
         for name in ("default", "tuned"):
             if r["missing"][name]:
                 lines += ["", f"Missing {name} runs: seeds {r['missing'][name]}."]

@@ -224,6 +224,28 @@ def test_unknown_task_is_refused_at_parse_time(capsys):
     assert exc.value.code == 2 and "--configs" in capsys.readouterr().err
 
 
+def test_a_partial_comparison_never_replaces_the_presets_report(capsys, tmp_path):
+    """Tasks, configurations, seeds or budgets other than the preset's, scored into the preset's
+    folder, would replace its report of all runs (the macro task alone even in the macro
+    comparison's format): a parser error naming the options, unless --out, --train-only or
+    --quick says where the report goes or that there is none."""
+    for argv, named, folder in [
+        (["--tasks", "SDJLS-Macro-v0"], "--tasks", "results/rl_suite"),
+        (["--configs", "ppo_residual", "--seeds", "2"], "--configs, --seeds", "results/rl_suite"),
+        (["--timesteps", "1000"], "--timesteps", "results/rl_suite"),
+        (["--preset", "macro", "--seeds", "2"], "--seeds", "results/rl"),
+    ]:
+        with pytest.raises(SystemExit) as exc:
+            compare_rl.parse_args(argv)
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and named in err and folder in err and "--out" in err
+        assert compare_rl.parse_args([*argv, "--train-only"]).out == Path(folder)
+        assert compare_rl.parse_args([*argv, "--out", str(tmp_path)]).out == tmp_path
+    # the preset itself, in any order of its tasks, scores into its folder
+    assert compare_rl.parse_args(["--tasks", *reversed(SUITE)]).out == Path("results/rl_suite")
+    assert compare_rl.parse_args(["--score-only"]).out == Path("results/rl_suite")
+
+
 def test_presets_and_their_budgets():
     """The default command is the suite: every task, the five configurations, 5 seeds, the
     suite's budgets, which fit 12 CPU-hours at the per-step costs measured here."""
@@ -369,6 +391,37 @@ def test_load_agent_refuses_what_is_not_a_kept_run(tmp_path):
         runs.load_agent(tmp_path / "x")
 
 
+def test_evaluate_cli_scores_a_kept_run(tmp_path, capsys):
+    """``python -m benchmarks.evaluate --run PATH`` scores a kept run on its own task as
+    score_run does (50 episodes, the JSON it writes); the options a run records itself, another
+    task and a missing run are parser errors naming the option."""
+    import torch
+
+    from benchmarks import evaluate
+
+    torch.set_num_threads(1)
+    out = tmp_path / "score.json"
+    cli = evaluate.main(["--run", str(COMMITTED.with_suffix("")), "--episodes", "50",
+                         "--json", str(out)])  # fmt: skip
+    direct = runs.score_run(COMMITTED, episodes=50, seed=0)
+    assert cli.cost_mean == direct.cost_mean and cli.violation == direct.violation
+    data = json.loads(out.read_text())
+    assert data["policy"] == str(COMMITTED.with_suffix("")) and data["episodes"] == 50
+    assert data["cost_mean"] == pytest.approx(direct.cost_mean, rel=1e-12)
+    capsys.readouterr()
+    for argv, needle in [
+        (["--run", str(COMMITTED), "--algo", "ppo"], "--algo does not apply to --run"),
+        (["--run", str(COMMITTED), "--env-id", "SDJLS-Solar-v0"], "acts on SDJLS-Macro-v0"),
+        (["--run", str(tmp_path / "none.json")], "--run"),
+        (["--run", str(COMMITTED), "--policy", "x:y"], "not allowed with argument"),
+        ([], "one of the arguments --policy --run is required"),
+    ]:
+        with pytest.raises(SystemExit) as exc:
+            evaluate.main(argv)
+        assert exc.value.code == 2
+        assert needle in capsys.readouterr().err
+
+
 def test_tuned_hyperparameters_reach_only_their_configuration(tmp_path, capsys):
     """``--tuned STUDY.json`` gives the best trial's overrides to that task's configuration, on
     the comparison's seeds (0..), as runs of their own fingerprint; a file that is not a study
@@ -382,7 +435,9 @@ def test_tuned_hyperparameters_reach_only_their_configuration(tmp_path, capsys):
     path.write_text(json.dumps(summary))
     args = ["--tasks", "SDJLS-Macro-v0", "SDJLS-Solar-v0", "--configs", "ppo_residual",
             "ppo_reward", "--seeds", "2"]  # fmt: skip
-    default = {s.label: s for s in compare_rl.specs_of(compare_rl.parse_args(args))}
+    default = {
+        s.label: s for s in compare_rl.specs_of(compare_rl.parse_args([*args, "--train-only"]))
+    }
     tuned = compare_rl.specs_of(
         compare_rl.parse_args([*args, "--tuned", str(path), "--train-only"])
     )

@@ -37,6 +37,9 @@ def test_quick_study_resumes_with_the_next_trial_numbers(tmp_path):
     assert second["trials"][2]["params"] != first["trials"][1]["params"]  # a new draw
     third = tune.main(args)
     assert third["trials"] == second["trials"]
+    # each finished trial's spending: its wall time from Optuna's stamps, its CPU time recorded
+    for t in second["trials"]:
+        assert t["wall_s"] > 0 and t["cpu_s"] > 0
     # every finished trial kept its run, named by its configuration (the trial's overrides)
     runs = [name for t in second["trials"] for name in t["runs"]]
     assert len(set(runs)) == len(runs) >= 2
