@@ -106,6 +106,49 @@ def test_zoo_file_builds_the_comparisons_training_env(algo, zoo_utils):
     assert step_a[1:4] == step_b[1:4]
 
 
+def test_one_training_env_function_per_variant():
+    """benchmarks.train_envs has exactly one public function per variant, each the recipe
+    make_train_env(task, variant) on the macro task by default and on any task given."""
+    from benchmarks import train_envs
+    from benchmarks.rl_envs import VARIANTS
+
+    assert sorted(train_envs.__all__) == sorted(VARIANTS)
+    for variant in VARIANTS:
+        make = getattr(train_envs, variant)
+        assert _chain(make()) == _chain(make_train_env("SDJLS-Macro-v0", variant))
+        assert _chain(make("SDJLS-Solar-v0")) == _chain(make_train_env("SDJLS-Solar-v0", variant))
+
+
+@pytest.mark.parametrize("algo", sorted(FILES))
+def test_an_agent_of_a_zoo_file_is_scored_with_one_flag(algo, zoo_utils, tmp_path, capsys):
+    """An agent built as rl-zoo3 builds it from the file (its wrappers, untrained: the scoring
+    is what is tested) and saved is scored by ``benchmarks.evaluate`` with ``--train-env
+    benchmarks.train_envs:VARIANT``; without the flag it is refused (its spaces are the wrapped
+    env's), a parser error naming --train-env."""
+    sb3 = pytest.importorskip("stable_baselines3")
+    from benchmarks import evaluate
+
+    entry = _entry(algo)
+    zoo_env = zoo_utils.get_wrapper_class(entry)(
+        gym.make("SDJLS-Macro-v0", **entry.get("env_kwargs", {}))
+    )
+    from benchmarks import train_envs
+
+    # the flag's env is the file's: same wrappers, same scalings and bounds
+    assert _chain(zoo_env) == _chain(getattr(train_envs, FILES[algo])())
+    agent = getattr(sb3, algo.upper())("MlpPolicy", zoo_env, seed=0, device="cpu")
+    path = tmp_path / f"{algo}.zip"
+    agent.save(path)
+    flag = f"benchmarks.train_envs:{FILES[algo]}"
+    score = evaluate.main(["--policy", str(path), "--algo", algo, "--train-env", flag,
+                           "--episodes", "20"])  # fmt: skip
+    assert score.episodes == 20 and np.isfinite(score.violation)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exc:
+        evaluate.main(["--policy", str(path), "--algo", algo, "--episodes", "20"])
+    assert exc.value.code == 2 and "--train-env" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_rl_zoo3_trains_a_few_hundred_steps_with_the_file(tmp_path):
     """The README's command, shortened to 512 steps of PPO (one rollout of 8 x 64)."""
