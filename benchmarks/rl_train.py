@@ -29,7 +29,6 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from benchmarks import rl_hyperparams as HP
-from benchmarks.evaluate import resolve_env, rollout_statistics
 from benchmarks.files import jsonable, write_atomic
 from benchmarks.montecarlo import rollout
 from benchmarks.policies import RawEnvPolicy
@@ -45,6 +44,7 @@ from benchmarks.rl_envs import (
     variant_setup,
 )
 from benchmarks.rl_records import CurvePoint, DualPoint, RunRecord
+from benchmarks.task_env import resolve_env, rollout_statistics
 
 __all__ = [
     "ACTION_KINDS",

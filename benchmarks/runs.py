@@ -4,8 +4,9 @@ A run is kept as ``<name>-<fingerprint>.json`` (its record: configuration, learn
 times) beside ``.pt`` (the policy's state dict). :func:`load_agent` rebuilds the policy from the
 configuration recorded in the file, with the wrappers of its training environment
 (:func:`benchmarks.rl_train.env_from_config`, the recipe :func:`benchmarks.rl_envs.make_train_env`
-follows), so that it acts on the raw environment in units of ``u``; :func:`score_run` scores it
-on its own task with :func:`benchmarks.evaluate.evaluate`.
+follows), so that it acts on the raw environment in units of ``u``;
+:func:`benchmarks.evaluate.score_run` scores it on its own task (and ``python -m
+benchmarks.evaluate --run PATH``).
 
 >>> from benchmarks.runs import load_agent, read_run  # doctest: +SKIP
 >>> policy = load_agent("results/rl/runs/ppo_residual_s0-e884595880b28e6a.json")  # doctest: +SKIP
@@ -21,7 +22,7 @@ from benchmarks.policies import RawEnvPolicy
 from benchmarks.rl_envs import MACRO
 from benchmarks.rl_train import ALGOS, VARIANTS, RunRecord, policy_from_config, policy_path
 
-__all__ = ["load_agent", "read_run", "run_env", "score_run"]
+__all__ = ["load_agent", "read_run", "run_env"]
 
 
 def _json_path(run_path: str | Path) -> Path:
@@ -103,14 +104,3 @@ def load_agent(run_path: str | Path) -> RawEnvPolicy:
     path = _json_path(run_path)
     record = read_run(path)
     return policy_from_config(record.algo, record.variant, record.config, policy_path(path))
-
-
-def score_run(run_path: str | Path, *, episodes: int = 1000, seed: int = 0) -> Any:
-    """The :class:`~benchmarks.evaluate.Score` of the kept run at ``run_path`` on its own task
-    (:func:`benchmarks.evaluate.evaluate`, ``episodes`` episodes from noise seed ``seed``)."""
-    from benchmarks.evaluate import check_evaluation, evaluate
-
-    episodes, seed = check_evaluation(episodes, seed)
-    env_id, env_kwargs = run_env(run_path)
-    return evaluate(load_agent(run_path), episodes=episodes, seed=seed, env_id=env_id,
-                    env_kwargs=env_kwargs)  # fmt: skip

@@ -16,7 +16,7 @@ pytest.importorskip("stable_baselines3")
 
 from benchmarks import backends, compare_rl, rl_envs, rl_train, runs  # noqa: E402
 from benchmarks import rl_hyperparams as HP  # noqa: E402
-from benchmarks.evaluate import evaluate  # noqa: E402
+from benchmarks.evaluate import evaluate, score_run  # noqa: E402
 from benchmarks.reference import tree_rhc  # noqa: E402
 from sdjls_gym import SUITE  # noqa: E402
 from sdjls_gym.systems import TASKS  # noqa: E402
@@ -338,7 +338,7 @@ def test_quick_on_two_tasks(tmp_path, monkeypatch):
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == stamps
     # a kept run of the suite's layout is rebuilt by benchmarks.runs and acts as the report's
     (path,) = (out / "runs" / two[1]).glob("ppo_residual_s0-*.json")
-    score = runs.score_run(path, episodes=20, seed=0)
+    score = score_run(path, episodes=20, seed=0)
     kept = next(r for r in summary["tasks"][two[1]]["rl_runs"] if r["name"] == "ppo_residual_s0")
     assert score.cost_mean == pytest.approx(kept["score"]["cost_mean"], rel=1e-9)
     # a lost run: --score-only trains nothing and names it (task, configuration, seed)
@@ -368,7 +368,7 @@ def test_a_committed_run_is_rebuilt_and_scores_as_its_report():
     assert runs.run_env(COMMITTED) == ("SDJLS-Macro-v0", {})
     policy = runs.load_agent(COMMITTED.with_suffix(".pt"))
     assert type(policy.agent).__name__ == "ActorCriticPolicy"
-    score = runs.score_run(COMMITTED, episodes=1000, seed=0)
+    score = score_run(COMMITTED, episodes=1000, seed=0)
     committed = json.loads((ROOT / "results" / "rl" / "summary.json").read_text())
     (row,) = [r for r in committed["rl_runs"] if r["name"] == "ppo_residual_s0"]
     # float32 networks: the last bits of a sum may differ between machines (results/rl/HISTORY.md)
@@ -403,7 +403,7 @@ def test_evaluate_cli_scores_a_kept_run(tmp_path, capsys):
     out = tmp_path / "score.json"
     cli = evaluate.main(["--run", str(COMMITTED.with_suffix("")), "--episodes", "50",
                          "--json", str(out)])  # fmt: skip
-    direct = runs.score_run(COMMITTED, episodes=50, seed=0)
+    direct = evaluate.score_run(COMMITTED, episodes=50, seed=0)
     assert cli.cost_mean == direct.cost_mean and cli.violation == direct.violation
     data = json.loads(out.read_text())
     assert data["policy"] == str(COMMITTED.with_suffix("")) and data["episodes"] == 50
