@@ -131,8 +131,9 @@ def test_quick_command_scores_default_and_tuned_runs(tmp_path):
 
 def test_spent_budget_and_search_space_are_reported(monkeypatch, tmp_path):
     """The study's spending by hand: steps to each trial's last learning-curve point (a pruned
-    trial's too) times 2 seeds, the wall times summed (a trial without stamps left out, and
-    counted), the CPU times of the trials that recorded one; TUNED.md states them and the
+    or failed trial's too) times 2 seeds, the finished trials' wall times summed (a running
+    trial has no stamps, a failed one's span a stopped process), the CPU times of the trials
+    that recorded one; TUNED.md states them and the
     search space line by line."""
     study = {
         **STUDY,
@@ -144,6 +145,8 @@ def test_spent_budget_and_search_space_are_reported(monkeypatch, tmp_path):
             {"number": 1, "state": "PRUNED", "intermediate": {"300": 2.0},
              "wall_s": 900.0, "cpu_s": 720.0},
             {"number": 2, "state": "RUNNING", "intermediate": {}, "wall_s": None, "cpu_s": None},
+            {"number": 3, "state": "FAIL", "intermediate": {"300": 2.5}, "wall_s": 9e4,
+             "cpu_s": None},
         ],
     }  # fmt: skip
     path = tmp_path / "study.json"
@@ -151,9 +154,9 @@ def test_spent_budget_and_search_space_are_reported(monkeypatch, tmp_path):
     _fake_scoring(monkeypatch, [-1.0, 0.0], [-2.0, 1.0])
     (r,) = tuned_report.main(["--tuned", str(path), "--seeds", "2", "--runs", str(tmp_path),
                               "--out", str(tmp_path / "rep")])  # fmt: skip
-    assert r["spent"] == {"env_steps": (600 + 300) * 2, "wall_h": 2700 / 3600, "wall_trials": 2,
-                          "cpu_h": 720 / 3600, "cpu_trials": 1, "trials": 3}  # fmt: skip
+    assert r["spent"] == {"env_steps": (600 + 300 + 300) * 2, "wall_h": 2700 / 3600,
+                          "wall_trials": 2, "cpu_h": 720 / 3600, "cpu_trials": 1, "trials": 4}  # fmt: skip
     text = (tmp_path / "rep" / "TUNED.md").read_text()
-    assert "Spent: 0.00M env steps over its 3 trials" in text
+    assert "Spent: 0.00M env steps over its 4 trials" in text
     assert "sum to 0.75 h (2 trials" in text and "used 0.20 CPU-hours" in text
     assert "- learning_rate: log-uniform in [3e-05, 0.003]\n- net_arch: one of 64x64" in text
