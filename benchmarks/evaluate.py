@@ -45,8 +45,9 @@ Command line: ``python -m benchmarks.evaluate --policy PATH.zip --algo ppo`` (an
 ``--train-env package.module:attribute`` names its training environment, ``--vec-normalize
 PATH.pkl`` its VecNormalize statistics), ``--policy package.module:attribute``, or ``--run
 runs/NAME.json`` (a kept run of the RL comparison, rebuilt by :func:`benchmarks.runs.load_agent`
-and scored on its own task); ``--json PATH`` writes the score. Every input is checked before the evaluation; a bad one is a parser error
-(exit status 2) naming the file, module, attribute or option.
+and scored on its own task); ``--json PATH`` writes the score. Every input is checked before the
+evaluation; a bad one is a parser error (exit status 2) naming the file, module, attribute or
+option.
 """
 
 from __future__ import annotations
