@@ -363,7 +363,7 @@ def parse_args(argv: list[str] | None = None) -> Options:
         )
     partial = [flag for flag, differs in (
         ("--tasks", set(opts.tasks) != set(preset["tasks"])),
-        ("--configs", set(opts.configs) != set(preset["configs"])),
+        ("--configs (or --algos/--variants)", set(opts.configs) != set(preset["configs"])),
         ("--seeds", opts.seeds != preset["seeds"]),
         ("--timesteps", opts.timesteps is not None),
     ) if differs]  # fmt: skip

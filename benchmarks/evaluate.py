@@ -360,7 +360,7 @@ def main(argv: list[str] | None = None) -> Score:
     parser.add_argument("--episodes", type=int, default=1000, help="evaluation episodes")
     parser.add_argument("--seed", type=int, default=0, help="noise seed")
     parser.add_argument("--env-id", default=None,
-                        help="registered environment (default: SDJLS-Macro-v0; with --run, the "
+                        help="registered environment (None: SDJLS-Macro-v0, or with --run the "
                         "run's task)")  # fmt: skip
     parser.add_argument("--json", type=Path, help="write the score (and the versions) here")
     opts = parser.parse_args(argv)

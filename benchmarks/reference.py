@@ -247,10 +247,10 @@ def gap_reason(
     lo, hi = float(np.min(means)), float(np.max(means))
     if gap is None and violation > hi:
         return (f"violation frequency {violation:.3f} is above the curve's range "
-                f"{lo:.3f}..{hi:.3f} (more than the RHC at its loosest level)")  # fmt: skip
+                f"{lo:.3f}..{hi:.3f} (more than the RHC at its loosest efficient level)")  # fmt: skip
     if gap is None:
         return (f"violation frequency {violation:.3f} is below the curve's range "
-                f"{lo:.3f}..{hi:.3f} (less than the RHC at its strictest level)")  # fmt: skip
+                f"{lo:.3f}..{hi:.3f} (less than the RHC at its strictest efficient level)")  # fmt: skip
     if gap.relative is None:
         return "the curve's cost is not positive"
     return None

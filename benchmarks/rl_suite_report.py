@@ -241,10 +241,12 @@ def point_gap(cost_mean: float, violation: float, diverged: int,
     a diverged episode, outside the range of the curve's efficient points (the only points
     it is measured against, :func:`benchmarks.stats.efficient_points`), or where the curve's
     cost is not positive. The point holds statistics only, so the gap has no interval."""
+    if diverged:
+        return None
     v, c = curve.violations.mean(axis=1), curve.costs.mean(axis=1)
     keep = efficient_points(v, c)
     v, c = v[keep], c[keep]
-    if diverged or not v[0] <= violation <= v[-1]:
+    if not v[0] <= violation <= v[-1]:
         return None
     ref = float(np.interp(violation, v, c))
     return None if ref <= 0 else 100.0 * (cost_mean - ref) / ref

@@ -168,8 +168,12 @@ def efficient_points(violations: np.ndarray, costs: np.ndarray) -> np.ndarray:
         raise ValueError(
             f"violations {v.shape} and costs {c.shape}: expected two non-empty (P,) arrays"
         )
-    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(c))):
-        raise ValueError(f"violations {v} and costs {c}: expected finite values")
+    if not (np.all(np.isfinite(v)) and not np.any(np.isnan(c)) and np.all(c > -np.inf)):
+        raise ValueError(
+            f"violations {v} and costs {c}: expected finite frequencies and costs that are "
+            "numbers (+inf allowed: a level whose costs overflowed, never efficient next to a "
+            "finite one)"
+        )
     no_worse = (v[None, :] <= v[:, None]) & (c[None, :] <= c[:, None])  # [i, j]: j <= i on both
     better = (v[None, :] < v[:, None]) | (c[None, :] < c[:, None])
     dominated = np.any(no_worse & better, axis=1)

@@ -188,11 +188,11 @@ def point_objective(
 ) -> float:
     """One learning-curve point's score, lower is better.
 
-    Without a diverged episode and no riskier than the curve's riskiest point: the mean episode
-    cost minus the curve's cost at the point's violation frequency (the curve's safest point's
-    below its range), relative to the RHC's cost at the task's ``xi``, capped at 0.99. Riskier
-    than every point of the curve: 1 + the excess frequency. With diverged episodes: 2 + their
-    share.
+    Without a diverged episode and no riskier than the curve's riskiest efficient point: the
+    mean episode cost minus the curve's cost at the point's violation frequency (the curve's
+    safest point's below its range), relative to the RHC's cost at the task's ``xi``, capped at
+    0.99. Riskier than every efficient point of the curve: 1 + the excess frequency. With
+    diverged episodes: 2 + their share.
     """
     viols, costs, ref = curve
     if point.diverged > 0:
@@ -411,17 +411,22 @@ def optimize_optuna(study: Any, opts: Options, log: Any) -> None:
     def objective(trial: Any) -> float:
         params = suggest(trial, opts.algo, opts.variant)
 
+        reached = [0]  # the first seed's last reported step: where a pruned trial stopped
+
         def report(value: float, step: int) -> None:
+            reached[0] = step
             trial.report(value, step)
             if trial.should_prune():
                 raise optuna.TrialPruned(f"pruned at {step} steps (value {value:.4g})")
 
-        t0, c0 = time.perf_counter(), time.process_time()
+        t0, c0, steps = time.perf_counter(), time.process_time(), None
         try:
             value, names = run_trial(params, opts, report)
-        finally:  # a pruned trial's time too (the budget it spent)
+            steps = _resolved(opts.timesteps, "timesteps") * opts.seeds
+        finally:  # a pruned trial's spending too
             trial.set_user_attr("wall_s", time.perf_counter() - t0)
             trial.set_user_attr("cpu_s", time.process_time() - c0)
+            trial.set_user_attr("env_steps", reached[0] if steps is None else steps)
         trial.set_user_attr("runs", names)
         return value
 
@@ -515,12 +520,14 @@ def optimize_ray(study: Any, opts: Options, log: Any) -> None:
 
 # ----------------------------------------------------------------------------- summary
 def _trial_times(trial: Any) -> dict[str, float | None]:
-    """A finished trial's wall time from Optuna's start and end stamps (every trial has them)
-    and its CPU time where the trial recorded it (``cpu_s``: trials run since 2026-12-04)."""
+    """A finished trial's wall time from Optuna's start and end stamps (every trial has them),
+    its CPU time and env steps where the trial recorded them (trials run in this process since
+    2026-12-04)."""
     start, end = trial.datetime_start, trial.datetime_complete
     wall = None if start is None or end is None else (end - start).total_seconds()
-    cpu = trial.user_attrs.get("cpu_s")
-    return {"wall_s": wall, "cpu_s": None if cpu is None else float(cpu)}
+    cpu, steps = trial.user_attrs.get("cpu_s"), trial.user_attrs.get("env_steps")
+    return {"wall_s": wall, "cpu_s": None if cpu is None else float(cpu),
+            "env_steps": None if steps is None else int(steps)}  # fmt: skip
 
 
 def summarize(study: Any, opts: Options) -> dict[str, Any]:

@@ -64,19 +64,28 @@ def _trial_states(summary: dict[str, Any]) -> dict[str, int]:
 
 
 def _spent(summary: dict[str, Any]) -> dict[str, Any]:
-    """What a study spent: its trials' env steps (each trial's last learning-curve point, a
-    pruned trial's where it stopped, times the seeds per trial), the sum of the finished trials'
-    wall times and of the CPU times they recorded (trials run before 2026-12-04 recorded
-    none)."""
-    seeds = int(summary["settings"].get("seeds") or 1)
+    """What a study spent: its trials' env steps (as recorded; a trial that recorded none: all
+    seeds' budget if complete, else its last learning-curve step, where pruning stops a trial
+    during its first seed), the sum of the finished trials' wall times and of the CPU times
+    they recorded (trials run before 2026-12-04 recorded neither). Ray Tune numbers a pruned
+    trial's points by iteration, not step: its studies' pruned trials count only if recorded."""
+    settings = summary["settings"]
+    budget = int(settings.get("timesteps") or 0) * int(settings.get("seeds") or 1)
     trials = summary.get("trials", [])
-    steps = sum(max((int(k) for k in t.get("intermediate", {})), default=0) for t in trials)
+    steps = 0
+    for t in trials:
+        if t.get("env_steps") is not None:
+            steps += int(t["env_steps"])
+        elif t.get("state") == "COMPLETE":
+            steps += budget
+        else:
+            steps += max((int(k) for k in t.get("intermediate", {})), default=0)
     # finished trials only: a failed one was left running by a killed or stopped process, and
     # its stamps span the stop
     done = [t for t in trials if t.get("state") in ("COMPLETE", "PRUNED")]
     walls = [t["wall_s"] for t in done if t.get("wall_s") is not None]
     cpus = [t["cpu_s"] for t in done if t.get("cpu_s") is not None]
-    return {"env_steps": steps * seeds, "wall_h": sum(walls) / 3600, "wall_trials": len(walls),
+    return {"env_steps": steps, "wall_h": sum(walls) / 3600, "wall_trials": len(walls),
             "cpu_h": sum(cpus) / 3600, "cpu_trials": len(cpus), "trials": len(trials)}  # fmt: skip
 
 

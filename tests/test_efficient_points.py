@@ -40,9 +40,19 @@ def test_efficient_points_against_a_double_loop(seed):
 
 def test_efficient_points_rejects_bad_input():
     for v, c in [(np.zeros(3), np.zeros(2)), (np.zeros(0), np.zeros(0)),
-                 (np.zeros((2, 2)), np.zeros((2, 2))), (np.array([0.1, np.nan]), np.zeros(2))]:  # fmt: skip
+                 (np.zeros((2, 2)), np.zeros((2, 2))), (np.array([0.1, np.nan]), np.zeros(2)),
+                 (np.array([0.1, 0.2]), np.array([1.0, np.nan])),
+                 (np.array([0.1, 0.2]), np.array([1.0, -np.inf]))]:  # fmt: skip
         with pytest.raises(ValueError, match="violations"):
             efficient_points(v, c)
+
+
+def test_a_level_whose_cost_overflowed_is_dominated_not_an_error():
+    """A mean cost of +inf (episodes whose costs overflowed) is a number: beaten by any finite
+    level no riskier, kept only where nothing is as safe."""
+    v = np.array([0.1, 0.2, 0.05])
+    np.testing.assert_array_equal(efficient_points(v, np.array([1.0, np.inf, 3.0])), [2, 0])
+    np.testing.assert_array_equal(efficient_points(v, np.array([1.0, 0.5, np.inf])), [2, 0, 1])
 
 
 def _noisy_curve(rng, points, E):

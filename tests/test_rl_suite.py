@@ -231,14 +231,19 @@ def test_a_partial_comparison_never_replaces_the_presets_report(capsys, tmp_path
     --quick says where the report goes or that there is none."""
     for argv, named, folder in [
         (["--tasks", "SDJLS-Macro-v0"], "--tasks", "results/rl_suite"),
-        (["--configs", "ppo_residual", "--seeds", "2"], "--configs, --seeds", "results/rl_suite"),
+        (
+            ["--configs", "ppo_residual", "--seeds", "2"],
+            "--configs (or --algos/--variants), --seeds",
+            "results/rl_suite",
+        ),
         (["--timesteps", "1000"], "--timesteps", "results/rl_suite"),
         (["--preset", "macro", "--seeds", "2"], "--seeds", "results/rl"),
     ]:
         with pytest.raises(SystemExit) as exc:
             compare_rl.parse_args(argv)
         err = capsys.readouterr().err
-        assert exc.value.code == 2 and named in err and folder in err and "--out" in err
+        assert exc.value.code == 2 and f"error: {named} other than the preset's" in err
+        assert f"the full report in {folder}; give --out" in err
         assert compare_rl.parse_args([*argv, "--train-only"]).out == Path(folder)
         assert compare_rl.parse_args([*argv, "--out", str(tmp_path)]).out == tmp_path
     # the preset itself, in any order of its tasks, scores into its folder
@@ -412,7 +417,7 @@ def test_evaluate_cli_scores_a_kept_run(tmp_path, capsys):
     for argv, needle in [
         (["--run", str(COMMITTED), "--algo", "ppo"], "--algo does not apply to --run"),
         (["--run", str(COMMITTED), "--env-id", "SDJLS-Solar-v0"], "acts on SDJLS-Macro-v0"),
-        (["--run", str(tmp_path / "none.json")], "--run"),
+        (["--run", str(tmp_path / "none.json")], "no run record"),
         (["--run", str(COMMITTED), "--policy", "x:y"], "not allowed with argument"),
         ([], "one of the arguments --policy --run is required"),
     ]:

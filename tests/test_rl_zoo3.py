@@ -146,7 +146,8 @@ def test_an_agent_of_a_zoo_file_is_scored_with_one_flag(algo, zoo_utils, tmp_pat
     capsys.readouterr()
     with pytest.raises(SystemExit) as exc:
         evaluate.main(["--policy", str(path), "--algo", algo, "--episodes", "20"])
-    assert exc.value.code == 2 and "--train-env" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "RawEnvPolicy(agent, train_env)" in err and "--train-env" in err
 
 
 @pytest.mark.slow

@@ -40,6 +40,10 @@ def test_quick_study_resumes_with_the_next_trial_numbers(tmp_path):
     # each finished trial's spending: its wall time from Optuna's stamps, its CPU time recorded
     for t in second["trials"]:
         assert t["wall_s"] > 0 and t["cpu_s"] > 0
+        if t["state"] == "COMPLETE":  # --quick: 500 steps x 1 seed
+            assert t["env_steps"] == 500
+        else:  # pruned: where its learning curve stopped
+            assert t["env_steps"] == max(int(k) for k in t["intermediate"])
     # every finished trial kept its run, named by its configuration (the trial's overrides)
     runs = [name for t in second["trials"] for name in t["runs"]]
     assert len(set(runs)) == len(runs) >= 2

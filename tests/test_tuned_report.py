@@ -130,23 +130,26 @@ def test_quick_command_scores_default_and_tuned_runs(tmp_path):
 
 
 def test_spent_budget_and_search_space_are_reported(monkeypatch, tmp_path):
-    """The study's spending by hand: steps to each trial's last learning-curve point (a pruned
-    or failed trial's too) times 2 seeds, the finished trials' wall times summed (a running
-    trial has no stamps, a failed one's span a stopped process), the CPU times of the trials
-    that recorded one; TUNED.md states them and the
-    search space line by line."""
+    """The study's spending by hand (600k steps x 2 seeds per trial): a complete trial that
+    recorded nothing counts both seeds' budget, a pruned or failed one its last learning-curve
+    step (pruning stops a trial in its first seed), a recorded ``env_steps`` counts as such; the
+    finished trials' wall times are summed (a running trial has no stamps, a failed one's span
+    a stopped process), and the CPU times of those that recorded one; TUNED.md states them and
+    the search space line by line."""
     study = {
         **STUDY,
         "settings": {**STUDY["settings"], "seeds": 2},
         "search_space": ["learning_rate: log-uniform in [3e-05, 0.003]", "net_arch: one of 64x64"],
         "trials": [
-            {"number": 0, "state": "COMPLETE", "intermediate": {"300": 0.1, "600": 0.0},
+            {"number": 0, "state": "COMPLETE", "intermediate": {"300000": 0.1, "600000": 0.0},
              "wall_s": 1800.0, "cpu_s": None},
-            {"number": 1, "state": "PRUNED", "intermediate": {"300": 2.0},
+            {"number": 1, "state": "PRUNED", "intermediate": {"180000": 2.0},
              "wall_s": 900.0, "cpu_s": 720.0},
             {"number": 2, "state": "RUNNING", "intermediate": {}, "wall_s": None, "cpu_s": None},
-            {"number": 3, "state": "FAIL", "intermediate": {"300": 2.5}, "wall_s": 9e4,
+            {"number": 3, "state": "FAIL", "intermediate": {"60000": 2.5}, "wall_s": 9e4,
              "cpu_s": None},
+            {"number": 4, "state": "PRUNED", "intermediate": {"240000": 2.0}, "wall_s": None,
+             "cpu_s": None, "env_steps": 250000},
         ],
     }  # fmt: skip
     path = tmp_path / "study.json"
@@ -154,9 +157,10 @@ def test_spent_budget_and_search_space_are_reported(monkeypatch, tmp_path):
     _fake_scoring(monkeypatch, [-1.0, 0.0], [-2.0, 1.0])
     (r,) = tuned_report.main(["--tuned", str(path), "--seeds", "2", "--runs", str(tmp_path),
                               "--out", str(tmp_path / "rep")])  # fmt: skip
-    assert r["spent"] == {"env_steps": (600 + 300 + 300) * 2, "wall_h": 2700 / 3600,
-                          "wall_trials": 2, "cpu_h": 720 / 3600, "cpu_trials": 1, "trials": 4}  # fmt: skip
+    steps = 600000 * 2 + 180000 + 0 + 60000 + 250000
+    assert r["spent"] == {"env_steps": steps, "wall_h": 2700 / 3600, "wall_trials": 2,
+                          "cpu_h": 720 / 3600, "cpu_trials": 1, "trials": 5}  # fmt: skip
     text = (tmp_path / "rep" / "TUNED.md").read_text()
-    assert "Spent: 0.00M env steps over its 4 trials" in text
+    assert "Spent: 1.69M env steps over its 5 trials" in text
     assert "sum to 0.75 h (2 trials" in text and "used 0.20 CPU-hours" in text
     assert "- learning_rate: log-uniform in [3e-05, 0.003]\n- net_arch: one of 64x64" in text
