@@ -16,13 +16,12 @@ from :data:`TUNE_SEED0` on (seeds the comparison never uses, so that a tuned con
 retrained on fresh seeds 0-4). Its learning curve is scored at each point by
 :func:`point_objective`: the episode cost minus the task's receding-horizon curve at the same
 violation frequency (on the learning curve's own episodes, not the evaluation's), relative to the
-RHC's cost at the task's ``xi``; riskier than any point of the curve scores above 1, diverging
-above 2. The trial's value is the mean over seeds of the points after 70% of training (lower is
-better).
+RHC's cost at the task's ``xi``; riskier than the curve scores above 1, diverging above 2. The
+trial's value is the mean over seeds of the points after 70% of training (lower is better).
 
 Outputs under ``--out`` (default ``results/tune``; with ``--quick``, a temporary folder): the
 study database (unless ``--storage`` names another), ``runs/<task>/`` (the trials' kept runs) and
-``<study>.json`` (the search space, every trial and the best).
+``<study>.json`` (the search space, every trial with its spending, and the best).
 """
 
 from __future__ import annotations
@@ -410,7 +409,6 @@ def optimize_optuna(study: Any, opts: Options, log: Any) -> None:
 
     def objective(trial: Any) -> float:
         params = suggest(trial, opts.algo, opts.variant)
-
         reached = [0]  # the first seed's last reported step: where a pruned trial stopped
 
         def report(value: float, step: int) -> None:
@@ -520,14 +518,11 @@ def optimize_ray(study: Any, opts: Options, log: Any) -> None:
 
 # ----------------------------------------------------------------------------- summary
 def _trial_times(trial: Any) -> dict[str, float | None]:
-    """A finished trial's wall time from Optuna's start and end stamps (every trial has them),
-    its CPU time and env steps where the trial recorded them (trials run in this process since
-    2026-12-04)."""
-    start, end = trial.datetime_start, trial.datetime_complete
+    """A finished trial's wall time (Optuna's stamps), its CPU time and env steps where it
+    recorded them (trials run by ``optimize_optuna`` since 2026-12-04)."""
+    start, end, attrs = trial.datetime_start, trial.datetime_complete, trial.user_attrs
     wall = None if start is None or end is None else (end - start).total_seconds()
-    cpu, steps = trial.user_attrs.get("cpu_s"), trial.user_attrs.get("env_steps")
-    return {"wall_s": wall, "cpu_s": None if cpu is None else float(cpu),
-            "env_steps": None if steps is None else int(steps)}  # fmt: skip
+    return {"wall_s": wall, "cpu_s": attrs.get("cpu_s"), "env_steps": attrs.get("env_steps")}
 
 
 def summarize(study: Any, opts: Options) -> dict[str, Any]:
