@@ -354,8 +354,9 @@ def parse_args(argv: list[str] | None = None) -> Options:
         tuned_overrides(opts.tuned)
     except ValueError as exc:
         parser.error(str(exc))
-    if opts.tuned and not (opts.train_only or opts.quick) and opts.out is None:
-        # the report would replace the committed one of the default runs with one of the tuned
+    # a report written into the preset's folder replaces its committed report of all the runs
+    into_preset = not (opts.train_only or opts.quick) and opts.out is None
+    if opts.tuned and into_preset:  # the tuned runs' report in place of the default runs'
         parser.error(
             "--tuned without --train-only or --out: the report would replace the default "
             "runs' report in the preset's folder; train with --train-only and compare with "
@@ -367,8 +368,7 @@ def parse_args(argv: list[str] | None = None) -> Options:
         ("--seeds", opts.seeds != preset["seeds"]),
         ("--timesteps", opts.timesteps is not None),
     ) if differs]  # fmt: skip
-    if partial and not (opts.train_only or opts.quick) and opts.out is None:
-        # the report of these runs would replace the preset's committed report of all of them
+    if partial and into_preset:
         parser.error(
             f"{', '.join(partial)} other than the preset's ({opts.preset!r}) without --out: the "
             f"report of these runs would replace the full report in {preset['out']}; give --out "

@@ -519,7 +519,7 @@ def optimize_ray(study: Any, opts: Options, log: Any) -> None:
 # ----------------------------------------------------------------------------- summary
 def _trial_times(trial: Any) -> dict[str, float | None]:
     """A finished trial's wall time (Optuna's stamps), its CPU time and env steps where it
-    recorded them (trials run by ``optimize_optuna`` since 2026-12-04)."""
+    recorded them (``optimize_optuna`` records both; older trials and Ray's do not)."""
     start, end, attrs = trial.datetime_start, trial.datetime_complete, trial.user_attrs
     wall = None if start is None or end is None else (end - start).total_seconds()
     return {"wall_s": wall, "cpu_s": attrs.get("cpu_s"), "env_steps": attrs.get("env_steps")}

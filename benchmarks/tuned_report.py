@@ -67,7 +67,7 @@ def _spent(summary: dict[str, Any]) -> dict[str, Any]:
     """What a study spent: its trials' env steps (as recorded; a trial that recorded none: all
     seeds' budget if complete, else its last learning-curve step, where pruning stops a trial
     during its first seed), the sum of the finished trials' wall times and of the CPU times
-    they recorded (trials run before 2026-12-04 recorded neither). Ray Tune numbers a pruned
+    they recorded (older trials recorded neither). Ray Tune numbers a pruned
     trial's points by iteration, not step: its studies' pruned trials count only if recorded."""
     settings = summary["settings"]
     budget = int(settings.get("timesteps") or 0) * int(settings.get("seeds") or 1)
