@@ -296,9 +296,9 @@ class Options:
         default=None,
         metadata={
             "help": "summaries of benchmarks.tune studies (<out>/<study>.json): their best "
-            "hyperparameters replace the defaults of that task's configuration (seeds from 0: "
-            "never the tuning's); with --train-only (then python -m benchmarks.tuned_report), "
-            "--out or --quick",
+            "hyperparameters replace the defaults of that task's configuration, trained at the "
+            "study's budget unless --timesteps (seeds from 0: never the tuning's); with "
+            "--train-only (then python -m benchmarks.tuned_report), --out or --quick",
             "metavar": "STUDY.json",
         },
     )
@@ -351,7 +351,7 @@ def parse_args(argv: list[str] | None = None) -> Options:
     if opts.score_only and (opts.train_only or opts.retrain):
         parser.error("--score-only with --train-only or --retrain: give one of them")
     try:
-        tuned_overrides(opts.tuned)
+        tuned_studies(opts.tuned)
     except ValueError as exc:
         parser.error(str(exc))
     # a report written into the preset's folder replaces its committed report of all the runs
@@ -385,18 +385,23 @@ def parse_args(argv: list[str] | None = None) -> Options:
     return opts
 
 
-def tuned_overrides(paths: list[Path] | None) -> dict[tuple[str, str, str], tuple]:
-    """``(task, algo, variant) -> overrides`` of the best trial of each ``benchmarks.tune``
-    summary in ``paths``."""
-    out: dict[tuple[str, str, str], tuple] = {}
+def tuned_studies(paths: list[Path] | None) -> dict[tuple[str, str, str], tuple[tuple, int]]:
+    """``(task, algo, variant) -> (overrides, timesteps)`` of each ``benchmarks.tune`` summary
+    in ``paths``: its best trial's hyperparameters and the budget it tuned at (a tuned
+    configuration is retrained, and compared with the default one, at that budget)."""
+    out: dict[tuple[str, str, str], tuple[tuple, int]] = {}
     for path in paths or []:
         try:
-            key, overrides, _ = read_summary(path)
+            key, overrides, summary = read_summary(path)
         except ValueError as exc:
             raise ValueError(f"--tuned {exc}") from None
         if key in out:
             raise ValueError(f"--tuned {path}: a second study of {key}")
-        out[key] = overrides
+        steps = summary["settings"].get("timesteps")
+        if not isinstance(steps, int) or steps < 1:
+            raise ValueError(f"--tuned {path}: settings.timesteps = {steps!r}; expected the "
+                             "study's budget, a positive integer")  # fmt: skip
+        out[key] = (overrides, steps)
     return out
 
 
@@ -413,9 +418,11 @@ def filled(name: str, value: _T | None) -> _T:
 
 def specs_of(opts: Options) -> list[Any]:
     """The runs of ``opts`` (:func:`benchmarks.rl_train.run_specs`)."""
+    studies = tuned_studies(opts.tuned)
     return run_specs(opts.config_pairs(), filled("seeds", opts.seeds), opts.timesteps, opts.quick,
-                     filled("tasks", opts.tasks),
-                     PRESETS[opts.preset]["budgets"], tuned_overrides(opts.tuned))  # fmt: skip
+                     filled("tasks", opts.tasks), PRESETS[opts.preset]["budgets"],
+                     {key: o for key, (o, _) in studies.items()},
+                     {key: steps for key, (_, steps) in studies.items()})  # fmt: skip
 
 
 def _holds_a_full_comparison(out: Path) -> bool:

@@ -36,7 +36,8 @@ episode diverged, or its violation frequency lies outside the curve's range) is 
 configuration's table, not the run (which would keep the lucky seeds); of the remaining tasks the
 seeds kept on all of them are used. What is left out is listed with its reason, and the table
 states how many tasks and seeds each aggregate covers. The sample-efficiency figure is the IQM
-of the normalized gap along training, from the learning curves (:func:`sample_efficiency`).
+of the normalized gap along training, from the learning curves, at the steps where every run of
+the configuration has a point (:func:`sample_efficiency`; budgets may differ by task).
 
 Scoring cost (CPU seconds, measured on the shared 2-core machine at load average 9-10, one
 torch thread): one agent on one task, 1000 episodes, 2.1 s (the rollout itself 0.1 s; the rest
@@ -384,26 +385,29 @@ def across_tasks(reports: list[TaskReport], configs: list[str],
 
 def sample_efficiency(reports: list[TaskReport], across: list[ConfigAcross],
                       resamples: int = AGGREGATE_RESAMPLES) -> dict[str, dict[str, list]]:  # fmt: skip
-    """Per configuration, along its learning curves: the training steps (median over runs at
-    each point), the IQM of the normalized gaps over the runs and tasks of its aggregate
-    (:attr:`ConfigAcross.rhc_tasks`, :attr:`~ConfigAcross.rhc_seeds`) with its 95% interval,
-    None at a point where one of those cells has no gap, and the share of all its kept runs x
-    tasks with a gap there."""
+    """Per configuration, along its learning curves: at each training step that every kept run
+    of the configuration has a learning-curve point at (budgets may differ by task: a task
+    trained twice as long contributes every other point), the IQM of the normalized gaps over
+    the runs and tasks of its aggregate (:attr:`ConfigAcross.rhc_tasks`,
+    :attr:`~ConfigAcross.rhc_seeds`) with its 95% interval, None at a step where one of those
+    cells has no gap, and the share of all its kept runs x tasks with a gap there."""
     out: dict[str, dict[str, list]] = {}
     for c in across:
         agents = [a for r in reports for a in r.agents if a.config == c.config]
         if not agents:
             continue
-        n = min(len(a.curve_gaps) for a in agents)
-        used = [a for a in agents if a.run.task in c.rhc_tasks and a.run.seed in c.rhc_seeds]
+        gap_at = [
+            {p.timesteps: g for p, g in zip(a.run.learning_curve, a.curve_gaps, strict=False)}
+            for a in agents
+        ]
+        steps = sorted(set.intersection(*(set(g) for g in gap_at)))
+        used = [(a, g) for a, g in zip(agents, gap_at, strict=True)
+                if a.run.task in c.rhc_tasks and a.run.seed in c.rhc_seeds]  # fmt: skip
         entry: dict[str, list] = {"steps": [], "iqm": [], "ci95": [], "share_with_gap": []}
-        for j in range(n):
-            entry["steps"].append(int(np.median([a.run.learning_curve[j].timesteps
-                                                 for a in agents])))  # fmt: skip
-            entry["share_with_gap"].append(
-                float(np.mean([a.curve_gaps[j] is not None for a in agents]))
-            )
-            cells = {(a.run.seed, a.run.task): a.curve_gaps[j] for a in used}
+        for step in steps:
+            entry["steps"].append(int(step))
+            entry["share_with_gap"].append(float(np.mean([g[step] is not None for g in gap_at])))
+            cells = {(a.run.seed, a.run.task): g[step] for a, g in used}
             point = ci = None
             if used and all(v is not None for v in cells.values()):
                 grid = np.array([[cells[(s, t)] for t in c.rhc_tasks] for s in c.rhc_seeds])

@@ -178,15 +178,18 @@ def run_specs(
     tasks: list[str] | tuple[str, ...] = (MACRO,),
     budgets: str = "suite",
     tuned: dict[tuple[str, str, str], tuple[tuple[str, Any], ...]] | None = None,
+    tuned_timesteps: dict[tuple[str, str, str], int] | None = None,
 ) -> list[RunSpec]:
     """Every (task, algorithm, variant, seed) run, task by task.
 
     ``budgets``: ``"suite"`` (:func:`HP.suite_timesteps`) or ``"macro"`` (:func:`HP.timesteps`,
     the budgets of ``results/rl``); ``timesteps`` replaces every default budget, ``quick`` makes
     them :data:`HP.QUICK_TIMESTEPS`. ``seeds``: a count (seeds 0 .. seeds - 1) or a list.
-    ``tuned``: hyperparameter overrides (:attr:`RunSpec.overrides`) by ``(task, algo, variant)``.
+    ``tuned``: hyperparameter overrides (:attr:`RunSpec.overrides`) by ``(task, algo, variant)``;
+    ``tuned_timesteps``: budgets by ``(task, algo, variant)`` in place of the default ones (the
+    budget a study tuned at), themselves replaced by ``timesteps`` and ``quick``.
     """
-    tuned = tuned or {}
+    tuned, tuned_timesteps = tuned or {}, tuned_timesteps or {}
     if budgets not in ("suite", "macro"):
         raise ValueError(f"budgets = {budgets!r}; expected 'suite' or 'macro'")
     lc = HP.LEARNING_CURVE
@@ -197,6 +200,8 @@ def run_specs(
             return timesteps
         if quick:
             return HP.QUICK_TIMESTEPS
+        if (task, algo, variant) in tuned_timesteps:
+            return tuned_timesteps[(task, algo, variant)]
         if budgets == "macro":
             return HP.timesteps(algo, variant)
         return HP.suite_timesteps(task, algo, variant)

@@ -2,8 +2,9 @@
 hyperparameters against the suite's runs of the same task, algorithm and variant.
 
 ``python -m benchmarks.tuned_report --tuned results/tune/STUDY.json [...]`` reads, for each
-study summary, the kept runs of the configuration on seeds 0 .. ``--seeds - 1`` twice: with the
-suite's default hyperparameters and with the study's best overrides (the runs that
+study summary, the kept runs of the configuration on seeds 0 .. ``--seeds - 1``, at the budget
+the study tuned at, twice: with the suite's default hyperparameters and with the study's best
+overrides (the runs that
 ``python -m benchmarks.compare_rl --tasks TASK --configs ALGO_VARIANT --tuned STUDY.json
 --train-only`` trains into the same ``--runs`` folder; the tuning's own seeds start at
 :data:`benchmarks.tune.TUNE_SEED0`, so these seeds are fresh). Both groups are scored as the
@@ -122,8 +123,10 @@ def compare_study(path: Path, run_dir: Path, seeds: int, episodes: int, seed: in
     key, overrides, summary = read_summary(path)
     task, algo, variant = key
     pair = [(algo, variant)]
-    default = run_specs(pair, seeds, None, quick, [task])
-    tuned = run_specs(pair, seeds, None, quick, [task], tuned={key: overrides})
+    budget = {key: int(summary["settings"]["timesteps"])}  # both groups at the study's budget
+    default = run_specs(pair, seeds, None, quick, [task], tuned_timesteps=budget)
+    tuned = run_specs(pair, seeds, None, quick, [task], tuned={key: overrides},
+                      tuned_timesteps=budget)  # fmt: skip
     specs: list[RunSpec] = [*default, *tuned]
     records = kept_runs(specs, run_dir)
     log(f"{task} {algo}_{variant}: {sum(r is not None for r in records)} of {len(specs)} "
@@ -271,7 +274,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         text = str(exc).replace("episodes = ", "--eval-episodes = ", 1)
         parser.error(text.replace("seed = ", "--seed = ", 1))
     try:
-        compare_rl.tuned_overrides(opts.tuned)
+        compare_rl.tuned_studies(opts.tuned)
     except ValueError as exc:
         parser.error(str(exc))
     if opts.runs is None:

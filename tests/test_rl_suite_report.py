@@ -112,6 +112,29 @@ def test_across_tasks_and_sample_efficiency_against_a_hand_computation():
         assert e["ci95"][j][0] <= e["iqm"][j] <= e["ci95"][j][1]
 
 
+def test_sample_efficiency_meets_budgets_that_differ_by_task_at_common_steps():
+    """A task trained twice as long (points at 0, 2000, .., 8000 against 0, 1000, .., 4000)
+    enters the IQM along training at the steps both grids have, each run's own point there."""
+    rng = np.random.default_rng(5)
+    curves = rng.normal(0.0, 10.0, size=(3, 2, 5))
+    reports = []
+    for t, task in enumerate(["short", "long"]):
+        agents = []
+        for s in range(3):
+            a = _agent(task, "td3_lagrangian", s, float(curves[s, t, -1]), None,
+                       [float(v) for v in curves[s, t]])  # fmt: skip
+            if task == "long":
+                a.run.learning_curve = [SimpleNamespace(timesteps=2000 * j) for j in range(5)]
+            agents.append(a)
+        reports.append(SimpleNamespace(env_id=task, agents=agents))
+    (c,) = across_tasks(reports, ["td3_lagrangian"], RESAMPLES)
+    e = sample_efficiency(reports, [c], RESAMPLES)["td3_lagrangian"]
+    assert e["steps"] == [0, 2000, 4000]
+    for k, (j_short, j_long) in enumerate([(0, 0), (2, 1), (4, 2)]):
+        grid = np.stack([curves[:, 0, j_short], curves[:, 1, j_long]], axis=1)
+        assert e["iqm"][k] == pytest.approx(_iqm(grid), rel=1e-12)
+
+
 def test_point_gap_is_the_paired_gaps_point_estimate():
     """A learning-curve point holds only its mean cost and violation frequency; its gap is the
     point estimate of paired_curve_gap on the same episodes (25 seeded episodes, 5 levels),

@@ -85,6 +85,21 @@ def test_groups_are_split_by_run_and_compared_as_by_hand(monkeypatch, tmp_path):
     assert out["compare_tree"]["iqm_difference"] == pytest.approx(5.0, abs=1e-12)
 
 
+def test_both_groups_are_read_at_the_study_budget(monkeypatch, tmp_path):
+    """Default and tuned runs are compared at the budget the study tuned at (600k here), not at
+    the suite's budget of the configuration, which may have moved since (1.2M on macro)."""
+    seen = []
+    _fake_scoring(monkeypatch, [0.0, 1.0], [2.0, 3.0])
+    fake = tuned_report.kept_runs
+    monkeypatch.setattr(
+        tuned_report, "kept_runs", lambda specs, d: seen.extend(specs) or fake(specs, d)
+    )
+    tuned_report.compare_study(_study(tmp_path), tmp_path, 2, 200, 0, False, log=str)
+    assert [(s.timesteps, bool(s.overrides)) for s in seen] == [(600_000, False)] * 2 + [
+        (600_000, True)
+    ] * 2
+
+
 def test_a_run_without_a_gap_leaves_its_group_unsummarized(monkeypatch, tmp_path):
     _fake_scoring(monkeypatch, [1.0, None, 2.0], [0.0, -1.0, -2.0])
     out = tuned_report.compare_study(_study(tmp_path), tmp_path, 3, 200, 0, True, log=str)
