@@ -184,8 +184,9 @@ def across_figures(out: Path, across: list[Any], efficiency: dict[str, dict[str,
     axes[0].set_ylabel("IQM of the normalized gap, %\n(where every run x task has one)")
     axes[1].set_ylabel("share of runs x tasks with a gap\n(no divergence, inside the curve)")
     axes[1].set_ylim(-0.02, 1.02)
-    axes[1].set_xlabel("training env steps (learning-curve points that every run of the "
-                       "configuration has)")
+    axes[1].set_xlabel(
+        "training env steps (learning-curve points that every run of the configuration has)"
+    )
     first = [s for e in efficiency.values() for s in e["steps"] if s > 0]
     _steps_axis(axes[1], min(first, default=1000))
     for ax in axes:
