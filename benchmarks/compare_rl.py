@@ -79,7 +79,7 @@ from benchmarks.rl_train import (
     run_specs,
 )
 from benchmarks.stats import curve_status, interval_check
-from benchmarks.tune import read_summary
+from benchmarks.tune_summary import read_summary
 from benchmarks.versions import package_versions
 from controllers import (
     LinearFeedbackController,
@@ -397,11 +397,7 @@ def tuned_studies(paths: list[Path] | None) -> dict[tuple[str, str, str], tuple[
             raise ValueError(f"--tuned {exc}") from None
         if key in out:
             raise ValueError(f"--tuned {path}: a second study of {key}")
-        steps = summary["settings"].get("timesteps")
-        if not isinstance(steps, int) or steps < 1:
-            raise ValueError(f"--tuned {path}: settings.timesteps = {steps!r}; expected the "
-                             "study's budget, a positive integer")  # fmt: skip
-        out[key] = (overrides, steps)
+        out[key] = (overrides, summary["settings"]["timesteps"])  # checked by read_summary
     return out
 
 

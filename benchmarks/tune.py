@@ -44,6 +44,7 @@ from benchmarks.files import stable_floats, write_atomic
 from benchmarks.rl_envs import get_task, task_settings
 from benchmarks.rl_train import ALGOS, VARIANTS, CurvePoint, RunSpec, save_run, train_run
 from benchmarks.stats import efficient_points
+from benchmarks.tune_summary import read_summary
 from sdjls_gym import SUITE
 
 __all__ = [
@@ -548,23 +549,6 @@ def summarize(study: Any, opts: Options) -> dict[str, Any]:
                                            "params": best.params,
                                            "overrides": dict(overrides(best.params, opts.task))},
     }  # fmt: skip
-
-
-def read_summary(path: str | Path) -> tuple[tuple[str, str, str], tuple[tuple[str, Any], ...],
-                                            dict[str, Any]]:  # fmt: skip
-    """``((task, algo, variant), overrides, summary)`` of a ``<out>/<study>.json`` written by
-    :func:`main`: the best trial's overrides as sorted ``(name, value)`` pairs
-    (:attr:`benchmarks.rl_train.RunSpec.overrides`). A ValueError names a file that is not a
-    summary, or whose study has no complete trial."""
-    try:
-        data = json.loads(Path(path).read_text())
-        settings, best = data["settings"], data["best"]
-        key = (str(settings["task"]), str(settings["algo"]), str(settings["variant"]))
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"{path}: not a benchmarks.tune summary ({exc!r})") from None
-    if best is None or not isinstance(best.get("overrides"), dict):
-        raise ValueError(f"{path}: the study has no complete trial")
-    return key, tuple(sorted(best["overrides"].items())), data
 
 
 def _log(msg: str) -> None:

@@ -44,7 +44,7 @@ from benchmarks.rl_suite_report import (
 )
 from benchmarks.rl_suite_tables import gap_text
 from benchmarks.rl_train import RunSpec, run_specs
-from benchmarks.tune import read_summary
+from benchmarks.tune_summary import read_summary
 
 __all__ = ["DEFAULT_OUT", "QUICK_OUT", "compare_study", "main"]
 
@@ -123,7 +123,7 @@ def compare_study(path: Path, run_dir: Path, seeds: int, episodes: int, seed: in
     key, overrides, summary = read_summary(path)
     task, algo, variant = key
     pair = [(algo, variant)]
-    budget = {key: int(summary["settings"]["timesteps"])}  # both groups at the study's budget
+    budget = {key: summary["settings"]["timesteps"]}  # both groups at the study's budget
     default = run_specs(pair, seeds, None, quick, [task], tuned_timesteps=budget)
     tuned = run_specs(pair, seeds, None, quick, [task], tuned={key: overrides},
                       tuned_timesteps=budget)  # fmt: skip

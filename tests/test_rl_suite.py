@@ -304,11 +304,13 @@ def test_tuned_configuration_is_retrained_at_the_study_budget(tmp_path, capsys):
             else:
                 expected = 777 if extra else HP.suite_timesteps(*key)
                 assert (s.timesteps, s.overrides) == (expected, ())
-    study["settings"]["timesteps"] = "many"
-    path.write_text(json.dumps(study))
-    with pytest.raises(SystemExit):
-        compare_rl.parse_args(base)
-    assert "settings.timesteps = 'many'; expected the study's budget" in capsys.readouterr().err
+    for bad in ("many", True, 0):  # a bool is not a budget (json's true would pass as 1)
+        study["settings"]["timesteps"] = bad
+        path.write_text(json.dumps(study))
+        with pytest.raises(SystemExit):
+            compare_rl.parse_args(base)
+        err = capsys.readouterr().err
+        assert f"settings.timesteps = {bad!r}; expected the study's budget" in err
 
 
 def test_quick_on_two_tasks(tmp_path, monkeypatch):
