@@ -253,9 +253,16 @@ SUITE_TIMESTEPS: dict[tuple[str, str], int] = {
     ("sac", "lagrangian"): 40_000,
     ("td3", "lagrangian"): 100_000,
 }
-#: Per-task changes to :data:`SUITE_TIMESTEPS`: ``{(task, algo, variant): steps}``.
+#: Per-task changes to :data:`SUITE_TIMESTEPS`: ``{(task, algo, variant): steps}``; each a
+#: doubling where that task's curves were not flat at the suite's budget.
 SUITE_TIMESTEPS_TASK: dict[tuple[str, str, str], int] = {
     ("SDJLS-Macro-v0", "ppo", "residual"): 1_200_000,
+    ("SDJLS-Macro-v0", "td3", "lagrangian"): 200_000,
+    ("SDJLS-VTOL-v0", "ppo", "reward"): 1_200_000,
+    ("SDJLS-VTOL-v0", "ppo", "residual"): 1_200_000,
+    ("SDJLS-VTOL-v0", "ppo", "lagrangian"): 1_200_000,
+    ("SDJLS-VTOL-v0", "sac", "lagrangian"): 80_000,
+    ("SDJLS-ThreeState-v0", "sac", "lagrangian"): 80_000,
 }
 
 
