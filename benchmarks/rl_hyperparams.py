@@ -244,8 +244,8 @@ SUITE_SEEDS = 5
 #: 5 seeds) must fit in 12 CPU-hours of training. First set by that cap alone (TD3 at 50k);
 #: then doubled where the flatness test found the curves not flat and the cap had room. Per-step
 #: costs (median CPU ms over the committed runs, one torch thread, two to six trainings at once):
-#: PPO about 0.23, SAC 6.2, TD3 3.2, varying 2x with the machine's load. The measured totals and what
-#: the flatness test said: ``results/rl_suite/HISTORY.md``.
+#: PPO about 0.23, SAC 6.2, TD3 3.2, varying 2x with the machine's load. The measured totals and
+#: what the flatness test said: ``results/rl_suite/HISTORY.md``.
 SUITE_TIMESTEPS: dict[tuple[str, str], int] = {
     ("ppo", "reward"): 600_000,
     ("ppo", "residual"): 600_000,
