@@ -100,17 +100,19 @@ def write_markdown(res: dict[str, Any], cmd: str) -> str:
         "One decision of `ScenarioTreeController` on the macro example (closed-loop states of the "
         "paper's controller), against the same tree written plainly in cvxpy (Clarabel) and "
         "against one-step act() on the same states (timed in alternating rounds with the tree's; "
-        "the ratio is the median of the rounds' ratios). A decision solves the tree's QP once per fixed-point "
-        "iteration on the branch probabilities (at most 10, the default; 'converged': no region probability "
-        f"moved by more than {PROB_TOL:g} at the last one), starting from the plan of nu = 0 with "
-        "each node's mean moved into the interval its parent's chance rows allow, with Aitken's "
-        "extrapolation of linearly converging iterates; the fast path re-solves the last "
-        "active set exactly first (warm start), then tries a few primal-dual active-set steps "
-        "from it, and runs DAQP only when neither verifies.",
+        "the ratio is the median of the rounds' ratios; as many states as timed calls, so that no "
+        "decision is timed twice on one state). A decision solves the tree's QP once per "
+        "fixed-point iteration on the branch probabilities (at most 10, the default; 'converged': "
+        f"no region probability moved by more than {PROB_TOL:g} at the last one), starting from "
+        "the plan of nu = 0 with each node's mean moved into the interval its parent's chance rows "
+        "allow, then Newton's step along the first iteration's move (the answer's change with its "
+        "active set held; Aitken's extrapolation after it); the fast path re-solves the last "
+        "active set exactly first (warm start), then the sets optimal before it (earlier set), "
+        "then tries a few primal-dual active-set steps, and runs DAQP only when none verifies.",
         "",
         "| steps | branching | nodes | QP variables | act() | QP solves per decision | "
-        "fixed point converged | solves by warm start | cvxpy reference | speedup | "
-        "vs one-step act() | max abs diff of u (states) |",
+        "fixed point converged | solves by warm start (last / earlier set) | cvxpy reference | "
+        "speedup | vs one-step act() | max abs diff of u (states) |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in tree:
@@ -118,7 +120,8 @@ def write_markdown(res: dict[str, Any], cmd: str) -> str:
             f"| {row['steps']} | {row['branching']} | {row['nodes']} | {row['variables']} | "
             f"{row['act_us']:,.0f} us | {row['qp_solves_per_decision']:.2f} | "
             f"{100 * row['fixed_point_converged_share']:.0f}% | "
-            f"{100 * row['warm_start_share']:.0f}% | {row['cvxpy_us']:,.0f} us | "
+            f"{100 * row['warm_start_share']:.0f}% / "
+            f"{100 * row.get('recent_set_share', 0.0):.0f}% | {row['cvxpy_us']:,.0f} us | "
             f"{row['speedup_vs_cvxpy']:.0f}x | {row['vs_one_step_act']:.0f}x | "
             f"{row['max_abs_diff_u_vs_cvxpy']:.1e} ({row['cvxpy_states']}) |"
         )

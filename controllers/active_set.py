@@ -92,7 +92,8 @@ class ActiveSetQP:
         self.d, self.c = d, c
         self._maps = maps
         self.C, self.absC = C, np.abs(C)
-        # the active bounds of each candidate (kkt.snap_bounds): row and coefficient per variable
+        # the active bounds of each candidate (kkt_maps.snap_bounds): row and coefficient per
+        # variable
         self._snap_row = np.full((len(maps), d), -1, dtype=np.int64)
         self._snap_coef = np.ones((len(maps), d))
         for i, m in enumerate(maps):

@@ -30,12 +30,11 @@ one test, for problem P3 and for the scenario tree alike:
   reduced Hessian can make the magnitudes so large (1e10 for a multiplier of -3.8) that a point
   above the optimum would pass.
 
-Two forms compute the same numbers: :func:`controllers.kkt_maps.active_set_maps` (the maps as matrices over the
-whole ``w``, for families with a fixed Hessian that solve many instances, e.g. P3 and its
-enumeration) and :func:`check_active_set` (one instance, for the scenario tree, whose Hessian
-changes at every solve and whose maps would be large). Both are built from one
-:class:`ActiveSetFactor` (the part that depends only on ``C`` and ``S``) and one
-:func:`reduce_hessian` (the part that depends on ``P``).
+Two forms compute the same numbers from one :class:`ActiveSetFactor` (the part that depends
+only on ``C`` and ``S``) and one :func:`reduce_hessian` (the part that depends on ``P``): the
+maps over the whole ``w`` (:mod:`controllers.kkt_maps`; P3 and its enumeration, whose Hessian
+is fixed, and the scenario tree's pairs of Hessian and active set met again) and
+:func:`check_active_set` (one instance, for the scenario tree, whose Hessian changes).
 """
 
 from __future__ import annotations
@@ -53,7 +52,6 @@ __all__ = [
     "confirm_multipliers",
     "reduce_hessian",
     "solve_stacked",
-    "snap_bounds",
 ]
 
 #: Relative tolerance of the KKT test: a residual is accepted when it is at most this fraction of
@@ -88,8 +86,7 @@ def _ruiz(CS: np.ndarray, d: int, sweeps: int = 30) -> tuple[np.ndarray, np.ndar
 def _blocks(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """The block-diagonal ``[[A, 0], [0, B]]``."""
     out = np.zeros((A.shape[0] + B.shape[0], A.shape[1] + B.shape[1]))
-    out[: A.shape[0], : A.shape[1]] = A
-    out[A.shape[0] :, A.shape[1] :] = B
+    out[: A.shape[0], : A.shape[1]], out[A.shape[0] :, A.shape[1] :] = A, B
     return out
 
 
@@ -350,17 +347,6 @@ def active_set_factor(
     )
 
 
-def snap_bounds(z: list[float], bounds: tuple, w: np.ndarray) -> list[float]:
-    """``z`` with each variable of an active bound set to the bound exactly (``h_i / C_ij``):
-    the active set's solution meets its bounds exactly, so only round-off is removed (a slack
-    whose bound ``rho >= 0`` is active is 0, not -1e-17)."""
-    if bounds:
-        d = len(z)
-        for i, j, a in bounds:
-            z[j] = float(w[d + i]) / a
-    return z
-
-
 def _free_scaling(fac: ActiveSetFactor, flat: np.ndarray) -> np.ndarray:
     """``Dc`` of the variables ``N``: the Ruiz scaling of those in a reduced row; one in no
     reduced row is scaled by its curvature, ``1 / sqrt(P_jj)`` (1 where ``P_jj = 0``).
@@ -419,7 +405,9 @@ def reduce_hessian(fac: ActiveSetFactor, P: np.ndarray):
     return Dc, Pt, Y, P_NB, ops
 
 
-def solve_stacked(fac: ActiveSetFactor, red: tuple, P: np.ndarray, W2: np.ndarray):
+def solve_stacked(
+    fac: ActiveSetFactor, red: tuple, P: np.ndarray, W2: np.ndarray, maps: tuple | None = None
+):
     """The exact solution of the active set for the instances ``W`` (d + c, k) given stacked
     with the magnitudes of their entries, ``W2 = [W; |W|]`` (``|W|``: the identity for the
     maps), and the magnitude of the terms of every quantity.
@@ -430,7 +418,10 @@ def solve_stacked(fac: ActiveSetFactor, red: tuple, P: np.ndarray, W2: np.ndarra
     product with a block-diagonal operator (:attr:`ActiveSetFactor.consts`) on the stacked
     values and magnitudes. The same products serve the maps (:func:`active_set_maps`) and one
     instance (:func:`check_active_set`); the parts that are empty for this active set (no
-    bound, no pivot row, no null space) are skipped."""
+    bound, no pivot row, no null space) are skipped. ``maps``: these products as two matrices
+    (:func:`controllers.kkt_maps.stacked_maps`), applied instead when given."""
+    if maps is not None:
+        return maps[0] @ W2, maps[1] @ W2
     Dc, Pt, Y, P_NB, ops = red
     d = P.shape[0]
     k = W2.shape[1]
@@ -539,6 +530,8 @@ def check_active_set(
     w: np.ndarray,
     absC: np.ndarray | None = None,
     report: dict | None = None,
+    red: tuple | None = None,
+    maps: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[float] | None:
     """``z`` (a list of d floats) if the active set of ``fac`` passes the KKT test at the
     instance ``w`` of ``min 1/2 z'Pz + q'z  s.t.  C z <= h``, else None.
@@ -548,33 +541,31 @@ def check_active_set(
     it. ``report``: a dict that receives, when the test fails, ``"add"`` (the inactive rows
     violated beyond their tolerance, most violated first, relative to it) and ``"drop"`` (the
     active rows whose multipliers are negative beyond their tolerance); both empty when the set
-    is not a candidate.
+    is not a candidate. ``red``: :func:`reduce_hessian` of ``fac`` and ``P``, when the caller
+    has it; ``maps``: see :func:`solve_stacked`.
     """
     if report is not None:
         report.update(add=[], drop=[])
-    red = reduce_hessian(fac, P)
+    red = reduce_hessian(fac, P) if red is None else red
     if red is None:
         return None
-    d = P.shape[0]
-    s_all = fac.idx.size
-    with np.errstate(over="ignore", invalid="ignore"):
-        z2, lam2 = solve_stacked(fac, red, P, np.concatenate([w, np.abs(w)])[:, None])
-    z, lam, lam_T = z2[:d, 0], lam2[:s_all, 0], lam2[s_all:, 0]
+    d, s_all, gen = P.shape[0], fac.idx.size, fac.gen
     h = w[d:]
-    gen = fac.gen
     absC = np.abs(C) if absC is None else absC
-    primal = C @ z - h  # every row, at the returned z, against its own terms
-    primal_T = absC @ np.abs(z) + np.abs(h)
-    if gen.size and np.any(np.abs(primal[gen]) > KKT_TOL * primal_T[gen]):
-        # one step of iterative refinement on the general rows (see ActiveSetMaps)
-        r = np.zeros_like(w)
-        r[d + gen] = primal[gen]
-        with np.errstate(over="ignore", invalid="ignore"):
-            dz = solve_stacked(fac, red, P, np.concatenate([r, np.abs(r)])[:, None])[0][:d, 0]
-        z = z - dz
-        z[fac.b_vars] = h[fac.b_rows] / fac.b_coef
-        primal = C @ z - h
+    with np.errstate(over="ignore", invalid="ignore"):  # a number not finite fails below
+        z2, lam2 = solve_stacked(fac, red, P, np.concatenate([w, np.abs(w)])[:, None], maps)
+        z, lam, lam_T = z2[:d, 0], lam2[:s_all, 0], lam2[s_all:, 0]
+        primal = C @ z - h  # every row, at the returned z, against its own terms
         primal_T = absC @ np.abs(z) + np.abs(h)
+        if gen.size and np.any(np.abs(primal[gen]) > KKT_TOL * primal_T[gen]):
+            # one step of iterative refinement on the general rows (see ActiveSetMaps)
+            r = np.zeros_like(w)
+            r[d + gen] = primal[gen]
+            dz2 = solve_stacked(fac, red, P, np.concatenate([r, np.abs(r)])[:, None], maps)[0]
+            z = z - dz2[:d, 0]
+            z[fac.b_vars] = h[fac.b_rows] / fac.b_coef
+            primal = C @ z - h
+            primal_T = absC @ np.abs(z) + np.abs(h)
     primal[fac.idx] = np.abs(primal[fac.idx])  # the active rows are equalities
     resid = np.concatenate([primal, -lam])
     terms = np.concatenate([primal_T, lam_T])

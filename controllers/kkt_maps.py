@@ -21,11 +21,21 @@ from .kkt import (
     active_set_factor,
     confirm_multipliers,
     reduce_hessian,
-    snap_bounds,
     solve_stacked,
 )
 
-__all__ = ["ActiveSetMaps", "active_set_maps"]
+__all__ = ["ActiveSetMaps", "active_set_maps", "snap_bounds", "stacked_maps"]
+
+
+def snap_bounds(z: list[float], bounds: tuple, w: np.ndarray) -> list[float]:
+    """``z`` with each variable of an active bound set to the bound exactly (``h_i / C_ij``):
+    the active set's solution meets its bounds exactly, so only round-off is removed (a slack
+    whose bound ``rho >= 0`` is active is 0, not -1e-17)."""
+    if bounds:
+        d = len(z)
+        for i, j, a in bounds:
+            z[j] = float(w[d + i]) / a
+    return z
 
 
 @dataclass(frozen=True, eq=False)
@@ -163,3 +173,25 @@ def active_set_maps(
     if not (np.all(np.isfinite(R)) and np.all(np.isfinite(T)) and np.all(np.isfinite(Z))):
         return None
     return ActiveSetMaps(fac.rows, Z, R, T, C, absC, fac.bounds, P)
+
+
+def stacked_maps(
+    fac: ActiveSetFactor, red: tuple, P: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`controllers.kkt.solve_stacked` of one active set and one Hessian as two matrices
+    ``(Fz, Fl)``: for the stacked instances ``W2 = [W; |W|]``, ``Fz @ W2`` and ``Fl @ W2`` are
+    its ``z2`` and ``lam2`` (the same products applied to the identity, as in
+    :func:`active_set_maps`; the values act on ``W``, the magnitudes on ``|W|``). For the
+    scenario tree, whose Hessian returns with the region probabilities, where one pair of
+    Hessian and active set is tested again and again. None when a number is not finite."""
+    d, width = P.shape[0], P.shape[0] + fac.n_rows
+    eye = np.eye(width)
+    z2, lam2 = solve_stacked(fac, red, P, np.vstack([eye, eye]))
+    if not (np.all(np.isfinite(z2)) and np.all(np.isfinite(lam2))):
+        return None
+    s = fac.idx.size
+    Fz = np.zeros((2 * d, 2 * width))
+    Fz[:d, :width], Fz[d:, width:] = z2[:d], z2[d:]
+    Fl = np.zeros((2 * s, 2 * width))
+    Fl[:s, :width], Fl[s:, width:] = lam2[:s], lam2[s:]
+    return Fz, Fl

@@ -16,13 +16,19 @@ The root's are the paper's (eq. eq:p_tran): row ``theta_k`` of ``P_in`` if ``G x
 of ``P_out``. A later node's are ``q P_in[theta] + (1 - q) P_out[theta]`` with
 ``q = Pr{G x <= H_{k+t}}`` for the node's state ``x ~ N(mean, Sigma)``. ``q`` depends on the
 decisions; to keep every solve a QP, the controller fixes the probabilities, solves, recomputes
-``q`` from the new plan's means and repeats (damped fixed-point iterations, at most
-``iterations`` solves; :data:`PROB_TOL` ends them early). They start from the plan of
-``nu = 0`` with each node's mean moved into the interval that its parent's chance rows allow
-(per class of parallel rows of ``G``, the nearest point): where the optimum keeps a row active,
-that is where it puts the mean, and the first solve then confirms the start (on the closed loop
-of the macroeconomic example, three decisions in four at ``steps = 3`` take one solve; from the
-plan of ``nu = 0`` itself every decision took at least two).
+``q`` from the new plan's means and repeats (fixed-point iterations, at most ``iterations``
+solves; :data:`PROB_TOL` ends them early). They start from the plan of ``nu = 0`` with each
+node's mean moved into the interval that its parent's chance rows allow (per class of parallel
+rows of ``G``, the nearest point): where the optimum keeps a row active, that is where it puts
+the mean, and the first solve then confirms the start (on the closed loop of the
+macroeconomic example, four decisions in five at ``steps = 3`` take one solve; from the plan of
+``nu = 0`` itself every decision took at least two). When it does not, the next ``q`` is
+Newton's step along the first move, ``q + t (q(plan) - q)``: the answer's change along that
+line is that of its active set held (the exact solve applied to the change of the QP's data,
+no new factorization), the region probabilities are evaluated exactly along it, and ``t``
+makes the residual ``q(plan) - q`` smallest (the other decisions take two solves, where the
+plain iteration with Aitken's extrapolation took three). Later steps are damped iterations with
+Aitken's extrapolation.
 This is an approximation of the state-dependent jumps in two ways: ``q`` is evaluated at the
 plan instead of being part of the optimization, and the Gaussian law of a node's state given
 its path ignores that a mode drawn from a random state tilts that state's law (the law of the
@@ -49,14 +55,18 @@ Solvers
 -------
 ``solver="daqp"`` (default): the tree's topology and constraint matrix are fixed per (mode,
 region) family; one :class:`controllers.tree_qp.TreeQP` per family (a
-:class:`controllers.qp.QPFamily`) has its Hessian updated at every solve (the path
-probabilities weight the stage costs) and is warm started: the last active set is re-solved
-exactly for the new data, then repaired by primal-dual active-set steps, then DAQP finds the
-active set (OSQP too, on small trees), which is re-solved exactly; the answer is verified by the
-KKT test. After failures the condensed QP goes to cvxpy + Clarabel (its active set verified),
-and as a last resort every ``nu = 0`` with the smallest feasible slacks. ``solver="osqp"``: the
-same with OSQP instead of DAQP. ``solver="cvxpy"``: the same tree written plainly in cvxpy
-(rebuilt at every solve, solved by Clarabel), the reference the tests compare against.
+:class:`controllers.qp.QPFamily`) has its Hessian updated at every solve (the path probabilities
+weight the stage costs) and is warm started: the last active set is re-solved exactly for the
+new data, then the sets optimal before it, then the last one is repaired by primal-dual
+active-set steps, then DAQP finds the active set (OSQP too, on small trees), which is re-solved
+exactly; the answer is verified by the KKT test. Whatever depends only on the probabilities (the
+Hessian, the weights of the objective's rows, and per active set the reduced Hessian and, once
+met again, the exact solve as two matrices) is kept for the probabilities met again, as they are
+wherever the chance rows are active. After failures the condensed QP goes to cvxpy + Clarabel
+(its active set verified), and as a last resort every ``nu = 0`` with the smallest feasible
+slacks. ``solver="osqp"``: the same with OSQP instead of DAQP. ``solver="cvxpy"``: the same tree
+written plainly in cvxpy (rebuilt at every solve, solved by Clarabel), the reference the tests
+compare against.
 
 Thread-safe (the base class's lock) and picklable.
 """
@@ -243,6 +253,8 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
         self._check_magnitudes()
         #: the families, built when a decision first needs one (within a memory budget)
         self._families = FamilyCache(self._build_family)
+        self._rows: tuple[int, ...] | None = None  # the active set of the last verified answer
+        self._dynamics: dict[tuple[int, bool], tuple[np.ndarray, np.ndarray]] = {}
 
     # ------------------------------------------------------------------ checks
     def _check_weight_ratio(self) -> None:
@@ -306,6 +318,11 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
         return regions.probability_within(proj, fam.proj_sd, ctx.limits)
 
     def _probabilities(self, fam: TreeFamily, q: np.ndarray) -> _Probabilities:
+        """The :class:`_Probabilities` of the region probabilities ``q`` (cached per family)."""
+        return fam.weights.get(q.tobytes(), self._new_probabilities, fam, q)
+
+    def _branch_path(self, fam: TreeFamily, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The branch (M, N) and path (M,) probabilities of the region probabilities ``q``."""
         tree = fam.tree
         branch = np.zeros((tree.size, self.model.N))
         branch[np.arange(tree.size), tree.mode] = 1.0  # nodes that do not branch
@@ -317,7 +334,15 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
         for idx in tree.by_stage[1:]:
             par = tree.parent[idx]
             path[idx] = path[par] * branch[par, tree.mode[idx]]
-        return _Probabilities(q, branch, path, path, path == 0.0)
+        return branch, path
+
+    def _new_probabilities(self, fam: TreeFamily, q: np.ndarray) -> _Probabilities:
+        q = q.copy()
+        q.flags.writeable = False
+        branch, path = self._branch_path(fam, q)
+        pr = _Probabilities(q, branch, path, path, path == 0.0)
+        self._weigh(fam, pr)
+        return pr
 
     # ------------------------------------------------------------------ decisions
     def act(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, dict[str, Any]]:
@@ -351,7 +376,7 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
         with self._lock:
             inside = max(self.model.constraint_values_one(x, k).tolist()) <= 0.0
             fam = self._families[(mode, inside)]
-            depends = bool(fam.tree.sq.size) and bool(np.any(fam.dP_q))
+            depends = fam.depends
             ctx = self._context(fam, x, k)
             q = self._start_q(fam, ctx) if depends else np.zeros(fam.tree.sq.size)
             gap, last_gap, step = 0.0, math.inf, 1.0
@@ -368,6 +393,11 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
                 gap = float(np.max(np.abs(q_new - q)))
                 if gap <= PROB_TOL or it == self.iterations:
                     break
+                if it == 1 and status is Status.SOLVED:
+                    q_next = self._newton(fam, ctx, pr, z, q, q_new, 1e-3 * PROB_TOL)
+                    if q_next is not None:
+                        last_gap, q = gap, q_next
+                        continue
                 if gap > last_gap:  # oscillation: damp
                     step *= DAMPING
                 last_gap = gap
@@ -379,7 +409,7 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
                     q_next = q + step * (q_new - q)
                 q = q_next
             if cost is None:
-                cost = self._objective(fam, x, nu, rho, pr)
+                cost = self._objective(fam, x, nu, rho, pr, ctx)
             plan = self._plan(fam, x, k, pr, nu, rho)
         converged = gap <= PROB_TOL
         if status is Status.SOLVED and not converged:  # the QP is solved, not the fixed point
@@ -415,15 +445,23 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
         x, mode, k = self._check_batch_inputs(x, mode, k)
         return self._act_each(x, mode, k)
 
+    def _node_dynamics(self, fam: TreeFamily) -> tuple[np.ndarray, np.ndarray]:
+        """``(Atilde, B)`` of each node's mode, (M, n, n) and (M, n, m): a function of the
+        family's key, kept per key (a few floats per node)."""
+        key = (fam.mode, fam.inside)
+        parts = self._dynamics.get(key)
+        if parts is None:
+            modes = fam.tree.mode
+            parts = self._dynamics[key] = (self.A_tilde[modes], self.model.B[modes])
+        return parts
+
     def _plan(self, fam: TreeFamily, x, k, pr: _Probabilities, nu, rho) -> TreePlan:
         M, n = fam.size, self.model.n
         tree = fam.tree
         z = np.concatenate([nu.ravel(), rho])
         mean = (fam.mean_x @ x + fam.mean_z @ z).reshape(M, n)
-        At = self.A_tilde[tree.mode]
-        next_mean = np.einsum("ian,in->ia", At, mean) + np.einsum(
-            "iam,im->ia", self.model.B[tree.mode], nu
-        )
+        At, Bt = self._node_dynamics(fam)
+        next_mean = (At @ mean[:, :, None] + Bt @ nu[:, :, None])[:, :, 0]
         out = TreePlan(
             k=int(k),
             mode=tree.mode,

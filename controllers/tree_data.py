@@ -79,12 +79,17 @@ MAX_FAMILY_FLOATS = 8_000_000
 #: Largest number of floats the matrices of the built families of one controller hold together
 #: (256 MB): beyond, the least recently used family is dropped (and built again when a decision
 #: needs it). Each family's engine also caches active-set factors (at most
-#: :data:`controllers.tree_qp.FACTOR_CACHE_FLOATS`) and DAQP's scaled rows.
+#: :data:`controllers.tree_qp.FACTOR_CACHE_FLOATS`), reduced Hessians (at most
+#: :data:`controllers.tree_qp.REDUCED_CACHE_FLOATS`) and DAQP's scaled rows, and the family the
+#: probabilities it met (:data:`WEIGHTS_FLOATS`).
 FAMILY_BUDGET_FLOATS = 32_000_000
 
 
 #: Matrices of a family with at most this many entries are kept dense (see TreeFamily.Lz).
 DENSE_FLOATS = 200_000
+
+#: Floats of the probabilities and Hessians a family keeps by region probabilities (1.6 MB).
+WEIGHTS_FLOATS = 200_000
 
 
 def _compact(M: Any) -> Any:
@@ -327,6 +332,8 @@ class TreeFamily:
     GA: np.ndarray  # (M, r, n)  G Atilde of each node's mode (the plan's constraint rows)
     GB: np.ndarray  # (M, r, m)
     engine: TreeQP
+    depends: bool  # whether the region probabilities (and the Hessian) depend on the plan
+    weights: BudgetedLRU  # the controller's probabilities (with their Hessian) by q.tobytes()
 
     @property
     def size(self) -> int:
@@ -544,7 +551,13 @@ def build_tree_family(
         GA=_frozen(GA),
         GB=_frozen(GB),
         engine=engine,
+        depends=bool(sq.size) and bool(np.any(Pin != Pout)),
+        weights=BudgetedLRU(WEIGHTS_FLOATS, _weights_floats),
     )
+
+
+def _weights_floats(pr: Any) -> int:
+    return pr.branch.size + 3 * pr.path.size + (0 if pr.P is None else pr.P.size)
 
 
 def _floats(fam: TreeFamily) -> int:

@@ -15,12 +15,20 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from .horizon import HorizonSettings
-from .kkt import ActiveSetFactor, active_set_factor, check_active_set
+from .kkt import (
+    ActiveSetFactor,
+    active_set_factor,
+    check_active_set,
+    reduce_hessian,
+    solve_stacked,
+)
+from .kkt_maps import stacked_maps
 from .lru import BudgetedLRU
 from .p3 import CLARABEL_SETTINGS
 from .qp import QPFamily, Solution
@@ -37,9 +45,29 @@ __all__ = [
 #: Floats of the active-set factors one family keeps (least recently used dropped first; 32 MB).
 FACTOR_CACHE_FLOATS = 4_000_000
 
+#: Floats of the reduced Hessians one family keeps, by the Hessian's token and the active set
+#: (least recently used dropped first; 8 MB): see :meth:`TreeQP.update_P`.
+REDUCED_CACHE_FLOATS = 1_000_000
+
+#: Active sets a family remembers (the warm one and those optimal before it, distinct, most
+#: recent first), tried in turn when the warm one fails (:meth:`TreeQP.warm_solve`): on the
+#: closed loop of the example, the optimum that DAQP or the repair found was one of the two
+#: most recent sets 94% of the time (the state moves within a few regions of the optimum).
+RECENT_SETS = 4
+
+#: Largest stacked maps (floats) a pair of Hessian and active set gets (0.8 MB; see
+#: :meth:`TreeQP.verify`): the tree at ``steps=3`` of the example needs 17 000, a 111-node tree
+#: millions, which would cost more to build than the tests they would save.
+STACKED_MAPS_FLOATS = 100_000
+
 #: Largest number of primal-dual active-set steps of :meth:`TreeQP.local` after its candidates
 #: fail.
 REPAIR_STEPS = 20
+
+#: The same from the warm start (:meth:`TreeQP.warm_solve`), before DAQP runs: on the closed
+#: loop of the example every repair that succeeded took one step, and those that failed ended
+#: (a set repeating) after two to four, each an exact solve wasted before DAQP.
+WARM_REPAIR_STEPS = 2
 
 #: OSQP runs (after DAQP) only for trees of at most this many QP variables. On larger trees its
 #: iterations cost more than the cvxpy rescue it would precede (a 111-node tree ran OSQP to its
@@ -62,19 +90,51 @@ def _factor_floats(factor: ActiveSetFactor | None) -> int:
     return 0 if factor is None else factor.floats
 
 
+@dataclass(eq=False)
+class _Reduced:
+    """What one pair of Hessian and active set keeps (:meth:`TreeQP.verify`): the reduced
+    Hessian (None: not a candidate), the tests it served and, from the second test on, the
+    stacked maps of :func:`controllers.kkt_maps.stacked_maps` (None until then, or when a
+    number is not finite). ``floats``: their size, the maps counted before they are built."""
+
+    red: tuple | None
+    floats: int
+    mappable: bool = False  # whether the maps are within STACKED_MAPS_FLOATS
+    uses: int = 0
+    maps: tuple[np.ndarray, np.ndarray] | None = None
+
+
+def _reduce(fac: ActiveSetFactor, P: np.ndarray) -> _Reduced:
+    red = reduce_hessian(fac, P)
+    if red is None:
+        return _Reduced(None, 0)
+    held = sum(a.size for a in red[:4] if a is not None) + sum(a.size for a in red[4].values())
+    maps = 4 * (P.shape[0] + fac.idx.size) * (P.shape[0] + fac.n_rows)
+    mappable = maps <= STACKED_MAPS_FLOATS
+    return _Reduced(red, held + (maps if mappable else 0), mappable)
+
+
+def _reduced_floats(entry: _Reduced) -> int:
+    return entry.floats
+
+
 class TreeQP(QPFamily):
     """A :class:`controllers.qp.QPFamily` whose exact active-set solves are per instance.
 
-    The engine's exact solve (:func:`controllers.qp.active_set_maps`) builds linear maps from
-    the instance to the solution, worth their cost when many instances share a Hessian. The
-    tree's Hessian changes at every solve (:meth:`QPFamily.update_P`), so :meth:`verify` solves
-    the KKT system of the active set for the one instance instead, by the same null-space method
-    (row-normalized constraints, scale-free rank and definiteness tests) and accepts it by the
-    same KKT test: each residual at most :data:`controllers.qp.KKT_TOL` times the magnitude of
-    the terms summed to compute it (a running bound of absolute values through the same
-    factors). The factors that depend only on the active set (the QR factors of its rows) are
-    cached, within :data:`FACTOR_CACHE_FLOATS` floats. Everything else (warm start, OSQP, local
-    search) is the engine's.
+    The engine's exact solve (:func:`controllers.qp.active_set_maps`) builds linear maps from the
+    instance to the solution, worth their cost when many instances share a Hessian. The tree's
+    Hessian changes with the probabilities (:meth:`QPFamily.update_P`), so :meth:`verify` solves the
+    KKT system of the active set for the one instance instead, by the same null-space method
+    (row-normalized constraints, scale-free rank and definiteness tests) and accepts it by the same
+    KKT test: each residual at most :data:`controllers.qp.KKT_TOL` times the magnitude of the terms
+    summed to compute it (a running bound of absolute values through the same factors). The factors
+    that depend only on the active set (the QR factors of its rows) are cached, within
+    :data:`FACTOR_CACHE_FLOATS` floats. Per Hessian given with a token (:meth:`update_P`) and active
+    set, the reduced Hessian is cached too and, from the pair's second test on, the exact solve as
+    two matrices (:func:`controllers.kkt_maps.stacked_maps`, within :data:`STACKED_MAPS_FLOATS`),
+    all within :data:`REDUCED_CACHE_FLOATS`: the closed loop meets the same probabilities, hence the
+    same Hessian, and the same active set at most decisions (wherever the chance rows are active).
+    Everything else (OSQP, local search) is the engine's; the warm start is :meth:`warm_solve`.
     """
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
@@ -91,22 +151,32 @@ class TreeQP(QPFamily):
             FACTOR_CACHE_FLOATS, _factor_floats
         )
         self._freed: tuple[bytes, list] | None = None  # see _slack_bounds
+        self._reduced: BudgetedLRU[tuple, _Reduced] = BudgetedLRU(
+            REDUCED_CACHE_FLOATS, _reduced_floats
+        )
+        self._token: int | None = None  # the token of the Hessian P (None: not cached)
+        self._recent: list[tuple[int, ...]] = []  # see RECENT_SETS
         self._pivot_key = self.pivots.tobytes()
         self._osqp_P: np.ndarray | None = None  # the Hessian the OSQP object holds (None: P)
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
-        for key in ("_factors", "_osqp_P", "_freed"):
+        for key in ("_factors", "_osqp_P", "_freed", "_reduced", "_token", "_recent"):
             state.pop(key, None)
         return state
 
-    def update_P(self, P: np.ndarray) -> None:
+    def update_P(self, P: np.ndarray, token: int | None = None) -> None:
         """:meth:`QPFamily.update_P`, with the OSQP object brought up to date only when OSQP
         runs next (most solves are answered by the warm active set without OSQP). An unchanged
         ``P`` changes nothing; the first ``P`` keeps the full enumeration allowed (the family's
-        constructor only had a placeholder)."""
-        if self._has_P and np.array_equal(P, self.P):
+        constructor only had a placeholder). ``token``: an integer that names this ``P`` and
+        no other (the caller's promise: ``P`` is read-only and the token never reused for
+        another), under which the reduced Hessians of its active sets are cached; None: not
+        cached."""
+        if self._has_P and (P is self.P or np.array_equal(P, self.P)):
+            self._token = token
             return
+        self._token = None  # until P is replaced (update_P may raise)
         if self._osqp is not None and self._osqp_P is None:
             self._osqp_P = self.P
         solver, self._osqp = self._osqp, None
@@ -118,6 +188,7 @@ class TreeQP(QPFamily):
             self._has_P = True
             self.can_enumerate = self._may_enumerate
         self._pivot_key = self.pivots.tobytes()
+        self._token = token
 
     def run_osqp(self, w: np.ndarray, retry: bool = False) -> tuple:
         if self._osqp is not None and self._osqp_P is not None:
@@ -148,32 +219,70 @@ class TreeQP(QPFamily):
         fac = self._factor(rows)
         if fac is None:
             return None
-        return check_active_set(fac, self.P, self.C, w, self.absC, report)
+        if self._token is None:
+            return check_active_set(fac, self.P, self.C, w, self.absC, report)
+        entry = self._reduced.get((self._token, rows), _reduce, fac, self.P)
+        if entry.red is None:  # not a candidate
+            return None
+        entry.uses += 1
+        if entry.uses == 2 and entry.mappable:  # a pair tested again: worth its maps
+            entry.maps = stacked_maps(fac, entry.red, self.P)
+        return check_active_set(fac, self.P, self.C, w, self.absC, report, entry.red, entry.maps)
+
+    def direction(self, rows: tuple[int, ...], dw: np.ndarray) -> np.ndarray | None:
+        """The change of the exact solution of the active set ``rows`` for the change ``dw`` of
+        the instance (the same linear map; no test), or None."""
+        fac = self._factor(rows)
+        if fac is None:
+            return None
+        if self._token is None:
+            red, maps = reduce_hessian(fac, self.P), None
+        else:
+            entry = self._reduced.get((self._token, rows), _reduce, fac, self.P)
+            red, maps = entry.red, entry.maps
+        if red is None:
+            return None
+        with np.errstate(over="ignore", invalid="ignore"):
+            W2 = np.concatenate([dw, np.abs(dw)])[:, None]
+            dz = solve_stacked(fac, red, self.P, W2, maps)[0][: self.d, 0]
+        return dz if np.all(np.isfinite(dz)) else None
 
     def warm_solve(self, w: np.ndarray) -> Solution | None:
-        """The last active set, then up to :data:`REPAIR_STEPS` primal-dual active-set steps
-        from it (see :meth:`repair`): the probabilities of a fixed-point iteration, or the
-        next state of a closed loop, move the optimum's active set by a few rows, which these
-        steps find at the cost of a few exact solves (a DAQP run on a 111-node tree costs
-        tens of them)."""
+        """The last active set, then the sets optimal before it (:data:`RECENT_SETS`), then up
+        to :data:`WARM_REPAIR_STEPS` primal-dual active-set steps from the last one (see
+        :meth:`repair`): the probabilities of a fixed-point iteration, or the next state of a
+        closed loop, move the optimum's active set by a few rows, often back to a set met
+        before, which these tries find at the cost of a few exact solves (a DAQP run on a
+        111-node tree costs tens of them)."""
         rows = self.warm
         assert rows is not None  # solve() calls this only with a warm active set
+        recent = self._recent
+        if rows in recent:
+            recent.remove(rows)
+        recent.insert(0, rows)
+        del recent[RECENT_SETS:]
         report: dict = {}
         out = self.verify(rows, w, report)
         if out is not None:
             return Solution(out, rows, "warm")
-        sol = self.repair(set(rows), w, report)
+        for other in recent[1:]:
+            out = self.verify(other, w)
+            if out is not None:
+                return Solution(out, other, "recent")
+        sol = self.repair(set(rows), w, report, WARM_REPAIR_STEPS)
         return None if sol is None else Solution(sol.z, sol.rows, "repair")
 
-    def repair(self, rows: set[int], w: np.ndarray, report: dict) -> Solution | None:
-        """Up to :data:`REPAIR_STEPS` primal-dual active-set steps from the active set
+    def repair(
+        self, rows: set[int], w: np.ndarray, report: dict, steps: int = REPAIR_STEPS
+    ) -> Solution | None:
+        """Up to ``steps`` primal-dual active-set steps from the active set
         ``rows``, whose KKT test at ``w`` failed with ``report`` (see
         :func:`controllers.kkt.check_active_set`): the rows whose multipliers are negative leave
         the set, the violated rows join it (the most violated first, up to ``d`` rows), and the
         new set is verified. None when no set verifies (or a set repeats)."""
         seen = {tuple(sorted(rows))}
         freed = self._slack_bounds()
-        for _ in range(REPAIR_STEPS):
+        for _ in range(steps):
             if not (report["add"] or report["drop"]):
                 return None
             kept = rows.difference(report["drop"])

@@ -72,6 +72,10 @@ class RegionClasses:
             up[c, : len(rows_u)] = rows_u
             lo[c, : len(rows_l)] = rows_l
         self._up, self._lo = up, lo
+        # one row above and one below per class (a band): limits() reads them directly
+        self._pair = None
+        if width_u == 1 and width_l == 1 and (up < r).all() and (lo < r).all():
+            self._pair = (up[:, 0], lo[:, 0], self._inv_scale[up[:, 0]], self._inv_scale[lo[:, 0]])
 
     @property
     def count(self) -> int:
@@ -88,6 +92,10 @@ class RegionClasses:
         """The interval of each class's projection allowed by the bounds ``H`` (S, r), and
         whether the rows without a direction hold: what :meth:`probability_within` needs (a
         function of ``H`` alone, computed once per decision)."""
+        if self._pair is not None and not self.zero_rows.size:
+            up, lo_rows, inv_up, inv_lo = self._pair
+            hi, lo = H[:, up] * inv_up, H[:, lo_rows] * inv_lo
+            return lo, hi, lo <= hi, None
         S = H.shape[0]
         ext = np.empty((S, H.shape[1] + 2))
         np.multiply(H, self._inv_scale, out=ext[:, :-2])
@@ -103,13 +111,14 @@ class RegionClasses:
         """:meth:`probability` with the :meth:`limits` of the bounds."""
         lo, hi, nonempty, zero = limits
         positive = sd > 0.0
-        safe = np.where(positive, sd, 1.0)
+        spread = bool(positive.all())
+        safe = sd if spread else np.where(positive, sd, 1.0)
         a, b = (lo - mu) / safe, (hi - mu) / safe
         # Phi(b) - Phi(a) on the side where both tails are small (no cancellation)
         flip = a > 0.0
         p = special.ndtr(np.where(flip, -a, b)) - special.ndtr(np.where(flip, -b, a))
-        if not positive.all():
+        if not spread:
             p = np.where(positive, p, (lo <= mu) & (mu <= hi))
-        p = np.where(nonempty, np.clip(p, 0.0, 1.0), 0.0)
+        p = np.where(nonempty, np.minimum(np.maximum(p, 0.0), 1.0), 0.0)
         q = p.prod(axis=1) if p.shape[1] != 1 else p[:, 0]
         return q if zero is None else q * zero

@@ -10,6 +10,8 @@ nodes of negligible probability, the cvxpy rescue, ``nu = 0``) and reads the ver
 
 from __future__ import annotations
 
+import itertools
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -25,7 +27,13 @@ if TYPE_CHECKING:
 
     from .tree_region import RegionClasses
 
-__all__ = ["CONTINUATION_FROM", "CONTINUATION_STEP", "TINY_PROBABILITY", "TreeSolver"]
+__all__ = [
+    "CONTINUATION_FROM",
+    "CONTINUATION_STEP",
+    "NEWTON_STEPS",
+    "TINY_PROBABILITY",
+    "TreeSolver",
+]
 
 #: Nodes of positive path probability below this are weighted exactly; only when the exact
 #: answer cannot be verified (the KKT test cannot resolve multipliers this many times smaller
@@ -37,18 +45,38 @@ TINY_PROBABILITY = 1e-12
 CONTINUATION_FROM = 1e3
 CONTINUATION_STEP = 1e3
 
-_PATHS = {"warm": "active_set_warm", "repair": "active_set_repair", "enumeration": "active_set"}
+#: Newton's steps on the line of :meth:`TreeSolver._newton` at most (two reach 1e-9 on the
+#: example).
+NEWTON_STEPS = 3
+
+_PATHS = {
+    "warm": "active_set_warm",
+    "recent": "active_set_recent",
+    "repair": "active_set_repair",
+    "enumeration": "active_set",
+}
+
+_TOKENS = itertools.count()  # one per Hessian built (see TreeQP.update_P)
 
 
 @dataclass
 class _Probabilities:
-    """The probabilities one QP is built with."""
+    """The probabilities one QP is built with, and what depends on them alone (set by
+    :meth:`TreeSolver._weigh` on first use; a family keeps the probabilities of recent ``q``,
+    :attr:`controllers.tree_data.TreeFamily.weights`, so that a decision meeting the same ``q``
+    again, as the closed loop does where the region probabilities saturate, builds nothing)."""
 
     q: np.ndarray  # (S,) region probabilities of the nodes tree.sq
     branch: np.ndarray  # (M, N)
     path: np.ndarray  # (M,)
     weight: np.ndarray  # (M,) the path probabilities that weight the objective (= path)
     idle: np.ndarray  # (M,) bool: nodes of path probability 0 (left out of the QP)
+    P: np.ndarray | None = None  # (d, d) read-only: the Hessian
+    wrow: np.ndarray | None = None  # (R,) the weight of each row of the objective
+    const: float = 0.0  # the objective's constant terms (Lemma 1's traces)
+    token: int = -1  # identifies P for the engine's caches
+    idle_z: np.ndarray | None = None  # the variables of idle nodes (None: no idle node)
+    idle_rows: np.ndarray | None = None  # (M r,) bool: their chance rows
 
 
 @dataclass
@@ -78,14 +106,34 @@ class TreeSolver:
     cvxpy_fallback: bool
     _warm_start: bool
     _regions: RegionClasses
+    _rows: tuple[int, ...] | None
 
-    @staticmethod
-    def _row_weights(fam: TreeFamily, pr: _Probabilities) -> tuple[np.ndarray, np.ndarray]:
-        """``(v, wrow)``: the weight of each source (node, then last node and mode) and of
-        each row of the objective."""
+    def _weigh(self, fam: TreeFamily, pr: _Probabilities) -> None:
+        """Set the parts of ``pr`` that depend on the probabilities alone: the Hessian, the
+        weight of each row of the objective (from the weight of each source: node, then last
+        node and mode), the objective's constant terms and the idle nodes' variables and rows.
+
+        A node of path probability 0 (and its subtree) weighs nothing: its offset and slack
+        appear in no other node's cost or rows, so they are decoupled exactly, with unit
+        curvature, no linear cost and chance rows made slack for every ``z`` (their optimum is
+        then ``nu = rho = 0``; the plan reports their smallest feasible slacks)."""
+        M, m, r = fam.size, self.model.m, self.model.r
         last = fam.tree.last
-        v = np.concatenate([pr.weight, (pr.weight[last, None] * pr.branch[last]).ravel()])
-        return v, v[fam.row_source]
+        end = pr.weight[last, None] * pr.branch[last]
+        v = np.concatenate([pr.weight, end.ravel()])
+        d = fam.engine.d
+        P = (fam.P_stack @ v).reshape(d, d)
+        if pr.idle.any():
+            nodes = np.flatnonzero(pr.idle)
+            idle = np.concatenate([(nodes[:, None] * m + np.arange(m)).ravel(), M * m + nodes])
+            P[idle, :] = 0.0
+            P[:, idle] = 0.0
+            P[idle, idle] = 1.0
+            pr.idle_z, pr.idle_rows = idle, np.repeat(pr.idle, r)
+        P.flags.writeable = False
+        pr.P, pr.wrow = P, v[fam.row_source]
+        pr.const = float(pr.weight @ fam.stage_trace + np.sum(end * fam.term_trace))
+        pr.token = next(_TOKENS)
 
     def _context(self, fam: TreeFamily, x: np.ndarray, k: int) -> _Context:
         """The :class:`_Context` of a decision at ``(x, k)``."""
@@ -104,46 +152,93 @@ class TreeSolver:
         pr: _Probabilities,
         ctx: _Context | None = None,
     ):
-        """``(P, w)``: the Hessian and the instance ``[q; h]`` of the engine (``ctx``: the
-        decision's :class:`_Context` at ``(x, k)``, when the caller has it).
-
-        A node of path probability 0 (and its subtree) weighs nothing: its offset and slack
-        appear in no other node's cost or rows, so they are decoupled exactly, with unit
-        curvature, no linear cost and chance rows made slack for every ``z`` (their optimum is
-        then ``nu = rho = 0``; the plan reports their smallest feasible slacks)."""
-        M, m, r = fam.size, self.model.m, self.model.r
+        """``(P, w)``: the Hessian (read-only) and the instance ``[q; h]`` of the engine
+        (``ctx``: the decision's :class:`_Context` at ``(x, k)``, when the caller has it); idle
+        nodes as in :meth:`_weigh`."""
+        M, m = fam.size, self.model.m
         ctx = self._context(fam, x, k) if ctx is None else ctx
-        v, wrow = self._row_weights(fam, pr)
-        d = fam.engine.d
-        P = (fam.P_stack @ v).reshape(d, d)
-        qlin = 2.0 * (fam.LzT @ (wrow * ctx.lx))
+        if pr.P is None:
+            self._weigh(fam, pr)
+        qlin = 2.0 * (fam.LzT @ (pr.wrow * ctx.lx))
         qlin[M * m :] += self.alpha * pr.weight
         h_chance = ctx.h_chance
-        if pr.idle.any():
+        if pr.idle_z is not None:
+            qlin[pr.idle_z] = 0.0
+            rows = pr.idle_rows
             h_chance = h_chance.copy()
-            nodes = np.flatnonzero(pr.idle)
-            idle = np.concatenate([(nodes[:, None] * m + np.arange(m)).ravel(), M * m + nodes])
-            P[idle, :] = 0.0
-            P[:, idle] = 0.0
-            P[idle, idle] = 1.0
-            qlin[idle] = 0.0
-            rows = np.repeat(pr.idle, r)
             h_chance[rows] = np.maximum(h_chance[rows], fam.idle_bound[rows])
         w = np.concatenate([qlin, h_chance, fam.h_fixed])
-        return P, w
+        return pr.P, w
 
-    def _objective(self, fam: TreeFamily, x, nu, rho, pr: _Probabilities) -> float:
+    def _objective(self, fam: TreeFamily, x, nu, rho, pr: _Probabilities, ctx=None) -> float:
         """``J`` at ``(nu, rho)`` with every constant term (Lemma 1's traces included): a sum of
         nonnegative terms, computed as such (no cancellation)."""
-        _, wrow = self._row_weights(fam, pr)
-        t = fam.Lx @ x + fam.Lz @ np.concatenate([nu.ravel(), rho])
-        last = fam.tree.last
-        return float(
-            wrow @ (t * t)
-            + pr.weight @ fam.stage_trace
-            + np.sum(pr.weight[last, None] * pr.branch[last] * fam.term_trace)
-            + self.alpha * (pr.weight @ rho)
-        )
+        if pr.P is None:
+            self._weigh(fam, pr)
+        lx = fam.Lx @ x if ctx is None else ctx.lx
+        t = lx + fam.Lz @ np.concatenate([nu.ravel(), rho])
+        return float(pr.wrow @ (t * t) + pr.const + self.alpha * (pr.weight @ rho))
+
+    def _newton(self, fam: TreeFamily, ctx: _Context, pr: _Probabilities, z, q, q_new, tol):
+        """The region probabilities ``q + t delta`` where the fixed-point residual ``F - q`` is
+        smallest along the step ``delta = F(q) - q`` (``F``: the region probabilities of the
+        plan; ``z`` the answer at ``q``, of active set ``self._rows``), or None. Along that line
+        the answer is taken linear in ``t``, its derivative that of the exact solve with the
+        active set held (:meth:`controllers.tree_qp.TreeQP.direction`: the same factors applied
+        to the change of the QP's data; no new factorization), and the region probabilities are
+        evaluated exactly; Newton's steps on ``t`` (the slope by a forward difference) stop at a
+        residual of ``tol`` or after :data:`NEWTON_STEPS`."""
+        if self._rows is None:
+            return None
+        if pr.idle_z is not None:
+            return None
+        delta = q_new - q
+        M, m = fam.size, self.model.m
+        tree = fam.tree
+        # the derivatives along delta of the branch and path probabilities, then of the weights
+        # v of the sources (node, then last node and mode): forward through the stages
+        dbranch = np.zeros_like(pr.branch)
+        dbranch[tree.sq] = delta[:, None] * fam.dP_q
+        dpath = np.zeros(M)
+        for idx in tree.by_stage[1:]:
+            par, mode = tree.parent[idx], tree.mode[idx]
+            dpath[idx] = dpath[par] * pr.branch[par, mode] + pr.path[par] * dbranch[par, mode]
+        last = tree.last
+        dend = dpath[last, None] * pr.branch[last] + pr.path[last, None] * dbranch[last]
+        dv = np.concatenate([dpath, dend.ravel()])
+        d = fam.engine.d
+        dq = (fam.P_stack @ dv).reshape(d, d) @ z + 2.0 * (fam.LzT @ (dv[fam.row_source] * ctx.lx))
+        dq[M * m :] += self.alpha * dpath
+        dz = fam.engine.direction(self._rows, np.concatenate([dq, np.zeros(fam.engine.c)]))
+        if dz is None:
+            return None
+        shape = ctx.proj0.shape
+        proj = ctx.proj0 + (fam.proj_z @ z).reshape(shape)
+        dproj = (fam.proj_z @ dz).reshape(shape)
+        size = float(np.max(np.abs(dproj) / np.maximum(fam.proj_sd, 1e-300)))
+        if not (math.isfinite(size) and size > 0.0):
+            return None
+        h = 1e-4 / size  # a step of 1e-4 standard deviations
+        regions = self._regions
+
+        def residual(t: float) -> np.ndarray:  # F - q along the line, the answer linear in t
+            return regions.probability_within(proj + t * dproj, fam.proj_sd, ctx.limits) - (
+                q + t * delta
+            )
+
+        slope = (residual(h) - delta) / h  # residual(0) = delta
+        norm = float(slope @ slope)
+        if not norm > 0.0:
+            return None
+        t, r = 0.0, delta
+        for _ in range(NEWTON_STEPS):  # Newton on the line (Gauss-Newton: r has S components)
+            t -= float(r @ slope) / norm
+            if not 0.0 < t <= 10.0:
+                return None
+            r = residual(t)
+            if float(np.max(np.abs(r))) <= tol:
+                break
+        return np.minimum(np.maximum(q + t * delta, 0.0), 1.0)
 
     def _excess(self, fam: TreeFamily, x: np.ndarray, k: int, nu: np.ndarray) -> np.ndarray:
         """Smallest feasible ``rho`` (M,) for the offsets ``nu`` (M, m); an excess within
@@ -181,7 +276,7 @@ class TreeSolver:
         M, m = fam.size, self.model.m
         P, w = self._qp(fam, x, k, pr, ctx)
         engine = fam.engine
-        engine.update_P(P)
+        engine.update_P(P, pr.token)
         if self.solver == "cvxpy":  # the plain reference, its active set verified
             out = solve_tree_cvxpy(self.settings, self.steps, fam, x, k, pr)
             if out is None:
@@ -198,7 +293,7 @@ class TreeSolver:
         if tiny.any():  # the test cannot resolve their weights: an answer without them
             rough = _Probabilities(pr.q, pr.branch, pr.path, pr.weight, pr.idle | tiny)
             P2, w2 = self._qp(fam, x, k, rough, ctx)
-            engine.update_P(P2)
+            engine.update_P(P2, rough.token)
             sol = engine.solve(w2, warm=False, notes=[])
             if sol is not None:
                 nu, rho = self._exact(fam, x, k, rough, sol)
@@ -207,7 +302,7 @@ class TreeSolver:
                     "left out"
                 )
                 return nu, rho, None, Status.APPROXIMATE, _PATHS.get(sol.path, sol.path)
-            engine.update_P(P)
+            engine.update_P(P, pr.token)
         if not self.cvxpy_fallback:
             notes.append("cvxpy retry disabled")
         else:
@@ -277,12 +372,14 @@ class TreeSolver:
         M, m = fam.size, self.model.m
         engine = fam.engine
         z = np.asarray(sol.z)
+        self._rows = sol.rows
         nb = self.nu_bound
-        nu = np.clip(z[: M * m].reshape(M, m), -nb, nb)  # round-off outside U
+        nu = np.minimum(np.maximum(z[: M * m].reshape(M, m), -nb), nb)  # round-off outside U
         rho = np.maximum(z[M * m :], 0.0)
-        active = np.zeros(engine.c, dtype=bool)
-        active[list(sol.rows)] = True
-        rho[active[engine.c - M :]] = 0.0
+        first = engine.c - M  # the rows rho >= 0 are the last M
+        bound = [i - first for i in sol.rows if i >= first]
+        if bound:
+            rho[bound] = 0.0
         if pr.idle.any():  # decoupled: their exact optimum is nu = 0
             nu[pr.idle] = 0.0
             rho[pr.idle] = self._excess(fam, x, k, nu)[pr.idle]
