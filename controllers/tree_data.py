@@ -557,7 +557,8 @@ def build_tree_family(
 
 
 def _weights_floats(pr: Any) -> int:
-    return pr.branch.size + 3 * pr.path.size + (0 if pr.P is None else pr.P.size)
+    held = pr.branch.size + 3 * pr.path.size
+    return held + sum(a.size for a in (pr.P, pr.wrow) if a is not None)
 
 
 def _floats(fam: TreeFamily) -> int:
