@@ -256,6 +256,13 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
         self._rows: tuple[int, ...] | None = None  # the active set of the last verified answer
         self._dynamics: dict[tuple[int, bool], tuple[np.ndarray, np.ndarray]] = {}
 
+    @property
+    def families_built(self) -> int:
+        """How many (mode, region) families this controller has built so far (on first use; a
+        family dropped from the memory budget and needed again counts twice): a decision that
+        raised it paid a family's set-up."""
+        return self._families.built
+
     # ------------------------------------------------------------------ checks
     def _check_weight_ratio(self) -> None:
         """ValueError unless the weights ``Q_i``, ``R_i`` and ``Psi_i`` are within

@@ -55,6 +55,14 @@ REDUCED_CACHE_FLOATS = 1_000_000
 #: most recent sets 94% of the time (the state moves within a few regions of the optimum).
 RECENT_SETS = 4
 
+#: The earlier sets are tried while they pay: during a family's first :data:`RECENT_TRIAL`
+#: tries, then while at least one try in :data:`RECENT_PAYOFF` verifies, and otherwise once
+#: in :data:`RECENT_PAYOFF` warm failures (to notice when they pay again). On the 111-node tree,
+#: on new states, one try in ~60 verified, and each failed try is an exact solve of 222
+#: variables (~8 ms a decision in all).
+RECENT_TRIAL = 16
+RECENT_PAYOFF = 8
+
 #: Largest stacked maps (floats) a pair of Hessian and active set gets (0.8 MB; see
 #: :meth:`TreeQP.verify`): the tree at ``steps=3`` of the example needs 17 000, a 111-node tree
 #: millions, which would cost more to build than the tests they would save.
@@ -156,12 +164,21 @@ class TreeQP(QPFamily):
         )
         self._token: int | None = None  # the token of the Hessian P (None: not cached)
         self._recent: list[tuple[int, ...]] = []  # see RECENT_SETS
+        self._recent_stats = [0, 0, 0]  # tries, hits, warm failures without a try
         self._pivot_key = self.pivots.tobytes()
         self._osqp_P: np.ndarray | None = None  # the Hessian the OSQP object holds (None: P)
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
-        for key in ("_factors", "_osqp_P", "_freed", "_reduced", "_token", "_recent"):
+        for key in (
+            "_factors",
+            "_osqp_P",
+            "_freed",
+            "_reduced",
+            "_token",
+            "_recent",
+            "_recent_stats",
+        ):
             state.pop(key, None)
         return state
 
@@ -248,12 +265,12 @@ class TreeQP(QPFamily):
         return dz if np.all(np.isfinite(dz)) else None
 
     def warm_solve(self, w: np.ndarray) -> Solution | None:
-        """The last active set, then the sets optimal before it (:data:`RECENT_SETS`), then up
-        to :data:`WARM_REPAIR_STEPS` primal-dual active-set steps from the last one (see
-        :meth:`repair`): the probabilities of a fixed-point iteration, or the next state of a
-        closed loop, move the optimum's active set by a few rows, often back to a set met
-        before, which these tries find at the cost of a few exact solves (a DAQP run on a
-        111-node tree costs tens of them)."""
+        """The last active set, then the sets optimal before it (:data:`RECENT_SETS`, while they
+        pay: :data:`RECENT_PAYOFF`), then up to :data:`WARM_REPAIR_STEPS` primal-dual
+        active-set steps from the last one (see :meth:`repair`): the probabilities of a
+        fixed-point iteration, or the next state of a closed loop, move the optimum's active set
+        by a few rows, often back to a set met before, which these tries find at the cost of a
+        few exact solves (a DAQP run on a 111-node tree costs tens of them)."""
         rows = self.warm
         assert rows is not None  # solve() calls this only with a warm active set
         recent = self._recent
@@ -265,10 +282,18 @@ class TreeQP(QPFamily):
         out = self.verify(rows, w, report)
         if out is not None:
             return Solution(out, rows, "warm")
-        for other in recent[1:]:
-            out = self.verify(other, w)
-            if out is not None:
-                return Solution(out, other, "recent")
+        stats = self._recent_stats  # tries, hits, skipped
+        tries, hits, skipped = stats
+        if tries < RECENT_TRIAL or hits * RECENT_PAYOFF >= tries or skipped >= RECENT_PAYOFF:
+            stats[2] = 0
+            for other in recent[1:]:
+                stats[0] += 1
+                out = self.verify(other, w)
+                if out is not None:
+                    stats[1] += 1
+                    return Solution(out, other, "recent")
+        else:
+            stats[2] += 1
         sol = self.repair(set(rows), w, report, WARM_REPAIR_STEPS)
         return None if sol is None else Solution(sol.z, sol.rows, "repair")
 

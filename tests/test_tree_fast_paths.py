@@ -12,11 +12,13 @@ What is checked, and against what:
   another Hessian (a stale cache entry would give another Hessian's answer);
 * the warm paths of the tree (the last active set, the sets optimal before it, the repair)
   against the same tree without the warm start (DAQP at every solve), on 160 closed-loop
-  states of the macro example: the same decisions and costs to 1e-9, every path met;
+  states of the macro example: the same decisions and costs to 1e-9, both warm paths met;
 * Newton's step on the fixed point of the region probabilities against the plain iteration
   (Aitken's extrapolation, Newton's step switched off) on the same states: the same fixed
   point to 1e-6 in ``u`` (the convergence test's tolerance on the probabilities), in at most
   as many solves, and at most two wherever the plain iteration took three;
+* the earlier sets tried while they pay, and not after (a planted record of tries that never
+  paid), every answer the cold solve's; ``families_built``;
 * the band form of :meth:`controllers.tree_region.RegionClasses.limits` against the general
   form (every class given its rows above and below), empty intervals included.
 """
@@ -198,3 +200,55 @@ def test_band_limits_are_the_general_limits():
         p_band = band.probability_within(mu, sd, band.limits(H))
         assert np.array_equal(p_band, general.probability_within(mu, sd, general.limits(H)))
     assert RegionClasses(np.array([[1.0, 0.0], [0.0, 1.0]]))._pair is None  # one side each
+
+
+def test_earlier_sets_are_tried_while_they_pay():
+    """The sets optimal before the warm one are tried when it fails (path "recent"), and no
+    longer once a family's tries stop paying (RECENT_PAYOFF), except once in RECENT_PAYOFF warm
+    failures; every answer is the cold solve's."""
+    from controllers.tree_qp import RECENT_PAYOFF
+
+    rng = np.random.default_rng(11)
+    d, c = 6, 5
+    P, C, _ = _random_qp(rng, d, c, 2)
+    P.flags.writeable = False
+    lower, upper = np.zeros(C.shape[0], bool), np.ones(C.shape[0], bool)
+    fam = TreeQP(np.eye(d), C, lower, upper, DEFAULT_OSQP_SETTINGS, enumerate_all=False)
+    cold = TreeQP(np.eye(d), C, lower, upper, DEFAULT_OSQP_SETTINGS, enumerate_all=False)
+    fam.update_P(P, 1)
+    cold.update_P(P)
+
+    def instance():
+        return np.concatenate(
+            [rng.normal(size=d - 2) * 3.0, rng.uniform(1.0, 5.0, size=2)]
+            + [rng.uniform(0.1, 2.0, size=c), np.zeros(2)]
+        )
+
+    found = {}
+    while len(found) < 2:  # two instances of different optimal active sets
+        w = instance()
+        found.setdefault(cold.solve(w, warm=False).rows, w)
+    (rows1, w1), (rows2, w2) = found.items()
+    for w, rows in ((w1, rows1), (w2, rows2)):
+        assert fam.solve(w).rows == rows
+    sol = fam.solve(w1)  # the warm set (rows2) fails; rows1 was optimal before it
+    assert sol.path == "recent" and sol.rows == rows1
+    assert np.allclose(sol.z, cold.solve(w1, warm=False).z, rtol=1e-10, atol=1e-12)
+    fam._recent_stats[:] = [100, 0, 0]  # tries that never paid
+    paths = []
+    for step in range(RECENT_PAYOFF + 1):
+        w = (w2, w1)[step % 2]
+        sol = fam.solve(w)
+        paths.append(sol.path)
+        assert np.allclose(sol.z, cold.solve(w, warm=False).z, rtol=1e-10, atol=1e-12)
+    assert "recent" not in paths[:RECENT_PAYOFF] and paths[RECENT_PAYOFF] == "recent", paths
+
+
+def test_families_built_counts_the_families():
+    ctrl = ScenarioTreeController(macro(), PAPER_K, **PAPER_RHC, steps=2)
+    assert ctrl.families_built == 0
+    for _ in range(2):  # one family: (mode 0, the region of x at k = 0)
+        ctrl.act(np.array([2.0, 2.0]), 0, 0)
+    assert ctrl.families_built == 1
+    ctrl.act(np.array([2.0, 2.0]), 1, 0)  # another mode: another family
+    assert ctrl.families_built == 2
