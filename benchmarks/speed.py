@@ -482,8 +482,9 @@ def large_tree_model(seed: int = 11, N: int = 10, r: int = 20) -> SDJLSModel:
 def measure_large_tree(opts, act_one_step_us: float) -> dict[str, Any]:
     """Decisions of the 111-node tree (steps = 3 on :func:`large_tree_model`, ``Psi = I``,
     ``xi = 0.9``) along its own closed loop: 120 decisions build the families (not timed), the
-    next 40 are timed (quick: 30 and 10), each on a new state (replayed states let the caches answer from an
-    earlier pass: 12 ms against ~60 ms), those that built a family left out (counted)."""
+    next 40 are timed (quick: 30 and 10), each on a new state (replayed states let the caches
+    answer from an earlier pass: 12 ms against ~60 ms), those that built a family left out
+    (counted)."""
     model = large_tree_model()
     n, N = model.n, model.N
     ctrl = ScenarioTreeController(
