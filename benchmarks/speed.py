@@ -307,8 +307,7 @@ def measure_tree(opts) -> dict[str, Any]:
     states of the paper's controller, against its cvxpy reference and one-step ``act()``."""
     model = sdjls_gym.macro()
     p3 = RecedingHorizonController(model, PAPER_K, **PAPER_RHC)
-    # as many states as timed calls (warm-up round included): no decision is timed twice on one
-    # state, which the caches keyed by region probabilities would answer from the first time
+    # one state per timed call: a replayed state meets the caches its first visit filled
     calls = (opts.repeats + 1) * (40 if opts.quick else 200)
     x, mode, k = closed_loop_states(model, p3, max(400, -(-calls // 20) * 20), seed=6)
     idx = np.arange(len(x))
@@ -482,9 +481,8 @@ def large_tree_model(seed: int = 11, N: int = 10, r: int = 20) -> SDJLSModel:
 def measure_large_tree(opts, act_one_step_us: float) -> dict[str, Any]:
     """Decisions of the 111-node tree (steps = 3 on :func:`large_tree_model`, ``Psi = I``,
     ``xi = 0.9``) along its own closed loop: 120 decisions build the families (not timed), the
-    next 40 are timed (quick: 30 and 10), each on a new state (replayed states let the caches
-    answer from an earlier pass: 12 ms against ~60 ms), those that built a family left out
-    (counted)."""
+    next 40 (quick: 30 and 10) are timed, each on a new state (replayed states let the caches
+    answer from an earlier pass: 12 ms against ~60 ms); those that built a family are counted."""
     model = large_tree_model()
     n, N = model.n, model.N
     ctrl = ScenarioTreeController(
@@ -493,25 +491,21 @@ def measure_large_tree(opts, act_one_step_us: float) -> dict[str, Any]:
     env = SDJLSVectorEnv(num_envs=1, model=model)
     _, info = env.reset(seed=3)
     warm, timed = (30, 10) if opts.quick else (120, 40)
-    times, solves, ok, builds = [], [], 0, 0
+    runs, builds = [], 0  # (seconds, QP solves, ok) of the timed decisions
     for step in range(warm + timed):
         if step == warm:
             ctrl.reset_path_counts()
-        state = (info["state"][0].copy(), int(info["mode"][0]), int(info["k"][0]))
-        built = ctrl.families_built
-        t0 = time.perf_counter()
-        u, dec = ctrl.act(*state)
+        built, t0 = ctrl.families_built, time.perf_counter()
+        u, dec = ctrl.act(info["state"][0].copy(), int(info["mode"][0]), int(info["k"][0]))
         elapsed = time.perf_counter() - t0
-        if step >= warm:
-            if ctrl.families_built > built:
-                builds += 1
-            else:
-                times.append(elapsed)
-                solves.append(dec["iterations"])
-                ok += bool(dec["ok"])
+        if step >= warm and ctrl.families_built > built:
+            builds += 1
+        elif step >= warm:
+            runs.append((elapsed, dec["iterations"], bool(dec["ok"])))
         _, _, term, trunc, info = env.step(u[None])
         if term[0] or trunc[0]:
             _, info = env.reset()
+    times = [run[0] for run in runs]
     nodes = int(dec["plan"].mode.size)
     return {
         "nodes": nodes,
@@ -521,8 +515,8 @@ def measure_large_tree(opts, act_one_step_us: float) -> dict[str, Any]:
         "median_ms": 1e3 * statistics.median(times),
         "mean_ms": 1e3 * float(np.mean(times)),
         "max_ms": 1e3 * max(times),
-        "qp_solves_per_decision": float(np.mean(solves)),
-        "ok_share": ok / len(times),
+        "qp_solves_per_decision": float(np.mean([run[1] for run in runs])),
+        "ok_share": float(np.mean([run[2] for run in runs])),
         "solves_by_path": ctrl.path_counts,
         "vs_one_step_act": 1e3 * statistics.median(times) / act_one_step_us,
     }
