@@ -254,7 +254,6 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
         #: the families, built when a decision first needs one (within a memory budget)
         self._families = FamilyCache(self._build_family)
         self._rows: tuple[int, ...] | None = None  # the active set of the last verified answer
-        self._dynamics: dict[tuple[int, bool], tuple[np.ndarray, np.ndarray]] = {}
 
     @property
     def families_built(self) -> int:
@@ -452,22 +451,12 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
         x, mode, k = self._check_batch_inputs(x, mode, k)
         return self._act_each(x, mode, k)
 
-    def _node_dynamics(self, fam: TreeFamily) -> tuple[np.ndarray, np.ndarray]:
-        """``(Atilde, B)`` of each node's mode, (M, n, n) and (M, n, m): a function of the
-        family's key, kept per key (a few floats per node)."""
-        key = (fam.mode, fam.inside)
-        parts = self._dynamics.get(key)
-        if parts is None:
-            modes = fam.tree.mode
-            parts = self._dynamics[key] = (self.A_tilde[modes], self.model.B[modes])
-        return parts
-
     def _plan(self, fam: TreeFamily, x, k, pr: _Probabilities, nu, rho) -> TreePlan:
         M, n = fam.size, self.model.n
         tree = fam.tree
         z = np.concatenate([nu.ravel(), rho])
         mean = (fam.mean_x @ x + fam.mean_z @ z).reshape(M, n)
-        At, Bt = self._node_dynamics(fam)
+        At, Bt = self.A_tilde[tree.mode], self.model.B[tree.mode]
         next_mean = (At @ mean[:, :, None] + Bt @ nu[:, :, None])[:, :, 0]
         out = TreePlan(
             k=int(k),

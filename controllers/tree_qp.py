@@ -236,15 +236,24 @@ class TreeQP(QPFamily):
         fac = self._factor(rows)
         if fac is None:
             return None
-        if self._token is None:
-            return check_active_set(fac, self.P, self.C, w, self.absC, report)
-        entry = self._reduced.get((self._token, rows), _reduce, fac, self.P)
-        if entry.red is None:  # not a candidate
+        red, maps = self._reduction(fac, count=True)
+        if red is None:  # not a candidate
             return None
-        entry.uses += 1
-        if entry.uses == 2 and entry.mappable:  # a pair tested again: worth its maps
-            entry.maps = stacked_maps(fac, entry.red, self.P)
-        return check_active_set(fac, self.P, self.C, w, self.absC, report, entry.red, entry.maps)
+        return check_active_set(fac, self.P, self.C, w, self.absC, report, red, maps)
+
+    def _reduction(self, fac: ActiveSetFactor, count: bool = False) -> tuple:
+        """``(red, maps)`` of the active set of ``fac`` with the current ``P``: its reduced
+        Hessian (None: not a candidate) and its stacked maps (None until the pair's second
+        test, counted with ``count``); kept under the Hessian's token, computed afresh without
+        one."""
+        if self._token is None:
+            return reduce_hessian(fac, self.P), None
+        entry = self._reduced.get((self._token, fac.rows), _reduce, fac, self.P)
+        if count and entry.red is not None:
+            entry.uses += 1
+            if entry.uses == 2 and entry.mappable:  # a pair tested again: worth its maps
+                entry.maps = stacked_maps(fac, entry.red, self.P)
+        return entry.red, entry.maps
 
     def direction(self, rows: tuple[int, ...], dw: np.ndarray) -> np.ndarray | None:
         """The change of the exact solution of the active set ``rows`` for the change ``dw`` of
@@ -252,11 +261,7 @@ class TreeQP(QPFamily):
         fac = self._factor(rows)
         if fac is None:
             return None
-        if self._token is None:
-            red, maps = reduce_hessian(fac, self.P), None
-        else:
-            entry = self._reduced.get((self._token, rows), _reduce, fac, self.P)
-            red, maps = entry.red, entry.maps
+        red, maps = self._reduction(fac)
         if red is None:
             return None
         with np.errstate(over="ignore", invalid="ignore"):

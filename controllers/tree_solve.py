@@ -63,9 +63,10 @@ _TOKENS = itertools.count()  # one per Hessian built (see TreeQP.update_P)
 @dataclass
 class _Probabilities:
     """The probabilities one QP is built with, and what depends on them alone (set by
-    :meth:`TreeSolver._weigh` on first use; a family keeps the probabilities of recent ``q``,
-    :attr:`controllers.tree_data.TreeFamily.weights`, so that a decision meeting the same ``q``
-    again, as the closed loop does where the region probabilities saturate, builds nothing)."""
+    :meth:`TreeSolver._weigh` where they are made; a family keeps the probabilities of recent
+    ``q``, :attr:`controllers.tree_data.TreeFamily.weights`, so that a decision meeting the same
+    ``q`` again, as the closed loop does where the region probabilities saturate, builds
+    nothing)."""
 
     q: np.ndarray  # (S,) region probabilities of the nodes tree.sq
     branch: np.ndarray  # (M, N)
@@ -158,8 +159,6 @@ class TreeSolver:
         nodes as in :meth:`_weigh`."""
         M, m = fam.size, self.model.m
         ctx = self._context(fam, x, k) if ctx is None else ctx
-        if pr.P is None:
-            self._weigh(fam, pr)
         qlin = 2.0 * (fam.LzT @ (pr.wrow * ctx.lx))
         qlin[M * m :] += self.alpha * pr.weight
         h_chance = ctx.h_chance
@@ -174,8 +173,6 @@ class TreeSolver:
     def _objective(self, fam: TreeFamily, x, nu, rho, pr: _Probabilities, ctx=None) -> float:
         """``J`` at ``(nu, rho)`` with every constant term (Lemma 1's traces included): a sum of
         nonnegative terms, computed as such (no cancellation)."""
-        if pr.P is None:
-            self._weigh(fam, pr)
         lx = fam.Lx @ x if ctx is None else ctx.lx
         t = lx + fam.Lz @ np.concatenate([nu.ravel(), rho])
         return float(pr.wrow @ (t * t) + pr.const + self.alpha * (pr.weight @ rho))
@@ -293,6 +290,7 @@ class TreeSolver:
         tiny = (pr.path > 0.0) & (pr.path < TINY_PROBABILITY)
         if tiny.any():  # the test cannot resolve their weights: an answer without them
             rough = _Probabilities(pr.q, pr.branch, pr.path, pr.weight, pr.idle | tiny)
+            self._weigh(fam, rough)
             P2, w2 = self._qp(fam, x, k, rough, ctx)
             engine.update_P(P2, rough.token)
             sol = engine.solve(w2, warm=False, notes=[])
