@@ -260,6 +260,7 @@ class QPFamily(DaqpSolving):
         self.screen = bool(self.c > SCREEN_RATIO * d)
         self._general_pos: np.ndarray | None = None
         self._pool: np.ndarray | None = None  # the subset of the last screened solve
+        self._C_csc: sp.csc_matrix | None = None  # C for Clarabel's hint (built on first use)
         #: the variables without curvature (zero rows of P: the slacks), which the exact solve
         #: of an active set takes from their rows (see controllers.kkt.active_set_factor)
         self.pivots = np.asarray(~self.P.any(axis=1), dtype=bool)
@@ -274,8 +275,8 @@ class QPFamily(DaqpSolving):
         self._osqp: osqp.OSQP | None = None
         self._enum: Any = None  # the ActiveSetQP of a full enumeration, built on first use
         self._daqp: DaqpData | None = None  # DAQP's scaled data for the current P
-        #: the scaling of DAQP's data for an earlier P, reused after update_P (None: compute)
-        self._daqp_scaling: tuple[np.ndarray, np.ndarray] | None = None
+        #: DAQP's data for an earlier P, whose scaling and scaled rows update_P reuses
+        self._daqp_scaling: DaqpData | None = None
         self._daqp_ws: DaqpWorkspace | None = None  # DAQP's workspace (fixed P only)
         self.warm: tuple[int, ...] | None = None
 
@@ -339,8 +340,8 @@ class QPFamily(DaqpSolving):
         self._maps.clear()
         self._seen = None
         self._enum = None
-        if self._daqp is not None:  # DAQP's scaling is kept (kkt_scaling costs ~1 ms)
-            self._daqp_scaling = (self._daqp.D, self._daqp.E)
+        if self._daqp is not None:  # DAQP's scaling and scaled rows are kept (~3 ms)
+            self._daqp_scaling = self._daqp
         self._daqp = None
         self._daqp_ws = None
         self._fixed_P = False

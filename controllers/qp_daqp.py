@@ -13,8 +13,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import scipy.sparse as sp
 
 from .dual_qp import REGULARIZE, DaqpWorkspace, daqp_data, run_daqp
+from .qp_ipm import IPM_MIN_VARIABLES, IPM_MIN_VIOLATED, interior_point_rows
 
 __all__ = [
     "NEAR_ACTIVE_TOL",
@@ -45,7 +47,7 @@ class Solution:
 
     z: list[float]
     rows: tuple[int, ...]
-    path: str  # "warm", "repair", "daqp", "osqp", "osqp_retry", "enumeration"
+    path: str  # "warm", "repair", "clarabel", "daqp", "osqp", "osqp_retry", "enumeration"
 
 
 class DaqpSolving:
@@ -66,6 +68,8 @@ class DaqpSolving:
     _fixed_P: bool
     _general_pos: np.ndarray | None
     _pool: np.ndarray | None
+    _C_csc: Any
+    use_daqp: bool
     upper_idx: np.ndarray
     lower_idx: np.ndarray
 
@@ -156,26 +160,36 @@ class DaqpSolving:
     def _solve_screened(self, w: np.ndarray, start: tuple[int, ...] | None) -> Solution | None:
         """DAQP on a subset of the general rows, grown until no row it omits is violated: for
         a family with many more rows than variables (a tree of 111 nodes has 2220 chance rows
-        and 222 variables) DAQP's set-up, linear in the rows, dominates its run. The subset
-        starts with the rows of the family's last screened solve, the general rows of ``start``
-        and the rows violated at the solution of that active set; each round adds every omitted row violated at DAQP's answer and starts
-        DAQP from its last working set. When none is violated, DAQP's answer is the optimum of
-        the whole QP, and the active set of its multipliers is verified as usual. None when a
-        round fails or after :data:`SCREEN_ROUNDS` rounds. Used only while the Hessian changes
-        (a fixed one keeps DAQP's warm workspace, which sees every row)."""
+        and 222 variables) DAQP's iterations scan every row it sees. The subset starts with
+        the rows of the family's last screened solve, the general rows of ``start`` and the
+        rows violated at the solution of that active set; each round adds every omitted row
+        violated at DAQP's answer and starts DAQP from its last working set. When none is
+        violated, DAQP's answer is the optimum of the whole QP, and the active set of its
+        multipliers is verified as usual. None when a round fails or after
+        :data:`SCREEN_ROUNDS` rounds. Used only while the Hessian changes (a fixed one keeps
+        DAQP's warm workspace, which sees every row).
+
+        When many rows are violated at ``start``'s solution (a large family far from its warm
+        set), Clarabel's hint (:mod:`controllers.qp_ipm`) comes first: its set, verified, is
+        the answer (path ``"clarabel"``); else it is DAQP's start."""
         general = self._daqp_general_rows()
-        general_pos = self._general_pos
-        assert general_pos is not None  # set by _daqp_general_rows
-        n_up = self.upper_idx.size
         # the rows DAQP needed at the family's last screened solve, a good start nearby
         take = np.zeros(general.size, dtype=bool) if self._pool is None else self._pool.copy()
         if start is not None:
             report: dict = {}
             self.verify(start, w, report)
-            seed = set(start) | set(report.get("add", ()))
-            for i in seed:
-                a = self.upper_idx[i] if i < n_up else self.lower_idx[i - n_up]
-                take[general_pos[a]] = general_pos[a] >= 0
+            if self._far(report):
+                hint = self._interior_point_hint(w)  # far from the warm set: see qp_ipm
+                if hint is not None:
+                    out = self.verify(hint, w, report)
+                    if out is None:
+                        hint, out = self._mend_hint(hint, w, report)
+                    if out is not None:  # the next screened solve starts near this optimum
+                        self._pool = self._near_rows(np.asarray(out), w, SCREEN_NEAR)
+                        return Solution(out, hint, "clarabel")
+                    start = hint
+            seed = list(set(start) | set(report.get("add", ())))
+            take[self._general_of(seed)] = True
         h = np.asarray(w[self.d :])
         begin = start
         for _ in range(SCREEN_ROUNDS):
@@ -186,14 +200,11 @@ class DaqpSolving:
             slack = h - self.C @ z
             terms = self.absC @ np.abs(z) + np.abs(h)
             violated = slack < -NEAR_ACTIVE_TOL * terms
-            new = np.zeros(general.size, dtype=bool)
             if violated.any():  # the violated rows, and those nearly active, join
                 violated |= slack < SCREEN_NEAR * terms
-            for i in np.flatnonzero(violated).tolist():
-                a = self.upper_idx[i] if i < n_up else self.lower_idx[i - n_up]
-                pos = general_pos[a]
-                if pos >= 0 and not take[pos]:
-                    new[pos] = True
+            new = np.zeros(general.size, dtype=bool)
+            new[self._general_of(np.flatnonzero(violated))] = True
+            new &= ~take
             rows = self.rows_of_multipliers(y)
             if not new.any():
                 self._pool = take
@@ -206,14 +217,62 @@ class DaqpSolving:
             begin = rows
         return None
 
+    def _general_of(self, rows: Any) -> np.ndarray:
+        """The positions among DAQP's general rows (:meth:`_daqp_general_rows`) of the
+        one-sided rows ``rows`` that are general rows (the others dropped)."""
+        pos = self._general_pos
+        assert pos is not None  # set by _daqp_general_rows
+        of = np.concatenate([self.upper_idx, self.lower_idx])[np.asarray(rows, dtype=np.int64)]
+        out = pos[of]
+        return out[out >= 0]
+
+    def _near_rows(self, z: np.ndarray, w: np.ndarray, near: float) -> np.ndarray:
+        """A mask over DAQP's general rows: those within ``near`` of their terms from active
+        at ``z`` (a pool for :meth:`_solve_screened`)."""
+        h = np.asarray(w[self.d :])
+        slack = h - self.C @ z
+        mask = np.zeros(self._daqp_general_rows().size, dtype=bool)
+        mask[
+            self._general_of(np.flatnonzero(slack < near * (self.absC @ np.abs(z) + np.abs(h))))
+        ] = True
+        return mask
+
+    def _mend_hint(
+        self, rows: tuple[int, ...], w: np.ndarray, report: dict
+    ) -> tuple[tuple[int, ...], list[float] | None]:
+        """A hint whose KKT test at ``w`` failed with ``report``, mended once: ``(rows, z)``,
+        ``z`` None when the mended set fails too (or, here, is not tried: see
+        :meth:`controllers.tree_qp.TreeQP._mend_hint`)."""
+        return rows, None
+
+    def _far(self, report: dict) -> bool:
+        """Whether a failed KKT test's ``report`` (see :func:`controllers.kkt.check_active_set`)
+        calls for Clarabel's hint: a large screened family whose Hessian changes (see
+        :meth:`_solve_screened`), many rows violated."""
+        return bool(
+            self.use_daqp
+            and self.screen
+            and not self._fixed_P
+            and self.d >= IPM_MIN_VARIABLES
+            and len(report.get("add", ())) >= IPM_MIN_VIOLATED
+        )
+
+    def _interior_point_hint(self, w: np.ndarray) -> tuple[int, ...] | None:
+        """The active set Clarabel's answer to instance ``w`` indicates
+        (:func:`controllers.qp_ipm.interior_point_rows`), or None; not verified."""
+        if self._C_csc is None:
+            self._C_csc = sp.csc_matrix(self.C)
+        rows = interior_point_rows(self.P, self._C_csc, w[: self.d], w[self.d :])
+        return None if rows is None or len(rows) > self.d else rows
+
     def _daqp_general_rows(self) -> np.ndarray:
-        """The rows of ``A`` DAQP takes as general constraints (the others are its simple
-        bounds); :attr:`_general_pos` maps a row of ``A`` to its position among them (-1)."""
-        if self._daqp is None:
-            self._daqp = daqp_data(self.P, self.A, self._daqp_simple, self._daqp_scaling)
-        general = self._daqp.general
+        """The rows of ``A`` DAQP takes as general constraints (the others, the identity rows
+        of a ``simple`` family, are its simple bounds); :attr:`_general_pos` maps a row of
+        ``A`` to its position among them (-1)."""
+        rows_A = self.A.shape[0]
+        general = np.arange(rows_A - self.d if self._daqp_simple else rows_A)
         if self._general_pos is None:
-            pos = np.full(self.A.shape[0], -1, dtype=np.int64)
+            pos = np.full(rows_A, -1, dtype=np.int64)
             pos[general] = np.arange(general.size)
             self._general_pos = pos
         return general

@@ -58,8 +58,11 @@ region) family; one :class:`controllers.tree_qp.TreeQP` per family (a
 :class:`controllers.qp.QPFamily`) has its Hessian updated at every solve (the path probabilities
 weight the stage costs) and is warm started: the last active set is re-solved exactly for the
 new data, then the sets optimal before it, then the last one is repaired by primal-dual
-active-set steps, then DAQP finds the active set (OSQP too, on small trees), which is re-solved
-exactly; the answer is verified by the KKT test. Whatever depends only on the probabilities (the
+active-set steps (these two while they pay), then DAQP finds the active set (OSQP too, on small
+trees), which is re-solved exactly; the answer is verified by the KKT test. On a large tree far
+from its warm set (the first solve at a new state), Clarabel's interior-point answer indicates
+the active set first (:mod:`controllers.qp_ipm`), verified in turn, and DAQP starts from it when
+it fails. Whatever depends only on the probabilities (the
 Hessian, the weights of the objective's rows, and per active set the reduced Hessian and, once
 met again, the exact solve as two matrices) is kept for the probabilities met again, as they are
 wherever the chance rows are active. After failures the condensed QP goes to cvxpy + Clarabel
@@ -253,6 +256,7 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
         self._check_magnitudes()
         #: the families, built when a decision first needs one (within a memory budget)
         self._families = FamilyCache(self._build_family)
+        self._records: dict[str, list[int]] = {}  # the families' warm tries (share_records)
         self._rows: tuple[int, ...] | None = None  # the active set of the last verified answer
 
     @property
@@ -303,9 +307,11 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
                         )
 
     def _build_family(self, mode: int, inside: bool) -> TreeFamily:
-        return build_tree_family(
+        fam = build_tree_family(
             self.settings, self.steps, self.branching, mode, inside, self._regions
         )
+        fam.engine.share_records(self._records)
+        return fam
 
     # ------------------------------------------------------------------ probabilities
     def _region_q(self, fam: TreeFamily, ctx: _Context, z: np.ndarray) -> np.ndarray:
