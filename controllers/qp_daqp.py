@@ -4,7 +4,9 @@
 DAQP (:mod:`controllers.dual_qp`) finds an active set; it is re-solved exactly and verified by
 :mod:`controllers.kkt` before it is returned. A family with many more one-sided rows than
 variables (a large scenario tree) first gives DAQP a growing subset of its rows
-(:meth:`DaqpSolving._solve_screened`): DAQP's set-up is linear in the rows.
+(:meth:`DaqpSolving._solve_screened`): DAQP's iterations scan every row it sees. When such a
+family's warm set is far from the optimum, Clarabel's hint (:mod:`controllers.qp_ipm`) comes
+first.
 """
 
 from __future__ import annotations

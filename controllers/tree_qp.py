@@ -60,7 +60,8 @@ RECENT_SETS = 4
 #: in :data:`RECENT_PAYOFF` warm failures (to notice when they pay again). On the 111-node tree,
 #: on new states, one try in ~60 verified, and each failed try is an exact solve of 222
 #: variables (~8 ms a decision in all). The repair from the warm set is tried by the same rule
-#: (there it verified once in ~50 tries, ~7 ms each).
+#: (there it ran 206 times in the speed benchmark's 160 decisions, ~7 ms each, and answered one
+#: of the 107 timed solves).
 RECENT_TRIAL = 16
 RECENT_PAYOFF = 8
 
@@ -295,10 +296,11 @@ class TreeQP(QPFamily):
     def warm_solve(self, w: np.ndarray) -> Solution | None:
         """The last active set, then the sets optimal before it (:data:`RECENT_SETS`, while they
         pay: :data:`RECENT_PAYOFF`), then up to :data:`WARM_REPAIR_STEPS` primal-dual
-        active-set steps from the last one (see :meth:`repair`): the probabilities of a
-        fixed-point iteration, or the next state of a closed loop, move the optimum's active set
-        by a few rows, often back to a set met before, which these tries find at the cost of a
-        few exact solves (a DAQP run on a 111-node tree costs tens of them)."""
+        active-set steps from the last one (see :meth:`repair`; by the same rule): the
+        probabilities of a fixed-point iteration, or the next state of a closed loop, move the
+        optimum's active set by a few rows, often back to a set met before, which these tries
+        find at the cost of a few exact solves. Neither is tried when the last set is far from
+        the optimum on a large family (:meth:`_far`): Clarabel's hint comes first there."""
         rows = self.warm
         assert rows is not None  # solve() calls this only with a warm active set
         recent = self._recent
