@@ -127,7 +127,6 @@ class Whitened:
     Rinv: np.ndarray  # (|K|, |K|) upper triangular: x_K = Rinv v
     H: np.ndarray  # diag(0 on Z, 1 on K)
     A_gen: np.ndarray  # DAQP's general rows: [bounds of x_K (if simple)], general rows of A
-    ms: int  # DAQP's simple bounds (nz with simple, else 0)
     index: np.ndarray  # DAQP's constraint index of each row of A
     order: np.ndarray  # the row of A of each DAQP constraint
     scale: np.ndarray  # the scaling of each DAQP constraint's bounds
@@ -141,13 +140,12 @@ class Whitened:
         return x
 
 
-def whiten(data: DaqpData, c: int, row_scale: np.ndarray) -> Whitened | None:
-    """:class:`Whitened` of ``data`` (``c`` rows of ``A``, ``row_scale`` per row), or None
-    when the curved block of ``H`` is not numerically positive definite (DAQP then sees
+def whiten(data: DaqpData) -> Whitened | None:
+    """:class:`Whitened` of ``data``, or None when the curved block of ``H`` is not numerically positive definite (DAQP then sees
     ``H`` itself and regularizes it)."""
     import scipy.linalg as sl
 
-    H, d = data.H, data.D.size
+    H, d, c = data.H, data.D.size, data.index.size
     flat = ~H.any(axis=1)
     Z, K = np.flatnonzero(flat), np.flatnonzero(~flat)
     try:
@@ -176,9 +174,8 @@ def whiten(data: DaqpData, c: int, row_scale: np.ndarray) -> Whitened | None:
         bounds_K[:, nz:] = Rinv
         A_gen = np.vstack([bounds_K, gen])
         order = np.concatenate([c - d + Z, c - d + K, data.general])
-        ms = nz
     else:
-        A_gen, order, ms = gen, data.general.copy(), 0
+        A_gen, order = gen, data.general.copy()
     index = np.empty(c, dtype=np.int64)
     index[order] = np.arange(c)
     return Whitened(
@@ -187,10 +184,9 @@ def whiten(data: DaqpData, c: int, row_scale: np.ndarray) -> Whitened | None:
         Rinv,
         Hw,
         np.ascontiguousarray(A_gen),
-        ms,
         index,
         order,
-        row_scale[order],
+        data.y_scale[order],
         c - data.general.size,
     )
 
@@ -210,10 +206,8 @@ def daqp_data(
     base = scaling if isinstance(scaling, DaqpData) else None
     if isinstance(scaling, DaqpData):
         D, E = scaling.D, scaling.E
-    elif scaling is not None:
-        D, E = scaling
     else:
-        D, E = kkt_scaling(P, A)
+        D, E = kkt_scaling(P, A) if scaling is None else scaling
     H = P * D[:, None] * D[None, :]
     top = float(np.max(np.abs(H), initial=0.0))
     cs = 1.0 / top if top > 0.0 else 1.0
@@ -247,7 +241,7 @@ def daqp_data(
         )
     if d < WHITEN_MIN_VARIABLES:
         return data
-    return replace(data, white=whiten(data, c, data.y_scale))
+    return replace(data, white=whiten(data))
 
 
 class DaqpWorkspace:
