@@ -50,6 +50,7 @@ from tqdm import tqdm
 from benchmarks import rl_hyperparams as HP
 from benchmarks.backends import BACKENDS, train_all
 from benchmarks.cli_options import one_of, options_parser, parse_options
+from benchmarks.commands import prog
 from benchmarks.evaluate import REFERENCE_XIS, check_evaluation, evaluate
 from benchmarks.files import stable_floats, write_atomic
 from benchmarks.montecarlo import multistep_rhc, paper_rhc, rollout
@@ -315,7 +316,7 @@ class Options:
 def parse_args(argv: list[str] | None = None) -> Options:
     parser = options_parser(
         Options,
-        prog="python -m benchmarks.compare_rl",
+        prog=prog("compare_rl"),
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )

@@ -60,9 +60,10 @@ from typing import Any
 import numpy as np
 
 from benchmarks.cli_options import SB3_ALGOS, CliError, load_cli_policy
+from benchmarks.commands import prog
 from benchmarks.files import write_atomic
 from benchmarks.montecarlo import Rollouts, rollout
-from benchmarks.policies import RawEnvPolicy, as_controller, check_policy
+from benchmarks.policies import RawEnvPolicy, as_controller, check_policy, unwrap_vec_env
 from benchmarks.reference import (
     REFERENCE_CONSTRAINT,
     REFERENCE_XIS,
@@ -72,7 +73,7 @@ from benchmarks.reference import (
 )
 from benchmarks.score_table import TABLE_HEADER, table_row
 from benchmarks.stats import CurveGap
-from benchmarks.task_env import TaskEnv, resolve_env, rollout_statistics
+from benchmarks.task_env import TaskEnv, check_fits, infer_env, resolve_env, rollout_statistics
 from sdjls_gym.messages import a_type, describe
 from sdjls_gym.systems import TASKS
 from sdjls_gym.validation import check_int, check_mapping
@@ -254,8 +255,9 @@ def evaluate(
     *,
     episodes: int = 1000,
     seed: int = 0,
-    env_id: str = "SDJLS-Macro-v0",
+    env_id: str | None = None,
     env_kwargs: dict[str, Any] | None = None,
+    env: Any = None,
 ) -> Score:
     """Score ``policy`` on ``episodes`` episodes of the raw ``env_id`` from noise seed ``seed``.
 
@@ -264,15 +266,24 @@ def evaluate(
     policy : object
         A controller with ``act_batch(x, mode, k)``, an object with ``predict(obs,
         deterministic=True)``, or a callable ``obs -> action`` (see the module docstring). An
-        agent trained behind rescaling wrappers goes in as ``RawEnvPolicy(agent, train_env)``.
+        agent trained behind rescaling wrappers goes in as ``RawEnvPolicy(agent, train_env)``,
+        or with ``env=train_env``.
     episodes : int
         At least 2 (the intervals are over episodes), at most :data:`MAX_EPISODES`.
     seed : int
         Noise seed, >= 0; the same seed gives every policy the same noise.
-    env_id : str
-        A registered SDJLS environment.
+    env_id : str, optional
+        A registered SDJLS environment. Default: the policy's own task
+        (:func:`benchmarks.task_env.infer_env`): a ``RawEnvPolicy``'s training environment, a
+        controller's model's task (``SDJLS-v0`` with that model when it is not a registered
+        task's), else ``SDJLS-Macro-v0``.
     env_kwargs : dict, optional
         Keyword arguments of ``gym.make(env_id, ...)``.
+    env : gymnasium.Env or stable-baselines3 VecEnv, optional
+        Instead of ``env_id``: the environment the policy acts on, as stable-baselines3's
+        ``evaluate_policy(model, env)`` takes it. The policy is scored on its raw environment
+        (the same id and keyword arguments); an agent (with ``predict``) acting on a wrapped
+        ``env`` is wrapped as ``RawEnvPolicy(policy, env)``, which undoes the wrappers.
 
     Returns
     -------
@@ -287,12 +298,25 @@ def evaluate(
         The policy returned what ``env.step`` refuses (``"1.0"``, ``True``, None).
     """
     episodes, seed = check_evaluation(episodes, seed)
-    if not isinstance(env_id, str):
+    if env_id is not None and not isinstance(env_id, str):
         raise TypeError(f"env_id = {describe(env_id)} is {a_type(env_id)}; expected a str")
     env_kwargs = check_mapping("env_kwargs", env_kwargs)
     check_policy(policy)
+    if env is not None:
+        env, _ = unwrap_vec_env(env)
+        if not callable(getattr(policy, "act_batch", None)) and env is not env.unwrapped:
+            policy = RawEnvPolicy(policy, env)  # an agent on its (wrapped) training env
+    env_id, env_kwargs, how = infer_env(policy, env_id, env_kwargs, env)
     spec = resolve_env(env_id, env_kwargs)
-    return evaluate_rollouts(as_controller(policy, spec), spec, episodes, seed, env_id)[0]
+    check_fits(policy, spec, how)
+    try:
+        controller = as_controller(policy, spec)
+    except ValueError as exc:
+        if how == "env_id":
+            raise
+        raise ValueError(f"{exc} (scored on env_id = {env_id!r}: {how}; pass env_id or env= of "
+                         "the policy's task)") from None  # fmt: skip
+    return evaluate_rollouts(controller, spec, episodes, seed, env_id)[0]
 
 
 # ----------------------------------------------------------------------------- command line
@@ -339,7 +363,7 @@ def main(argv: list[str] | None = None) -> Score:
 
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.evaluate",
+        prog=prog("evaluate"),
         description="Score a policy with the benchmarks' evaluation protocol.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
@@ -360,8 +384,8 @@ def main(argv: list[str] | None = None) -> Score:
     parser.add_argument("--episodes", type=int, default=1000, help="evaluation episodes")
     parser.add_argument("--seed", type=int, default=0, help="noise seed")
     parser.add_argument("--env-id", default=None,
-                        help="registered environment (None: SDJLS-Macro-v0, or with --run the "
-                        "run's task)")  # fmt: skip
+                        help="registered environment (None: the policy's own task: a "
+                        "controller's model's, a --train-env's, a --run's; else SDJLS-Macro-v0)")  # fmt: skip
     parser.add_argument("--json", type=Path, help="write the score (and the versions) here")
     opts = parser.parse_args(argv)
     # every input is checked before the evaluation, each error naming its option
@@ -393,15 +417,15 @@ def main(argv: list[str] | None = None) -> Score:
             opts.env_id = run_id
         except (TypeError, ValueError) as exc:
             parser.error(str(exc).replace("run_path = ", "--run "))
-    elif opts.env_id is None:
-        opts.env_id = "SDJLS-Macro-v0"
     name = opts.policy if opts.run is None else str(opts.run)
     try:
-        spec = resolve_env(opts.env_id, dict(env_kwargs))
         if opts.run is not None:
             policy = load_agent(opts.run)
         else:
             policy = load_cli_policy(opts.policy, opts.algo, opts.train_env, opts.vec_normalize)
+        opts.env_id, env_kwargs, how = infer_env(policy, opts.env_id, env_kwargs)
+        spec = resolve_env(opts.env_id, dict(env_kwargs))
+        check_fits(policy, spec, how)
         as_controller(policy, spec)  # the agent's spaces against the environment's
     except (CliError, TypeError, ValueError) as exc:
         message = str(exc).replace("run_path = ", "--run ")

@@ -10,6 +10,8 @@ from typing import Any
 
 import numpy as np
 
+from sdjls_gym.model import SDJLSModel
+
 __all__ = ["STABLE_DIGITS", "jsonable", "stable_floats", "write_atomic"]
 
 #: Significant digits a float keeps in a committed JSON file. A statistic summed over thousands
@@ -33,7 +35,10 @@ def stable_floats(data: Any, digits: int = STABLE_DIGITS) -> Any:
 def jsonable(value: Any) -> Any:
     """``value`` with numpy out of it, for ``json.dumps``: dicts (keys as ``str``), lists and
     tuples (as lists), arrays (as nested lists), numpy scalars (as Python's); other values
-    unchanged. The one converter of the benchmarks: the runs' fingerprints hash its output."""
+    unchanged; an :class:`~sdjls_gym.SDJLSModel` as ``{"SDJLSModel": its to_dict()}``. The one
+    converter of the benchmarks: the runs' fingerprints hash its output."""
+    if isinstance(value, SDJLSModel):  # a user's task carries its model in env_kwargs
+        return {"SDJLSModel": jsonable(value.to_dict())}
     if isinstance(value, dict):
         return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):

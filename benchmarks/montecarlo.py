@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -60,7 +61,8 @@ class Rollouts:
     mode : (runs, T+1) modes
     u : (runs, T, m) applied inputs
     rho : (runs, T) slack of the controller's QP (0 for controllers without one)
-    J : (runs, T) the controller's reported cost (J*_k for the receding-horizon controller)
+    J : (runs, T) the controller's reported cost (J*_k for the receding-horizon controller; 0
+        where it reports none)
     stage_cost : (runs, T) x_k'Q x_k + u_k'R u_k
     violations : (runs, T, r) whether row j of G x_{k+1} <= H_{k+1} is violated
     status_ok : (runs, T) whether the controller's solver succeeded without fallback
@@ -99,22 +101,34 @@ class Rollouts:
 def decide_batch(controller: Any, x: np.ndarray, mode: np.ndarray, k: np.ndarray) -> tuple:
     """``controller.act_batch`` when the controller has one, else a loop over ``act``.
 
-    Returns ``(u (B, m), rho (B,), J (B,), ok (B,))``.
+    Returns ``(u (B, m), rho (B,), J (B,), ok (B,))``; ``rho`` and ``J`` are 0 and ``ok`` True
+    where the controller's info has no ``"rho"``, ``"cost"`` or ``"ok"``.
     """
     if hasattr(controller, "act_batch"):
-        u, info = controller.act_batch(x, mode, k)
+        u, info = _answer(controller.act_batch(x, mode, k), "act_batch")
         B = x.shape[0]
         rho = np.asarray(info.get("rho", np.zeros(B)), dtype=np.float64)
         ok = np.asarray(info.get("ok", np.ones(B, dtype=bool)), dtype=bool)
-        return u, rho, np.asarray(info["cost"], dtype=np.float64), ok
+        return u, rho, np.asarray(info.get("cost", np.zeros(B)), dtype=np.float64), ok
     us, rhos, Js, oks = [], [], [], []
     for x_row, mode_row, k_row in zip(x, mode, k, strict=True):
-        u, info = controller.act(x_row, int(mode_row), int(k_row))
+        u, info = _answer(controller.act(x_row, int(mode_row), int(k_row)), "act")
         us.append(u)
         rhos.append(float(info.get("rho", 0.0)))
-        Js.append(float(info["cost"]))
+        Js.append(float(info.get("cost", 0.0)))
         oks.append(str(info.get("status", "")).startswith(("solved", "optimal")))
     return np.array(us), np.array(rhos), np.array(Js), np.array(oks)
+
+
+def _answer(out: Any, method: str) -> tuple[Any, Mapping[str, Any]]:
+    """A controller's ``(u, info)``, checked: ``info`` a mapping (its keys ``"rho"``,
+    ``"cost"``, ``"ok"`` optional)."""
+    if not (isinstance(out, tuple) and len(out) == 2 and isinstance(out[1], Mapping)):
+        raise TypeError(
+            f"the policy's {method} returned {type(out).__name__} {str(out)[:80]!r}; expected a "
+            "tuple (u, info) with info a dict (its keys 'rho', 'cost', 'ok' optional)"
+        )
+    return out[0], out[1]
 
 
 def rollout(

@@ -22,7 +22,14 @@ from sdjls_gym.observation import decode_observation, encode_observation
 from sdjls_gym.validation import check_numbers
 from sdjls_gym.wrappers import ResidualAction, ScaleObservationReward, scale_observation
 
-__all__ = ["RawEnvPolicy", "as_controller", "check_policy", "check_spaces"]
+__all__ = [
+    "RawEnvPolicy",
+    "as_controller",
+    "check_policy",
+    "check_spaces",
+    "raw_env_of",
+    "unwrap_vec_env",
+]
 
 #: How a scored agent that acts in other units should be wrapped (the errors' advice).
 _ADVICE = (
@@ -43,6 +50,24 @@ def check_spaces(agent: Any, observation_space: Any, action_space: Any, where: s
                 f"the agent's {kind} space {space} is not the {kind} space {env_space} of "
                 f"{where}; {_ADVICE}, with the environment it was trained on"
             )
+
+
+def raw_env_of(env: Any) -> tuple[str, dict[str, Any]]:
+    """``(env_id, env_kwargs)`` that make ``env``'s raw environment again: its spec's id and
+    keyword arguments, or for an ``SDJLSEnv`` built without ``gym.make``, ``SDJLS-v0`` with its
+    model, horizon and bounds."""
+    base = env.unwrapped
+    if not isinstance(base, SDJLSEnv):
+        raise TypeError(f"env has a {type(base).__name__} underneath; expected an SDJLSEnv")
+    spec = base.spec
+    if spec is not None:
+        return spec.id, dict(spec.kwargs)
+    return "SDJLS-v0", {
+        "model": base.model,
+        "horizon": int(base.horizon),
+        "action_bound": np.asarray(_box(base.action_space, "the SDJLSEnv").high, dtype=np.float64),
+        "divergence_bound": float(base.divergence_bound),
+    }
 
 
 def _box(space: gym.Space[Any], where: str) -> gym.spaces.Box:
@@ -120,7 +145,7 @@ class _ObservationPolicy:
         if a.size != self.m:
             raise ValueError(
                 f"the policy returned {describe(a)} (shape {a.shape}) for one observation; "
-                f"expected {self.m} number(s)"
+                f"expected {self.m} number(s), the input of {self.spec.env_id} (evaluate's env_id)"
             )
         return a.reshape(self.m)
 
@@ -133,7 +158,7 @@ class _ObservationPolicy:
         if a.shape not in ((B, self.m), (B,) * (self.m == 1)):
             raise ValueError(
                 f"the policy returned shape {a.shape} for {B} observations; expected "
-                f"({B}, {self.m})"
+                f"({B}, {self.m}), the inputs of {self.spec.env_id} (evaluate's env_id)"
             )
         return a.reshape(B, self.m)
 
@@ -285,7 +310,7 @@ class RawEnvPolicy:
                 f"agent = {describe(agent)} is {a_type(agent)}; expected an object with "
                 "predict(obs, deterministic=True), such as a stable-baselines3 model"
             )
-        env, found = _unwrap_vec_env(env)
+        env, found = unwrap_vec_env(env)
         if not isinstance(env, gym.Env):
             raise TypeError(
                 f"env = {describe(env)} is {a_type(env)}; expected the agent's training "
@@ -301,6 +326,8 @@ class RawEnvPolicy:
             vec_normalize = agent.get_vec_normalize_env()
         self.normalization = None if vec_normalize is None else _normalization(vec_normalize)
         self.agent, self.model = agent, base.model
+        #: the raw environment's id and keyword arguments: where evaluate scores the agent
+        self.env_id, self.env_kwargs = raw_env_of(base)
         self._predict = _Predict(agent)
         self.horizon, self.divergence_bound = int(base.horizon), float(base.divergence_bound)
         self.action_bound = float(np.max(_box(base.action_space, "the SDJLSEnv").high))
@@ -390,7 +417,7 @@ class RawEnvPolicy:
         return (u[0] if single else u), state
 
 
-def _unwrap_vec_env(env: Any) -> tuple[Any, Any]:
+def unwrap_vec_env(env: Any) -> tuple[Any, Any]:
     """``(the gymnasium.Env of env, the VecNormalize around it or None)`` for an SB3 VecEnv;
     ``(env, None)`` for anything else."""
     try:

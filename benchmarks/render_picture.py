@@ -43,6 +43,7 @@ import numpy as np
 
 import sdjls_gym  # noqa: F401  (registers the ids)
 from benchmarks.cli_options import options_parser, parse_options
+from benchmarks.commands import prog
 from sdjls_gym.env import SDJLSEnv
 from sdjls_gym.systems.macro import HORIZON, PAPER_K, PAPER_RHC, macro
 
@@ -266,7 +267,9 @@ def write_report(opts: Options, result: dict[str, Any], before: dict[str, Any] |
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    parser = options_parser(Options, description=__doc__.split("\n\n")[0])
+    parser = options_parser(
+        Options, prog=prog("render_picture"), description=__doc__.split("\n\n")[0]
+    )
     opts = parse_options(parser, Options, argv)
     if opts.episodes < 1:
         parser.error(f"--episodes = {opts.episodes}; expected an int >= 1")

@@ -29,6 +29,7 @@ import numpy as np
 from tqdm import tqdm
 
 from benchmarks.cli_options import options_parser, parse_options
+from benchmarks.commands import prog
 from benchmarks.files import stable_floats, write_atomic
 from benchmarks.montecarlo import Rollouts, paper_rhc, rollout
 from benchmarks.paper_figures import KINDS, make_figures, row_labels
@@ -66,7 +67,7 @@ class Options:
 def parse_args(argv: list[str] | None = None) -> Options:
     parser = options_parser(
         Options,
-        prog="python -m benchmarks.reproduce_paper",
+        prog=prog("reproduce_paper"),
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )

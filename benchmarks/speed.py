@@ -49,6 +49,7 @@ import gymnasium as gym
 import numpy as np
 
 import sdjls_gym
+from benchmarks.commands import prog
 from benchmarks.speed_references import CvxpyParametric, DaqpFloor, P3Data
 from benchmarks.speed_report import TARGETS, write_markdown
 from benchmarks.versions import package_versions
@@ -173,7 +174,7 @@ def closed_loop_states(model: SDJLSModel, ctrl, count: int, seed: int):
 
 def measure_act(opts) -> dict[str, Any]:
     model = sdjls_gym.macro()
-    kw = dict(PAPER_RHC)
+    kw: dict[str, Any] = dict(PAPER_RHC)
     ctrl = RecedingHorizonController(model, PAPER_K, **kw)  # the default: solver="daqp"
     cold_ctrl = RecedingHorizonController(model, PAPER_K, **kw)
     cold_ctrl.set_warm_start(False)  # DAQP at every call
@@ -550,9 +551,7 @@ def measure_scaling(opts) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.speed", description=__doc__.split("\n\n")[0]
-    )
+    parser = argparse.ArgumentParser(prog=prog("speed"), description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--out", type=Path, default=Path("results/speed"), help="folder for speed.json and SPEED.md"
     )

@@ -55,7 +55,9 @@ from benchmarks.aggregate import (
     aggregate_gaps,
     rliable_modules,
 )
+from benchmarks.commands import prog
 from benchmarks.evaluate import Score, check_evaluation, evaluate, resolve_env
+from benchmarks.files import jsonable
 from benchmarks.reference import curve_xis, gap_reason, reference_curve
 from benchmarks.stats import CurveGap
 from sdjls_gym import SUITE
@@ -179,7 +181,7 @@ def check_tasks(tasks: Any) -> tuple[Task, ...]:
             raise TypeError(
                 f"tasks[{i}] = {describe(item)} is {a_type(item)}; expected an env id or a Task"
             )
-    keys = [(t.env_id, json.dumps(dict(t.env_kwargs), sort_keys=True)) for t in out]
+    keys = [(t.env_id, json.dumps(jsonable(dict(t.env_kwargs)), sort_keys=True)) for t in out]
     if len(set(keys)) != len(keys):
         raise ValueError(f"tasks = {describe(tasks)} names a task twice; expected each once")
     return tuple(out)
@@ -383,7 +385,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[Options, Any]:
 
     parser = options_parser(
         Options,
-        prog="python -m benchmarks.suite",
+        prog=prog("suite"),
         description="Score a policy on every task of the suite, or compute the model-based "
         "references (without --policy).",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,

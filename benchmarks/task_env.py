@@ -17,6 +17,7 @@ import gymnasium as gym
 import numpy as np
 
 from benchmarks.montecarlo import Rollouts
+from benchmarks.policies import raw_env_of
 from benchmarks.reference import task_of
 from benchmarks.stats import mean_ci, wilson
 from sdjls_gym import SDJLSModel
@@ -24,7 +25,11 @@ from sdjls_gym.env import SDJLSEnv
 from sdjls_gym.systems import Task
 from sdjls_gym.validation import check_int
 
-__all__ = ["TaskEnv", "resolve_env", "rollout_statistics"]
+__all__ = ["DEFAULT_ENV_ID", "TaskEnv", "infer_env", "resolve_env", "rollout_statistics"]
+
+#: The task of a policy that says nothing of its own (a callable, an SB3 agent without its
+#: training environment): the paper's example.
+DEFAULT_ENV_ID = "SDJLS-Macro-v0"
 
 
 # ----------------------------------------------------------------------------- environments
@@ -93,6 +98,78 @@ def resolve_env(env_id: str, env_kwargs: dict[str, Any]) -> TaskEnv:
         )
     finally:
         env.close()
+
+
+def _registered_task(model: SDJLSModel) -> tuple[str, dict[str, Any]] | None:
+    """The registered task whose system is ``model``: ``(env_id, env_kwargs)``, or None."""
+    from sdjls_gym.systems import TASKS
+
+    key = _key(model)
+    for task in TASKS.values():
+        if _key(task.model) == key:
+            return task.env_id, dict(task.env_kwargs)
+    return None
+
+
+def infer_env(
+    policy: Any, env_id: str | None, env_kwargs: dict[str, Any] | None, env: Any = None
+) -> tuple[str, dict[str, Any], str]:
+    """Where :func:`benchmarks.evaluate.evaluate` scores ``policy``: ``(env_id, env_kwargs,
+    how)``, ``how`` saying in words how the task was found.
+
+    In this order: ``env`` (an environment, possibly wrapped: its raw environment's id and
+    keyword arguments); ``env_id`` as given; the policy's own (a ``RawEnvPolicy`` knows its
+    training environment's id; a controller's ``model`` is a registered task's system, or else
+    is scored on ``SDJLS-v0`` with that model and the controller's horizon); the default
+    :data:`DEFAULT_ENV_ID` for a policy that says nothing of its task. ``env_kwargs`` without
+    ``env_id`` update the keyword arguments of the task found.
+    """
+    if env is not None:
+        if env_id is not None or env_kwargs:
+            raise ValueError(
+                f"env = {type(env).__name__} and env_id = {env_id!r} / env_kwargs = "
+                f"{env_kwargs!r} both name the environment; expected one of them"
+            )
+        found_id, found_kwargs = raw_env_of(env)
+        return found_id, found_kwargs, "the environment passed as env"
+    if env_id is not None:
+        return env_id, dict(env_kwargs or {}), "env_id"
+    found_id, found_kwargs, how = _policy_env(policy)
+    return found_id, {**found_kwargs, **(env_kwargs or {})}, how
+
+
+def _policy_env(policy: Any) -> tuple[str, dict[str, Any], str]:
+    """The task ``policy`` names by itself (see :func:`infer_env`)."""
+    own = getattr(policy, "env_id", None)
+    if isinstance(own, str):  # RawEnvPolicy: its training environment's id
+        return own, dict(getattr(policy, "env_kwargs", None) or {}), "the policy's env_id"
+    model = getattr(policy, "model", None)
+    if isinstance(model, SDJLSModel):
+        task = _registered_task(model)
+        if task is not None:
+            return task[0], task[1], "the task of the policy's model"
+        kwargs: dict[str, Any] = {"model": model}
+        horizon = getattr(policy, "horizon", None)
+        if isinstance(horizon, int):
+            kwargs["horizon"] = horizon
+        return "SDJLS-v0", kwargs, "SDJLS-v0 with the policy's model"
+    return DEFAULT_ENV_ID, {}, f"the default {DEFAULT_ENV_ID} (the policy names no task)"
+
+
+def check_fits(policy: Any, spec: TaskEnv, how: str) -> None:
+    """Refuse a policy whose ``model`` has other sizes than the environment's (a controller of
+    another system), naming ``env_id`` and how it was chosen."""
+    model = getattr(policy, "model", None)
+    if not isinstance(model, SDJLSModel):
+        return
+    mine = (model.n, model.m, model.N)
+    theirs = (spec.model.n, spec.model.m, spec.model.N)
+    if mine != theirs:
+        raise ValueError(
+            f"env_id = {spec.env_id!r} ({how}) has n, m, N = {theirs} but the policy's model has "
+            f"{mine}; expected the environment of the policy's system: pass env_id (or env=) "
+            "of its task"
+        )
 
 
 def rollout_statistics(ro: Rollouts, divergence_bound: float) -> dict[str, Any]:

@@ -23,13 +23,15 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.commands import prog
+
 DEFAULT_OUT = Path("docs/img/tree_plan.png")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """The command line: ``--env-id``, ``--steps``, ``--state``, ``--mode``, ``--k``, ``--out``."""
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.tree_picture",
+        prog=prog("tree_picture"),
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )

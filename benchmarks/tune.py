@@ -40,6 +40,7 @@ import numpy as np
 
 from benchmarks import rl_hyperparams as HP
 from benchmarks.cli_options import options_parser, parse_options
+from benchmarks.commands import prog
 from benchmarks.files import stable_floats, write_atomic
 from benchmarks.rl_envs import get_task, task_settings
 from benchmarks.rl_train import ALGOS, VARIANTS, CurvePoint, RunSpec, save_run, train_run
@@ -292,7 +293,7 @@ def _resolved(value: _T | None, name: str) -> _T:
 def parse_args(argv: list[str] | None = None) -> Options:
     parser = options_parser(
         Options,
-        prog="python -m benchmarks.tune",
+        prog=prog("tune"),
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )

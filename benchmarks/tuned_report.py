@@ -33,6 +33,7 @@ import numpy as np
 
 from benchmarks import compare_rl
 from benchmarks.aggregate import AGGREGATE_RESAMPLES, compare_gaps, iqm_interval
+from benchmarks.commands import prog
 from benchmarks.evaluate import check_evaluation
 from benchmarks.files import stable_floats, write_atomic
 from benchmarks.rl_suite_report import (
@@ -245,7 +246,7 @@ def write_markdown(results: list[dict[str, Any]], command: str, episodes: int) -
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """The options; a parser error (exit 2) names a bad one before any scoring."""
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.tuned_report",
+        prog=prog("tuned_report"),
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -22,6 +22,7 @@ from sdjls_gym.validation import check_bool, check_choice, check_number
 
 from .base import MAX_STATE, Controller, check_gain, check_terminal_weights
 from .chance import CONSTRAINT_KINDS, check_xi
+from .design import ControllerDesign, design_from_model
 from .qp import check_osqp_settings
 
 __all__ = [
@@ -44,6 +45,8 @@ MAX_NU_BOUND = 1e12
 MAX_QP_ENTRY = 1e100
 
 #: Types accepted without conversion by the fast input check of ``act`` (bool is not among them).
+_Controller = TypeVar("_Controller", bound="RecedingHorizonBase")
+
 _INT_TYPES = frozenset([int] + [np.dtype(c).type for c in np.typecodes["AllInteger"]])
 _FLOAT64 = np.dtype(np.float64)
 
@@ -233,6 +236,65 @@ class RecedingHorizonBase(Controller):
         self._warm_start = True
         #: how many answers each path (``info["solver"]``) gave (see :attr:`path_counts`)
         self._path_counts: dict[str, int] = {}
+        #: where ``K`` and ``Psi`` came from, when :meth:`from_model` chose them
+        self.design: ControllerDesign | None = None
+        self._build()
+
+    def _build(self) -> None:
+        """The subclass's own set-up from :attr:`settings`, at the end of ``__init__``."""
+
+    @classmethod
+    def from_model(
+        cls: type[_Controller],
+        model: SDJLSModel,
+        *,
+        xi: float,
+        K: np.ndarray | None = None,
+        Psi: np.ndarray | None = None,
+        psi: str = "lq_in",
+        **settings: Any,
+    ) -> _Controller:
+        """A controller for ``model`` in one call: ``K`` by Proposition 2, a default ``Psi``.
+
+        ``K`` and ``Psi`` are chosen by :func:`controllers.design.design_from_model` (unless
+        given): the gains of Proposition 2, verified with Proposition 1, and the MJLS LQ value
+        matrices as terminal weights (``psi``; Proposition 2's Lyapunov matrices where those
+        fail). What was chosen is kept as :attr:`design` (a
+        :class:`~controllers.design.ControllerDesign`: ``design.summary()`` says it in one
+        line) and logged at INFO level on the ``"controllers"`` logger.
+
+        Parameters
+        ----------
+        model : SDJLSModel
+        xi : float
+            Chance-constraint level, strictly between 0 and 1.
+        K, Psi : arrays, optional
+            Given gains or terminal weights, used as they are.
+        psi : {"lq_in", "lq_out", "lq_average", "lyapunov"}
+            The rule for the default ``Psi`` (see :func:`controllers.design.design_from_model`).
+        **settings
+            The constructor's other keyword arguments (``constraint``, ``alpha``,
+            ``nu_bound``, ``solver``, ``horizon``, ... and the tree's ``steps``).
+
+        Raises
+        ------
+        LMIInfeasibleError
+            Proposition 2 has no solution for ``model``: pass ``K``.
+
+        Examples
+        --------
+        >>> from controllers import RecedingHorizonController
+        >>> from sdjls_gym.systems.macro import macro
+        >>> ctrl = RecedingHorizonController.from_model(macro(), xi=0.85)
+        >>> ctrl.design.Psi_source.startswith("MJLS LQ value matrices")
+        True
+        >>> ctrl.act([2.0, 2.0], 0, 0)[1]["ok"]
+        True
+        """
+        design = design_from_model(model, K=K, Psi=Psi, psi=psi)
+        ctrl = cls(model, design.K, Psi=design.Psi, xi=xi, **settings)
+        ctrl.design = design
+        return ctrl
 
     def _check_inputs(self, x: Any, mode: Any, k: Any) -> tuple[np.ndarray, int, int]:
         """The checks of the base class, with a shortcut for the common case: ``x`` a finite

@@ -108,11 +108,14 @@ class RecedingHorizonController(RecedingHorizonBase):
     model : SDJLSModel
     K : (N, m, n) array
         Pre-stabilising gains.
-    **settings
-        ``Psi`` (required), ``xi`` (required), ``constraint``, ``alpha``, ``nu_bound``,
-        ``solver`` (``"daqp"``, ``"osqp"``, ``"cvxpy"`` or ``"active_set"``), ``nu_set``,
-        ``horizon``, ``osqp_settings``, ``cvxpy_fallback``: keyword-only, documented once in
-        :class:`controllers.horizon.RecedingHorizonBase`.
+    Psi : (N, n, n) array
+        Terminal weights, symmetric positive definite (keyword, required).
+    xi : float
+        Chance-constraint level in (0, 1) (keyword, required).
+    constraint, alpha, nu_bound, solver, nu_set, horizon, osqp_settings, cvxpy_fallback
+        Keyword-only, with the defaults of the signature, documented in
+        :class:`controllers.horizon.RecedingHorizonBase`; ``solver`` is ``"daqp"``, ``"osqp"``,
+        ``"cvxpy"`` or ``"active_set"``.
 
     Attributes
     ----------
@@ -131,6 +134,9 @@ class RecedingHorizonController(RecedingHorizonBase):
 
     Notes
     -----
+    A model without gains or terminal weights of its own: :meth:`from_model` synthesizes ``K``
+    (Proposition 2) and takes the MJLS LQ value matrices as ``Psi``.
+
     Thread-safe: concurrent calls on one controller are serialized by its lock. Picklable at
     any time (the solver state is rebuilt on use). :attr:`path_counts` counts the answers per
     ``info["solver"]`` value; :meth:`set_warm_start` switches the warm start off.
@@ -146,8 +152,8 @@ class RecedingHorizonController(RecedingHorizonBase):
 
     SOLVERS = ("daqp", "osqp", "cvxpy", "active_set")
 
-    def __init__(self, model: Any, K: Any, **settings: Any) -> None:
-        super().__init__(model, K, **settings)
+    def _build(self) -> None:
+        """The tightening and every family's matrices, from the checked :attr:`settings`."""
         s = self.settings
         model = self.model
         self.tightening: np.ndarray | None = None

@@ -196,12 +196,14 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
     iterations : int
         Largest number of QP solves per decision (fixed-point iterations on the branch
         probabilities), ``>= 1``.
-    **settings
-        ``Psi`` (required), ``xi`` (required), ``constraint``, ``alpha`` (each slack is
-        penalized by ``alpha`` times its node's path probability), ``nu_bound``, ``solver``
-        (``"daqp"``, ``"osqp"`` or ``"cvxpy"``), ``nu_set`` (``"box"`` only), ``horizon``,
-        ``osqp_settings``, ``cvxpy_fallback``: keyword-only, documented once in
-        :class:`controllers.horizon.RecedingHorizonBase`.
+    Psi : (N, n, n) array
+        Terminal weights, symmetric positive definite (required).
+    xi : float
+        Chance-constraint level in (0, 1) (required).
+    constraint, alpha, nu_bound, solver, nu_set, horizon, osqp_settings, cvxpy_fallback
+        As :class:`controllers.horizon.RecedingHorizonBase`; here each slack is penalized by
+        ``alpha`` times its node's path probability, ``solver`` is ``"daqp"``, ``"osqp"`` or
+        ``"cvxpy"`` and ``nu_set`` ``"box"`` only.
 
     Raises
     ------
@@ -211,6 +213,9 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
 
     Notes
     -----
+    A model without gains or terminal weights of its own: :meth:`from_model` synthesizes ``K``
+    (Proposition 2) and takes the MJLS LQ value matrices as ``Psi``.
+
     Thread-safe: calls on one controller are serialized by its lock, and answers do not depend
     on earlier calls (no plan is carried between decisions, and every answer of the fast path is
     the exact solution of a verified active set, whichever path found it; only degenerate
@@ -236,9 +241,22 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
         steps: int = 3,
         branching: int | None = None,
         iterations: int = 10,
-        **settings: Any,
+        Psi: np.ndarray,
+        xi: float | None = None,
+        constraint: str = "individual",
+        alpha: float = 1000.0,
+        nu_bound: float = 100.0,
+        solver: str = "daqp",
+        nu_set: str = "box",
+        horizon: int | None = None,
+        osqp_settings: dict[str, Any] | None = None,
+        cvxpy_fallback: bool = True,
     ) -> None:
-        super().__init__(model, K, **settings)
+        super().__init__(
+            model, K, Psi=Psi, xi=xi, constraint=constraint, alpha=alpha, nu_bound=nu_bound,
+            solver=solver, nu_set=nu_set, horizon=horizon, osqp_settings=osqp_settings,
+            cvxpy_fallback=cvxpy_fallback,
+        )  # fmt: skip
         self.steps = check_int("steps", steps, low=1, what="stages of the tree")
         self._lookahead = self.steps  # the chance constraints read H up to k + steps
         if branching is None:
