@@ -1,14 +1,18 @@
-"""Controllers for SDJLS models: LMI pre-stabilization, chance constraints, receding horizon.
+"""Controllers for SDJLS models: LMI pre-stabilization, chance constraints, receding horizon,
+and the model identified from exploratory trajectories.
 
 Controllers read an :class:`sdjls_gym.SDJLSModel`; they never simulate. Their exceptions live
-in :mod:`sdjls_gym.errors` with the library's others; the LMI ones are exported here too.
+in :mod:`sdjls_gym.errors` with the library's others; the LMI ones and
+``InsufficientDataError`` are exported here too.
 """
 
 from controllers.base import Controller
 from controllers.baselines import LinearFeedbackController, MJLSLQRController
 from controllers.chance import row_satisfaction_probability, tightened_set_empty, tightening
 from controllers.env_policy import ControllerPolicy, policy_for
+from controllers.exploration import ExplorationPolicy
 from controllers.horizon import Status
+from controllers.identify import IdentificationInfo, identify
 from controllers.lmi import (
     GainSynthesisResult,
     check_proposition2,
@@ -21,7 +25,7 @@ from controllers.mean_square import (
 )
 from controllers.rhc import RecedingHorizonController, UnconstrainedRecedingHorizonController
 from controllers.scenario_tree import ScenarioTreeController
-from sdjls_gym.errors import LMIError, LMIInfeasibleError, LMISolverError
+from sdjls_gym.errors import InsufficientDataError, LMIError, LMIInfeasibleError, LMISolverError
 
 __all__: list[str] = []
 __all__ += [
@@ -38,6 +42,7 @@ __all__ += [
 __all__ += [
     "Controller",
     "ControllerPolicy",
+    "ExplorationPolicy",
     "LinearFeedbackController",
     "MJLSLQRController",
     "RecedingHorizonController",
@@ -49,3 +54,4 @@ __all__ += [
     "tightened_set_empty",
     "tightening",
 ]
+__all__ += ["IdentificationInfo", "InsufficientDataError", "identify"]

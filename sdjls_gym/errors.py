@@ -20,10 +20,12 @@ class                        bases                                   raised when
 ``LMIInfeasibleError``       ``LMIError``, ``ValueError``            the LMIs are infeasible
 ``LMISolverError``           ``LMIError``                            the LMI solver failed
 ``RiccatiConvergenceError``  ``RuntimeError``                        the Riccati iteration failed
+``InsufficientDataError``    ``ValueError``                          trajectories do not determine a
+                                                                     model (``controllers.identify``)
 ===========================  ======================================  =================================
 
 The package namespaces export the ones users catch most: ``sdjls_gym.InvalidModelError``,
-``sdjls_gym.InvalidModelTypeError``, ``controllers.LMIError`` and its subclasses.
+``sdjls_gym.InvalidModelTypeError``, ``controllers.LMIError`` and its subclasses, ``controllers.InsufficientDataError``.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ __all__ = [
     "LMIInfeasibleError",
     "LMISolverError",
     "RiccatiConvergenceError",
+    "InsufficientDataError",
 ]
 
 
@@ -109,3 +112,11 @@ class RiccatiConvergenceError(RuntimeError):
     """The coupled Riccati iteration of ``controllers.MJLSLQRController`` diverged or did not
     converge within ``max_iter`` iterations (the Markov jump linear system is then not
     mean-square stabilizable with that transition matrix)."""
+
+
+class InsufficientDataError(ValueError):
+    """The trajectories given to ``controllers.identify`` do not determine the model: a mode is
+    never the mode of a step, its steps are fewer than ``n + m + 1``, or its regressors
+    ``[x_k, u_k]`` have rank below ``n + m`` (the inputs were not excited independently of the
+    state). The message names the mode, what is missing and the remedy (more exploration, input
+    noise). A :class:`ValueError`: the data are bad."""
