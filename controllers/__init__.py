@@ -1,7 +1,8 @@
 """Controllers for SDJLS models: LMI pre-stabilization, chance constraints, receding horizon.
 
 Controllers read an :class:`sdjls_gym.SDJLSModel`; they never simulate. Their exceptions live
-in :mod:`sdjls_gym.errors` with the library's others; the LMI ones are exported here too.
+in :mod:`sdjls_gym.errors` with the library's others; the LMI ones and ``ModeNotObservedError``
+(a hidden mode) are exported here too.
 """
 
 from controllers.base import Controller
@@ -21,7 +22,12 @@ from controllers.mean_square import (
 )
 from controllers.rhc import RecedingHorizonController, UnconstrainedRecedingHorizonController
 from controllers.scenario_tree import ScenarioTreeController
-from sdjls_gym.errors import LMIError, LMIInfeasibleError, LMISolverError
+from sdjls_gym.errors import (
+    LMIError,
+    LMIInfeasibleError,
+    LMISolverError,
+    ModeNotObservedError,
+)
 
 __all__: list[str] = []
 __all__ += [
@@ -30,6 +36,7 @@ __all__ += [
     "LMIInfeasibleError",
     "LMISolverError",
     "MeanSquareCertificate",
+    "ModeNotObservedError",
     "check_proposition2",
     "second_moment_spectral_radius",
     "synthesize_gains",

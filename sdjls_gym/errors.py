@@ -7,23 +7,25 @@ Two classes are both a ``TypeError`` and a ``ValueError``: a mistake that is one
 project's rules (a float is not an int; a string is not a number) in a place that has always
 reported bad input as the other.
 
-===========================  ======================================  =================================
-class                        bases                                   raised when
-===========================  ======================================  =================================
-``InvalidModelError``        ``ValueError``                          a model or model file is malformed
-``InvalidModelTypeError``    ``InvalidModelError``, ``TypeError``    a model field has the wrong type
-``NotAnIntError``            ``TypeError``, ``ValueError``           a float where an int belongs
-``NotANumberError``          ``TypeError``, ``ValueError``           an action entry is not a number
-``ResetNeededError``         ``gymnasium.error.ResetNeeded``,        ``step()`` before ``reset()`` or
-                             ``RuntimeError``                        after the episode ended
-``LMIError``                 ``RuntimeError``                        an LMI problem gave no answer
-``LMIInfeasibleError``       ``LMIError``, ``ValueError``            the LMIs are infeasible
-``LMISolverError``           ``LMIError``                            the LMI solver failed
-``RiccatiConvergenceError``  ``RuntimeError``                        the Riccati iteration failed
-===========================  ======================================  =================================
+==============================  ====================================  ===================================
+class                           bases                                 raised when
+==============================  ====================================  ===================================
+``InvalidModelError``           ``ValueError``                        a model or model file is malformed
+``InvalidModelTypeError``       ``InvalidModelError``, ``TypeError``  a model field has the wrong type
+``NotAnIntError``               ``TypeError``, ``ValueError``         a float where an int belongs
+``NotANumberError``             ``TypeError``, ``ValueError``         an action entry is not a number
+``ResetNeededError``            ``gymnasium.error.ResetNeeded``,      ``step()`` before ``reset()`` or
+                                ``RuntimeError``                      after the episode ended
+``LMIError``                    ``RuntimeError``                      an LMI problem gave no answer
+``LMIInfeasibleError``          ``LMIError``, ``ValueError``          the LMIs are infeasible
+``LMISolverError``              ``LMIError``                          the LMI solver failed
+``RiccatiConvergenceError``     ``RuntimeError``                      the Riccati iteration failed
+``ModeNotObservedError``        ``ValueError``                        the mode is needed but not observed
+==============================  ====================================  ===================================
 
 The package namespaces export the ones users catch most: ``sdjls_gym.InvalidModelError``,
-``sdjls_gym.InvalidModelTypeError``, ``controllers.LMIError`` and its subclasses.
+``sdjls_gym.InvalidModelTypeError``, ``controllers.LMIError`` and its subclasses and
+``controllers.ModeNotObservedError``.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ __all__ = [
     "LMIInfeasibleError",
     "LMISolverError",
     "RiccatiConvergenceError",
+    "ModeNotObservedError",
 ]
 
 
@@ -109,3 +112,11 @@ class RiccatiConvergenceError(RuntimeError):
     """The coupled Riccati iteration of ``controllers.MJLSLQRController`` diverged or did not
     converge within ``max_iter`` iterations (the Markov jump linear system is then not
     mean-square stabilizable with that transition matrix)."""
+
+
+class ModeNotObservedError(ValueError):
+    """Something that needs the mode ``theta_k`` was given an environment or an observation
+    that does not show it (``observe="state"``): a controller's ``predict`` given the
+    state-only observation ``[x, k / horizon]``, or ``ResidualAction`` with gains that differ
+    by mode on such an environment. The message says what would work instead (the belief of
+    ``controllers.ModeFilter``, one gain for every mode)."""
