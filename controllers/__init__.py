@@ -1,8 +1,8 @@
 """Controllers for SDJLS models: LMI pre-stabilization, chance constraints, receding horizon.
 
 Controllers read an :class:`sdjls_gym.SDJLSModel`; they never simulate. Their exceptions live
-in :mod:`sdjls_gym.errors` with the library's others; the LMI ones and ``ModeNotObservedError``
-(a hidden mode) are exported here too.
+in :mod:`sdjls_gym.errors` with the library's others; the LMI ones and those of a hidden mode
+(``ModeNotObservedError``, ``ImpossibleObservationError``) are exported here too.
 """
 
 from controllers.base import Controller
@@ -20,9 +20,11 @@ from controllers.mean_square import (
     second_moment_spectral_radius,
     verify_mean_square_bound,
 )
+from controllers.mode_filter import ModeFilter
 from controllers.rhc import RecedingHorizonController, UnconstrainedRecedingHorizonController
 from controllers.scenario_tree import ScenarioTreeController
 from sdjls_gym.errors import (
+    ImpossibleObservationError,
     LMIError,
     LMIInfeasibleError,
     LMISolverError,
@@ -32,6 +34,7 @@ from sdjls_gym.errors import (
 __all__: list[str] = []
 __all__ += [
     "GainSynthesisResult",
+    "ImpossibleObservationError",
     "LMIError",
     "LMIInfeasibleError",
     "LMISolverError",
@@ -47,6 +50,7 @@ __all__ += [
     "ControllerPolicy",
     "LinearFeedbackController",
     "MJLSLQRController",
+    "ModeFilter",
     "RecedingHorizonController",
     "ScenarioTreeController",
     "Status",

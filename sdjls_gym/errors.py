@@ -21,11 +21,12 @@ class                           bases                                 raised whe
 ``LMISolverError``              ``LMIError``                          the LMI solver failed
 ``RiccatiConvergenceError``     ``RuntimeError``                      the Riccati iteration failed
 ``ModeNotObservedError``        ``ValueError``                        the mode is needed but not observed
+``ImpossibleObservationError``  ``ValueError``                        no mode explains an observed state
 ==============================  ====================================  ===================================
 
 The package namespaces export the ones users catch most: ``sdjls_gym.InvalidModelError``,
-``sdjls_gym.InvalidModelTypeError``, ``controllers.LMIError`` and its subclasses and
-``controllers.ModeNotObservedError``.
+``sdjls_gym.InvalidModelTypeError``, ``controllers.LMIError`` and its subclasses,
+``controllers.ModeNotObservedError`` and ``controllers.ImpossibleObservationError``.
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ __all__ = [
     "LMISolverError",
     "RiccatiConvergenceError",
     "ModeNotObservedError",
+    "ImpossibleObservationError",
 ]
 
 
@@ -120,3 +122,11 @@ class ModeNotObservedError(ValueError):
     state-only observation ``[x, k / horizon]``, or ``ResidualAction`` with gains that differ
     by mode on such an environment. The message says what would work instead (the belief of
     ``controllers.ModeFilter``, one gain for every mode)."""
+
+
+class ImpossibleObservationError(ValueError):
+    """``controllers.ModeFilter`` was given a state ``x_{k+1}`` that no mode of positive
+    belief can produce from ``(x_k, u_k)``: the belief would be all zero. Either a residual
+    lies outside the range of a singular noise covariance in every such mode, or every
+    log-likelihood is below float64's range. Usually the input is not the one applied
+    (``info["u"]``), the states are not the environment's, or the model differs."""
