@@ -2,8 +2,9 @@
 and the model identified from exploratory trajectories.
 
 Controllers read an :class:`sdjls_gym.SDJLSModel`; they never simulate. Their exceptions live
-in :mod:`sdjls_gym.errors` with the library's others; the LMI ones and
-``InsufficientDataError`` are exported here too.
+in :mod:`sdjls_gym.errors` with the library's others; the LMI ones, ``InsufficientDataError`` and
+those of a hidden mode (``ModeNotObservedError``, ``ImpossibleObservationError``) are exported
+here too.
 """
 
 from controllers.base import Controller
@@ -23,17 +24,27 @@ from controllers.mean_square import (
     second_moment_spectral_radius,
     verify_mean_square_bound,
 )
+from controllers.mode_filter import ModeFilter
 from controllers.rhc import RecedingHorizonController, UnconstrainedRecedingHorizonController
 from controllers.scenario_tree import ScenarioTreeController
-from sdjls_gym.errors import InsufficientDataError, LMIError, LMIInfeasibleError, LMISolverError
+from sdjls_gym.errors import (
+    ImpossibleObservationError,
+    InsufficientDataError,
+    LMIError,
+    LMIInfeasibleError,
+    LMISolverError,
+    ModeNotObservedError,
+)
 
 __all__: list[str] = []
 __all__ += [
     "GainSynthesisResult",
+    "ImpossibleObservationError",
     "LMIError",
     "LMIInfeasibleError",
     "LMISolverError",
     "MeanSquareCertificate",
+    "ModeNotObservedError",
     "check_proposition2",
     "second_moment_spectral_radius",
     "synthesize_gains",
@@ -45,6 +56,7 @@ __all__ += [
     "ExplorationPolicy",
     "LinearFeedbackController",
     "MJLSLQRController",
+    "ModeFilter",
     "RecedingHorizonController",
     "ScenarioTreeController",
     "Status",

@@ -8,6 +8,8 @@ Every controller of this package is a :class:`Controller`:
 * ``predict(observation, state=None, episode_start=None, deterministic=True)`` in the
   stable-baselines3 shape, decoding the raw environment's observation
   ``[x, one-hot(mode), k / horizon]`` and returning the input ``u`` in the raw environment's units.
+  These controllers need the mode: a state-only observation (an environment made with
+  ``observe="state"``) is refused with :class:`~sdjls_gym.errors.ModeNotObservedError`.
 
 Thread safety: a controller may be shared by threads. Its calls hold a per-controller lock
 around the solver state (OSQP objects, warm starts, caches), so concurrent calls are serialized
@@ -23,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from sdjls_gym.errors import ModeNotObservedError
 from sdjls_gym.messages import a_type, describe
 from sdjls_gym.model import SDJLSModel
 from sdjls_gym.observation import decode_observation
@@ -269,6 +272,9 @@ class Controller:
             not one-hot (one 1 and zeros), or (for controllers that need ``k``) if its time
             entry is negative, above 1, or not a multiple of ``1 / horizon`` (the environment's
             horizon differs from the controller's).
+        ModeNotObservedError
+            (a :class:`ValueError`) The observation is the state-only ``[x, k / horizon]`` of
+            an environment made with ``observe="state"``: it does not show the mode.
         """
         return self._decode_own(self._observation(observation))
 
@@ -295,6 +301,14 @@ class Controller:
         size = model.n + model.N + 1
         layout = f"[x ({model.n}), one-hot of the mode ({model.N}), k / horizon (1)]"
         obs = check_array("observation", observation, what=layout)
+        if obs.ndim in (1, 2) and obs.shape[-1] == model.n + 1:  # observe="state": no mode
+            raise ModeNotObservedError(
+                f"observation has shape {obs.shape}: the state-only layout [x ({model.n}), "
+                f"k / horizon (1)] of an environment made with observe='state', which does not "
+                f"show the mode; {type(self).__name__} needs the mode theta_k. Use observe='mode', "
+                "or a hidden-mode controller: the belief of the mode from the states and inputs "
+                "is controllers.ModeFilter's"
+            )
         if obs.ndim not in (1, 2) or obs.shape[-1] != size:
             raise ValueError(
                 f"observation has shape {obs.shape}; expected ({size},) or (batch, {size}): "
@@ -365,6 +379,12 @@ class Controller:
         -------
         actions : (m,) or (B, m) float32 array
         state : the ``state`` argument, unchanged (None)
+
+        Raises
+        ------
+        ModeNotObservedError
+            (a :class:`ValueError`) A state-only observation (``observe="state"``): these
+            controllers need the mode.
         """
         obs = self._observation(observation)  # checked before its ndim is read
         xs, modes, ks = self._decode_own(obs)

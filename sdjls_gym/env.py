@@ -16,7 +16,7 @@ from sdjls_gym.errors import ResetNeededError
 from sdjls_gym.functional import MAX_DIVERGENCE_BOUND, EnvParams, may_overflow
 from sdjls_gym.messages import a_type, describe
 from sdjls_gym.model import SDJLSModel
-from sdjls_gym.observation import encode_observation, observation_space
+from sdjls_gym.observation import check_observe, encode_observation, observation_space
 from sdjls_gym.validation import (
     check_array,
     check_choice,
@@ -198,8 +198,9 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
     θ_{k+1} ~ row θ_k of P_out  otherwise                       H_k = H0 + k · H_rate
     ```
 
-    The mode θ_k (0-based) is observed. The region `G x <= H_k` is also the constraint the
-    controller should keep the state in; violations are reported on the info channel.
+    The mode θ_k (0-based) is observed by default; with `observe="state"` it is hidden (see
+    Observation Space). The region `G x <= H_k` is also the constraint the controller should
+    keep the state in; violations are reported on the info channel.
 
     ## Time indexing
 
@@ -223,7 +224,7 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Observation Space
 
-    `Box((n + N + 1,), float32)`:
+    With `observe="mode"` (the default), `Box((n + N + 1,), float32)`:
 
     | Index | Observation | Min | Max |
     |-------|-------------|-----|-----|
@@ -231,8 +232,18 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
     | n .. n+N-1 | one-hot of θ_k | 0 | 1 |
     | n+N | k / horizon (the band moves with k) | 0 | 1 |
 
+    With `observe="state"` (the mode is hidden), `Box((n + 1,), float32)`:
+
+    | Index | Observation | Min | Max |
+    |-------|-------------|-----|-----|
+    | 0 .. n-1 | x_k, clipped to ±divergence_bound | -divergence_bound | divergence_bound |
+    | n | k / horizon | 0 | 1 |
+
     The exact float64 state is `info["state"]`. A diverged state shows at the bound (an
-    infinite entry at ±divergence_bound), so observations stay inside the space.
+    infinite entry at ±divergence_bound), so observations stay inside the space. The layouts
+    are `sdjls_gym.observation`'s. In the hidden setting the state is observed exactly, so
+    the belief of the mode given the states and inputs is finite-dimensional:
+    `controllers.ModeFilter` computes it.
 
     ## Rewards
 
@@ -247,7 +258,7 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
     | Key | Meaning |
     |-----|---------|
     | `state` | x (float64, exact) |
-    | `mode` | θ (int) |
+    | `mode` | θ (int): the true mode, also with `observe="state"`, for scoring only (a policy of the hidden setting must not read it, nor `env.unwrapped.mode`) |
     | `k` | time index of the new state |
     | `in_region` | whether `G x <= H_k` holds in every row (x in C1) |
     | `constraint_values` | `G x - H_k` (r,); positive means violated |
@@ -291,18 +302,26 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
     * `divergence_bound`: termination threshold on max |x| (default 1e6, at most 1e30).
     * `render_mode`: `None` or `"rgb_array"`: `render()` returns a matplotlib picture of the
       episode so far, `(400, 640, 3) uint8` (see `sdjls_gym.render`); record videos with
-      `gymnasium.wrappers.RecordVideo`. `"human"` is rejected (`ValueError`).
+      `gymnasium.wrappers.RecordVideo`. `"human"` is rejected (`ValueError`). The picture
+      shows the true mode in either setting of `observe`.
+    * `observe`: `"mode"` (default: the observation shows θ_k) or `"state"` (it shows `x_k`
+      and `k / horizon` only; see Observation Space). Every registered id accepts it:
+      `gym.make("SDJLS-Solar-v0", observe="state")`. Another value is a `ValueError` naming
+      `observe`.
 
     ```python
     import gymnasium as gym
     import sdjls_gym  # registers the ids
     env = gym.make("SDJLS-Macro-v0")
     env = gym.make("SDJLS-v0", model=my_model, horizon=40)
+    env = gym.make("SDJLS-Macro-v0", observe="state")  # the mode hidden
     ```
 
     ## Version History
 
     * v0: Initial version.
+    * v0: `observe="state"` added (the mode hidden); the default, `observe="mode"`, keeps the
+      observation of the initial version, so the version is unchanged.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -316,14 +335,16 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         action_bound: float | np.ndarray = 200.0,
         divergence_bound: float = 1e6,
         render_mode: str | None = None,
+        observe: str = "mode",
     ) -> None:
         self.model = resolve_model(model)
         self.horizon = check_int("horizon", horizon, low=1)
         self.divergence_bound = check_divergence_bound(divergence_bound)
         check_model_x0(self.model, self.divergence_bound)
         self.render_mode = _check_render_mode(render_mode)
+        self.observe = check_observe(observe)
         self.action_space = action_space(self.model, action_bound)
-        self.observation_space = observation_space(self.model, self.divergence_bound)
+        self.observation_space = observation_space(self.model, self.divergence_bound, self.observe)
         self._low = self.action_space.low.astype(np.float64)
         self._action_what = f"the input u_k, {self.model.m} finite number(s)"  # for step's errors
         self._high = self.action_space.high.astype(np.float64)
@@ -369,7 +390,8 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
 
     @property
     def mode(self) -> int:
-        """The current mode ``theta_k``."""
+        """The current mode ``theta_k`` (the true one, also with ``observe="state"``: for
+        scoring, not for a policy of the hidden setting)."""
         return self._mode
 
     @property
@@ -394,7 +416,9 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
         with np.errstate(over="ignore", invalid="ignore"):
             info = functional.step_info(model, x, mode, 0, 0.0, False)
         self._inside = info["in_region"]
-        obs = encode_observation(model, x, mode, 0, self.horizon, self.divergence_bound)
+        obs = encode_observation(
+            model, x, mode, 0, self.horizon, self.divergence_bound, self.observe
+        )
         return obs, info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -439,7 +463,9 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
                 if diverged
                 else f"truncated at k = {k} = horizon"
             )
-        obs = encode_observation(model, x, mode, k, self.horizon, self.divergence_bound)
+        obs = encode_observation(
+            model, x, mode, k, self.horizon, self.divergence_bound, self.observe
+        )
         return obs, -cost, diverged, truncated, info
 
     def _get_renderer(self) -> EpisodeRenderer:

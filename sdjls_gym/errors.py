@@ -7,25 +7,29 @@ Two classes are both a ``TypeError`` and a ``ValueError``: a mistake that is one
 project's rules (a float is not an int; a string is not a number) in a place that has always
 reported bad input as the other.
 
-===========================  ======================================  =================================
-class                        bases                                   raised when
-===========================  ======================================  =================================
-``InvalidModelError``        ``ValueError``                          a model or model file is malformed
-``InvalidModelTypeError``    ``InvalidModelError``, ``TypeError``    a model field has the wrong type
-``NotAnIntError``            ``TypeError``, ``ValueError``           a float where an int belongs
-``NotANumberError``          ``TypeError``, ``ValueError``           an action entry is not a number
-``ResetNeededError``         ``gymnasium.error.ResetNeeded``,        ``step()`` before ``reset()`` or
-                             ``RuntimeError``                        after the episode ended
-``LMIError``                 ``RuntimeError``                        an LMI problem gave no answer
-``LMIInfeasibleError``       ``LMIError``, ``ValueError``            the LMIs are infeasible
-``LMISolverError``           ``LMIError``                            the LMI solver failed
-``RiccatiConvergenceError``  ``RuntimeError``                        the Riccati iteration failed
-``InsufficientDataError``    ``ValueError``                          trajectories do not determine a
-                                                                     model (``controllers.identify``)
-===========================  ======================================  =================================
+==============================  ====================================  ===================================
+class                           bases                                 raised when
+==============================  ====================================  ===================================
+``InvalidModelError``           ``ValueError``                        a model or model file is malformed
+``InvalidModelTypeError``       ``InvalidModelError``, ``TypeError``  a model field has the wrong type
+``NotAnIntError``               ``TypeError``, ``ValueError``         a float where an int belongs
+``NotANumberError``             ``TypeError``, ``ValueError``         an action entry is not a number
+``ResetNeededError``            ``gymnasium.error.ResetNeeded``,      ``step()`` before ``reset()`` or
+                                ``RuntimeError``                      after the episode ended
+``LMIError``                    ``RuntimeError``                      an LMI problem gave no answer
+``LMIInfeasibleError``          ``LMIError``, ``ValueError``          the LMIs are infeasible
+``LMISolverError``              ``LMIError``                          the LMI solver failed
+``RiccatiConvergenceError``     ``RuntimeError``                      the Riccati iteration failed
+``ModeNotObservedError``        ``ValueError``                        the mode is needed but not observed
+``ImpossibleObservationError``  ``ValueError``                        no mode explains an observed state
+``InsufficientDataError``       ``ValueError``                        trajectories do not determine a
+                                                                      model (``controllers.identify``)
+==============================  ====================================  ===================================
 
 The package namespaces export the ones users catch most: ``sdjls_gym.InvalidModelError``,
-``sdjls_gym.InvalidModelTypeError``, ``controllers.LMIError`` and its subclasses, ``controllers.InsufficientDataError``.
+``sdjls_gym.InvalidModelTypeError``, ``controllers.LMIError`` and its subclasses,
+``controllers.ModeNotObservedError``, ``controllers.ImpossibleObservationError`` and
+``controllers.InsufficientDataError``.
 """
 
 from __future__ import annotations
@@ -42,6 +46,8 @@ __all__ = [
     "LMIInfeasibleError",
     "LMISolverError",
     "RiccatiConvergenceError",
+    "ModeNotObservedError",
+    "ImpossibleObservationError",
     "InsufficientDataError",
 ]
 
@@ -112,6 +118,22 @@ class RiccatiConvergenceError(RuntimeError):
     """The coupled Riccati iteration of ``controllers.MJLSLQRController`` diverged or did not
     converge within ``max_iter`` iterations (the Markov jump linear system is then not
     mean-square stabilizable with that transition matrix)."""
+
+
+class ModeNotObservedError(ValueError):
+    """Something that needs the mode ``theta_k`` was given an environment or an observation
+    that does not show it (``observe="state"``): a controller's ``predict`` given the
+    state-only observation ``[x, k / horizon]``, or ``ResidualAction`` with gains that differ
+    by mode on such an environment. The message says what would work instead (the belief of
+    ``controllers.ModeFilter``, one gain for every mode)."""
+
+
+class ImpossibleObservationError(ValueError):
+    """``controllers.ModeFilter`` was given a state ``x_{k+1}`` that no mode of positive
+    belief can produce from ``(x_k, u_k)``: the belief would be all zero. Either a residual
+    lies outside the range of a singular noise covariance in every such mode, or every
+    log-likelihood is below float64's range. Usually the input is not the one applied
+    (``info["u"]``), the states are not the environment's, or the model differs."""
 
 
 class InsufficientDataError(ValueError):

@@ -8,7 +8,9 @@ Imported by ``sdjls_gym/__init__.py``, so ``import sdjls_gym`` registers:
   ``SDJLS-Random-v0``, built by :func:`make_random_env` / :func:`make_random_vector_env`.
 
 Every id has a ``vector_entry_point`` (:class:`~sdjls_gym.vector_env.SDJLSVectorEnv`) and none
-registers a ``TimeLimit``: the environments truncate at their own ``horizon``.
+registers a ``TimeLimit``: the environments truncate at their own ``horizon``. Every id accepts
+the environments' arguments, among them ``observe="state"`` (the mode hidden from the
+observation; ``gym.make(env_id, observe="state")``).
 """
 
 from __future__ import annotations
@@ -64,12 +66,11 @@ def make_random_env(
     """The entry point of ``SDJLS-Random-v0``: an ``SDJLSEnv`` of
     :func:`~sdjls_gym.systems.random_task`.
 
-    ``env_kwargs`` may hold ``divergence_bound`` and ``render_mode``; ``seed`` is refused
-    (``system_seed`` chooses the system, ``reset(seed=...)`` the noise).
+    ``env_kwargs`` may hold ``divergence_bound``, ``render_mode`` and ``observe``; ``seed`` is
+    refused (``system_seed`` chooses the system, ``reset(seed=...)`` the noise).
     """
-    extra = {
-        key: env_kwargs.pop(key) for key in ("divergence_bound", "render_mode") if key in env_kwargs
-    }
+    names = ("divergence_bound", "render_mode", "observe")
+    extra = {key: env_kwargs.pop(key) for key in names if key in env_kwargs}
     check_random_kwargs(env_kwargs)
     task = _random.random_task(n, m, N, r, system_seed, spectral_radius=spectral_radius)
     return make_env(model=task.model, horizon=horizon, action_bound=action_bound, **extra)
@@ -89,8 +90,8 @@ def make_random_vector_env(
 ) -> SDJLSVectorEnv:
     """The vector entry point of ``SDJLS-Random-v0``: an ``SDJLSVectorEnv`` of
     :func:`~sdjls_gym.systems.random_task` (``env_kwargs``: ``divergence_bound``,
-    ``max_episode_steps``, ``render_mode``)."""
-    names = ("divergence_bound", "max_episode_steps", "render_mode")
+    ``max_episode_steps``, ``render_mode``, ``observe``)."""
+    names = ("divergence_bound", "max_episode_steps", "render_mode", "observe")
     extra = {key: env_kwargs.pop(key) for key in names if key in env_kwargs}
     check_random_kwargs(env_kwargs)
     task = _random.random_task(n, m, N, r, system_seed, spectral_radius=spectral_radius)

@@ -21,7 +21,7 @@ from sdjls_gym.env import (
 from sdjls_gym.functional import EnvParams, Restart, may_overflow
 from sdjls_gym.messages import describe
 from sdjls_gym.model import SDJLSModel
-from sdjls_gym.observation import encode_observation, observation_space
+from sdjls_gym.observation import check_observe, encode_observation, observation_space
 from sdjls_gym.validation import check_int, check_numbers, check_optional_int
 
 __all__ = ["SDJLSVectorEnv", "check_max_episode_steps"]
@@ -87,8 +87,10 @@ class SDJLSVectorEnv(VectorEnv):
     ----------
     num_envs : int
         Number of sub-environments.
-    model, horizon, action_bound, divergence_bound
-        As for :class:`~sdjls_gym.env.SDJLSEnv` (``model`` is required).
+    model, horizon, action_bound, divergence_bound, observe
+        As for :class:`~sdjls_gym.env.SDJLSEnv` (``model`` is required; ``observe="state"``
+        hides the mode: observations ``(num_envs, n + 1)``, ``infos["mode"]`` for scoring
+        only).
     max_episode_steps : int, optional
         Episodes are truncated after ``max_episode_steps`` steps, as a ``TimeLimit`` would do
         (``gymnasium.make_vec`` passes it when given to it or when an id registers one; the ids
@@ -120,6 +122,7 @@ class SDJLSVectorEnv(VectorEnv):
         divergence_bound: float = 1e6,
         max_episode_steps: int | None = None,
         render_mode: str | None = None,
+        observe: str = "mode",
     ) -> None:
         if render_mode is not None:
             raise ValueError(
@@ -133,8 +136,11 @@ class SDJLSVectorEnv(VectorEnv):
         self.divergence_bound = check_divergence_bound(divergence_bound)
         check_model_x0(self.model, self.divergence_bound)
         self.render_mode = None
+        self.observe = check_observe(observe)
 
-        self.single_observation_space = observation_space(self.model, self.divergence_bound)
+        self.single_observation_space = observation_space(
+            self.model, self.divergence_bound, self.observe
+        )
         self.single_action_space = action_space(self.model, action_bound)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -208,7 +214,13 @@ class SDJLSVectorEnv(VectorEnv):
         )
         self._started = True
         obs = encode_observation(
-            self.model, self._x, self._mode, self._k, self.horizon, self.divergence_bound
+            self.model,
+            self._x,
+            self._mode,
+            self._k,
+            self.horizon,
+            self.divergence_bound,
+            self.observe,
         )
         with np.errstate(over="ignore", invalid="ignore"):
             return obs, self._infos(np.zeros(B), np.zeros(B, dtype=bool))
@@ -253,6 +265,6 @@ class SDJLSVectorEnv(VectorEnv):
         truncated = (k >= self.episode_steps) & ~reset
         self._prev_done = terminated | truncated
         obs = encode_observation(
-            model, self._x, self._mode, self._k, self.horizon, self.divergence_bound
+            model, self._x, self._mode, self._k, self.horizon, self.divergence_bound, self.observe
         )
         return obs, -cost, terminated, truncated, infos

@@ -9,6 +9,7 @@ import numpy as np
 from gymnasium import spaces
 
 from sdjls_gym.env import SDJLSEnv
+from sdjls_gym.errors import ModeNotObservedError
 from sdjls_gym.messages import a_type, describe
 from sdjls_gym.validation import (
     check_array,
@@ -93,6 +94,11 @@ class ViolationPenalty(gym.Wrapper):
 class ResidualAction(gym.ActionWrapper):
     """Act on the offset ``nu``: the applied input is ``u = K_theta x + nu`` (eq. 9 of the paper).
 
+    With the mode hidden (the environment's ``observe="state"``) the wrapper must not read
+    ``theta``: every ``K_i`` must then be the same gain, applied as ``u = K_0 x + nu``, and gains
+    that differ by mode are refused. A gain chosen from the mode's belief is a policy's business
+    (``controllers.ModeFilter``), not this wrapper's.
+
     ``u`` is in the units of the raw environment's action, so ``ResidualAction`` must sit
     directly on the raw environment (``gym.make`` output is fine: its ``TimeLimit``,
     ``OrderEnforcing`` and checker wrappers leave actions alone). Rescale on top of it, e.g.
@@ -104,7 +110,8 @@ class ResidualAction(gym.ActionWrapper):
         An SDJLS environment (possibly wrapped; its ``unwrapped`` must be an ``SDJLSEnv``),
         without wrappers that change the action below this one.
     K : (N, m, n) array
-        State-feedback gains, e.g. from ``controllers.synthesize_gains``.
+        State-feedback gains, e.g. from ``controllers.synthesize_gains`` (with the mode hidden:
+        one gain repeated, ``np.stack([K0] * N)``).
     nu_bound : float
         The new action space is ``Box(-nu_bound, nu_bound, (m,))`` (a normal float32 number).
 
@@ -116,6 +123,9 @@ class ResidualAction(gym.ActionWrapper):
         A wrapper between ``env`` and the raw environment changes the action (an
         ``ActionWrapper`` such as ``RescaleAction`` or ``ClipAction``, or another action space),
         or ``K`` / ``nu_bound`` are malformed.
+    ModeNotObservedError
+        (a :class:`ValueError`) The environment hides the mode (``observe="state"``) and the
+        gains ``K_i`` differ by mode.
 
     Notes
     -----
@@ -143,6 +153,15 @@ class ResidualAction(gym.ActionWrapper):
         self.K = check_array(
             "K", K, shape=(model.N, model.m, model.n), what="the gains K_i, one m x n per mode"
         )
+        # with the mode hidden it is never read: u = K_0 x + nu, the same gain in every mode
+        self._hidden = base.observe == "state"
+        if self._hidden and not np.array_equal(self.K, np.broadcast_to(self.K[0], self.K.shape)):
+            raise ModeNotObservedError(
+                f"K = {describe(self.K)} differs by mode, but the environment hides the mode "
+                "(observe = 'state'): u = K_theta x + nu would read it. Repeat one gain in every "
+                f"mode (np.stack([K0] * {model.N})), or compute u from the mode's belief "
+                "(controllers.ModeFilter) in the policy"
+            )
         nu_bound = check_float32_bound("nu_bound", nu_bound, what="bound on |nu_i|")
         bound = np.full(model.m, nu_bound, dtype=np.float32)
         self.action_space = spaces.Box(-bound, bound, dtype=np.float32)
@@ -152,7 +171,7 @@ class ResidualAction(gym.ActionWrapper):
         if nu.shape != (self.K.shape[1],) or not np.all(np.isfinite(nu)):
             raise ValueError(f"action (nu) = {action!r}; expected {self.K.shape[1]} finite numbers")
         base = self._base
-        return self.K[base.mode] @ base.state + nu
+        return self.K[0 if self._hidden else base.mode] @ base.state + nu
 
 
 # ----------------------------------------------------------------------------- learning scalings
@@ -169,9 +188,11 @@ TERMINATE_BOUND = 100.0
 
 
 def scale_observation(obs: np.ndarray, n: int, x_scale: float, obs_clip: float) -> np.ndarray:
-    """``[clip(x / x_scale, +-obs_clip), one-hot, k / T]`` of observations ``(..., n + N + 1)``.
+    """``[clip(x / x_scale, +-obs_clip), one-hot, k / T]`` of observations ``(..., n + N + 1)``,
+    or ``[clip(x / x_scale, +-obs_clip), k / T]`` of state-only ones ``(..., n + 1)``.
 
-    Returns a new float32 array; only the first ``n`` entries (the state) change.
+    Returns a new float32 array; only the first ``n`` entries (the state) change, so either
+    layout of :mod:`sdjls_gym.observation` keeps its meaning.
     """
     out = np.array(obs, dtype=np.float32, copy=True)
     out[..., :n] = np.clip(out[..., :n] / x_scale, -obs_clip, obs_clip)
@@ -188,7 +209,8 @@ def _sdjls_base(env: gym.Env, wrapper: str) -> SDJLSEnv:
 class ScaleObservationReward(gym.Wrapper):
     """Fixed scalings for learning: the state in the observation and the reward.
 
-    The observation becomes ``[clip(x / x_scale, +-obs_clip), one-hot of the mode, k / T]`` and
+    The observation becomes ``[clip(x / x_scale, +-obs_clip), one-hot of the mode, k / T]``
+    (``[clip(x / x_scale, +-obs_clip), k / T]`` when the environment hides the mode) and
     the reward ``r`` becomes ``max(r, -reward_clip) / reward_scale`` (``"linear"``) or
     ``-log(1 + max(-r, 0) / reward_scale)`` with the clip applied first (``"log"``: monotone in
     the cost, and still informative while the state diverges). The unscaled reward stays in
@@ -238,7 +260,8 @@ class ScaleObservationReward(gym.Wrapper):
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
 
     def observation(self, obs: np.ndarray) -> np.ndarray:
-        """The scaled observation(s) of raw observation(s) ``(..., n + N + 1)``."""
+        """The scaled observation(s) of raw observation(s) ``(..., n + N + 1)`` or, with the
+        mode hidden, ``(..., n + 1)``."""
         return scale_observation(obs, self.n, self.x_scale, self.obs_clip)
 
     def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:

@@ -160,8 +160,11 @@ class ReplayRNG:
         return float(self.uniforms.pop(0))
 
 
+@pytest.mark.parametrize("observe", ["mode", "state"])
 @pytest.mark.parametrize("which", ["macro", "random"])
-def test_vector_env_with_act_batch_equals_single_env_with_act_on_the_same_noise(which):
+def test_vector_env_with_act_batch_equals_single_env_with_act_on_the_same_noise(which, observe):
+    """Step by step on the same draws: the inputs, the states and the observations (of either
+    layout: ``observe="state"`` hides the mode, the controller reads it from the infos)."""
     if which == "macro":
         model, K, Psi = sdjls_gym.macro(), PAPER_K, PAPER_RHC["Psi"]
     else:
@@ -169,28 +172,32 @@ def test_vector_env_with_act_batch_equals_single_env_with_act_on_the_same_noise(
         model = SDJLSModel(**{**model.to_dict(), "W": np.eye(model.p)})  # W = I: same draws
     ctrl = RecedingHorizonController(model, K, Psi=Psi, xi=0.85, nu_bound=100.0)
     B, T = 6, 20
-    venv = SDJLSVectorEnv(num_envs=B, model=model, horizon=T)
-    _, info = venv.reset(seed=0)  # x0 and an int mode0: the reset draws nothing
+    venv = SDJLSVectorEnv(num_envs=B, model=model, horizon=T, observe=observe)
+    obs, info = venv.reset(seed=0)  # x0 and an int mode0: the reset draws nothing
     rec = RecordingRNG(123)
     venv.np_random = rec
-    xs, us = [info["state"].copy()], []
+    xs, us, observations = [info["state"].copy()], [], [obs]
     for _ in range(T):
         u, _ = ctrl.act_batch(info["state"], info["mode"], info["k"])
-        _, _, _, _, info = venv.step(u)
+        obs, _, _, _, info = venv.step(u)
         xs.append(info["state"].copy())
         us.append(info["u"].copy())
+        observations.append(obs)
     xs = np.array(xs)
+    assert observations[0].shape == (B, model.n + (model.N if observe == "mode" else 0) + 1)
     for i in range(B):
-        env = sdjls_gym.SDJLSEnv(model, horizon=T)
-        _, sinfo = env.reset(seed=1)
+        env = sdjls_gym.SDJLSEnv(model, horizon=T, observe=observe)
+        sobs, sinfo = env.reset(seed=1)
+        np.testing.assert_array_equal(sobs, observations[0][i])
         env.np_random = ReplayRNG(
             [nrm[i] for nrm in rec.normals], [float(uni[i]) for uni in rec.uniforms]
         )
         for t in range(T):
             u, _ = ctrl.act(sinfo["state"], sinfo["mode"], sinfo["k"])
             np.testing.assert_allclose(u, us[t][i], atol=1e-6)
-            _, _, _, _, sinfo = env.step(u)
+            sobs, _, _, _, sinfo = env.step(u)
             np.testing.assert_allclose(sinfo["state"], xs[t + 1, i], atol=1e-6)
+            np.testing.assert_allclose(sobs, observations[t + 1][i], rtol=1e-6, atol=1e-6)
 
 
 def test_active_set_solve_of_a_batch_equals_the_single_instance_path():
