@@ -8,7 +8,9 @@ Imported by ``sdjls_gym/__init__.py``, so ``import sdjls_gym`` registers:
   ``SDJLS-Random-v0``, built by :func:`make_random_env` / :func:`make_random_vector_env`.
 
 Every id has a ``vector_entry_point`` (:class:`~sdjls_gym.vector_env.SDJLSVectorEnv`) and none
-registers a ``TimeLimit``: the environments truncate at their own ``horizon``.
+registers a ``TimeLimit``: the environments truncate at their own ``horizon``. The id of a preset
+task builds that task's system only: ``gym.make("SDJLS-Solar-v0", model=...)`` with another model
+is a ``ValueError`` (:func:`sdjls_gym.env.own_spec`); ``SDJLS-v0`` takes any model.
 """
 
 from __future__ import annotations
