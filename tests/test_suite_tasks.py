@@ -500,6 +500,27 @@ def test_an_id_of_a_preset_task_builds_only_that_task(env_id):
     assert gym.make("SDJLS-v0", model=other).unwrapped.model is not None
 
 
+def test_the_largest_random_task_takes_few_eigenvalue_computations(monkeypatch):
+    """random_task(64, 64, 64, 64) costs its eigenvalue computations: about 12 per mode with
+    Brent's method (a bisection to the last bit needs about 100). Counted, not timed."""
+    from sdjls_gym.systems import random_system
+
+    calls = [0]
+    radius = random_system._radius
+
+    def counted(M):
+        calls[0] += 1
+        return radius(M)
+
+    monkeypatch.setattr(random_system, "_radius", counted)
+    random_system._random_task.cache_clear()
+    task = random_task(64, 64, 64, 64)
+    random_system._random_task.cache_clear()  # not the counted draw for later tests
+    assert calls[0] <= 20 * 64, calls[0]
+    radius_bad = np.max(np.abs(np.linalg.eigvals(task.model.A[-1])))
+    assert radius_bad == pytest.approx(1.2, rel=1e-9)
+
+
 def test_gym_make_refuses_seed_and_unknown_arguments():
     with pytest.raises(TypeError, match=r"seed = 3 .*system_seed"):
         make_random_env(seed=3)
