@@ -78,6 +78,7 @@ from benchmarks.rl_train import (
     policy_path,
     run_specs,
 )
+from benchmarks.runs import check_kept_runs
 from benchmarks.stats import curve_status, interval_check
 from benchmarks.tune_summary import read_summary
 from benchmarks.versions import package_versions
@@ -382,6 +383,11 @@ def parse_args(argv: list[str] | None = None) -> Options:
             "which a smoke test would replace; give another --out (or none: "
             f"--quick writes to {QUICK_OUT})"
         )
+    if opts.score_only:  # every kept run loads before a minute of scoring
+        try:
+            check_kept_runs(specs_of(opts), opts.out / "runs")
+        except (TypeError, ValueError) as exc:
+            parser.error(f"--score-only: {' '.join(str(exc).split())}")
     return opts
 
 

@@ -44,6 +44,7 @@ from benchmarks.rl_suite_report import (
 )
 from benchmarks.rl_suite_tables import gap_text
 from benchmarks.rl_train import RunSpec, run_specs
+from benchmarks.runs import check_kept_runs
 from benchmarks.tune_summary import read_summary
 
 __all__ = ["DEFAULT_OUT", "QUICK_OUT", "compare_study", "main"]
@@ -115,11 +116,10 @@ def _group(agents: list[AgentScore], resamples: int) -> dict[str, Any]:
     return out
 
 
-def compare_study(path: Path, run_dir: Path, seeds: int, episodes: int, seed: int,
-                  quick: bool, log: Any = print) -> dict[str, Any]:  # fmt: skip
-    """The comparison of one study's tuned runs with the default ones (see the module
-    docstring): the study, both groups and, per curve, rliable's comparison or why there is
-    none."""
+def study_specs(path: Path, seeds: int,
+                quick: bool) -> tuple[dict[str, Any], list[RunSpec], list[RunSpec]]:  # fmt: skip
+    """The study summary at ``path``, and the runs of its configuration on ``seeds`` seeds at
+    the budget it tuned at: with the default hyperparameters, and with its best overrides."""
     key, overrides, summary = read_summary(path)
     task, algo, variant = key
     pair = [(algo, variant)]
@@ -127,6 +127,16 @@ def compare_study(path: Path, run_dir: Path, seeds: int, episodes: int, seed: in
     default = run_specs(pair, seeds, None, quick, [task], tuned_timesteps=budget)
     tuned = run_specs(pair, seeds, None, quick, [task], tuned={key: overrides},
                       tuned_timesteps=budget)  # fmt: skip
+    return summary, default, tuned
+
+
+def compare_study(path: Path, run_dir: Path, seeds: int, episodes: int, seed: int,
+                  quick: bool, log: Any = print) -> dict[str, Any]:  # fmt: skip
+    """The comparison of one study's tuned runs with the default ones (see the module
+    docstring): the study, both groups and, per curve, rliable's comparison or why there is
+    none."""
+    summary, default, tuned = study_specs(path, seeds, quick)
+    task, algo, variant = default[0].task, default[0].algo, default[0].variant
     specs: list[RunSpec] = [*default, *tuned]
     records = kept_runs(specs, run_dir)
     log(f"{task} {algo}_{variant}: {sum(r is not None for r in records)} of {len(specs)} "
@@ -143,7 +153,7 @@ def compare_study(path: Path, run_dir: Path, seeds: int, episodes: int, seed: in
         "study": str(path),
         "task": task,
         "config": f"{algo}_{variant}",
-        "overrides": dict(overrides),
+        "overrides": dict(tuned[0].overrides),
         "trials": _trial_states(summary),
         "best_trial": summary["best"].get("number"),
         "budget": {k: summary["settings"].get(k) for k in ("timesteps", "seeds")},
@@ -279,6 +289,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error(str(exc))
     if opts.runs is None:
         opts.runs = (compare_rl.QUICK_OUT if opts.quick else Path("results/rl_suite")) / "runs"
+    try:  # every kept run loads before any scoring
+        for path in opts.tuned:
+            _, default, tuned = study_specs(path, opts.seeds, opts.quick)
+            check_kept_runs([*default, *tuned], opts.runs)
+    except (TypeError, ValueError) as exc:
+        parser.error(" ".join(str(exc).split()))
     if opts.out is None:
         opts.out = QUICK_OUT if opts.quick else DEFAULT_OUT
     return opts
