@@ -1,12 +1,15 @@
-"""What the benchmarks' command lines share: options from a dataclass, names to import, agents
-to load.
+"""What the benchmarks' command lines share: options from a dataclass, output files and folders,
+names to import, agents to load.
 
 :func:`options_parser` builds an ``argparse`` parser from an ``Options`` dataclass: one
 ``--flag-name`` per field, its type read from the annotation (``bool`` a switch; ``int``,
 ``float``, ``str``, ``Path``, optional or not; ``list[...]`` one or more values), its help,
-choices and metavar from the field's ``metadata``. :func:`load_cli_policy` loads the policy a
-``--policy`` option names (a module's attribute, or a stable-baselines3 ``.zip``: the only place
-the scoring imports stable-baselines3).
+choices and metavar from the field's ``metadata``. :func:`output_folder` is every script's rule
+for ``--out``, checked before any work: a folder it can write into (:func:`out_folder_error`);
+with ``--quick`` and no ``--out``, a new temporary folder per run (:func:`quick_folder`), and
+never the committed ``results/`` or a full run's report (:func:`quick_out_error`).
+:func:`load_cli_policy` loads the policy a ``--policy`` option names (a module's attribute, or a
+stable-baselines3 ``.zip``: the only place the scoring imports stable-baselines3).
 """
 
 from __future__ import annotations
@@ -15,6 +18,8 @@ import argparse
 import dataclasses
 import importlib
 import json
+import os
+import tempfile
 import types
 import typing
 from pathlib import Path
@@ -22,15 +27,24 @@ from typing import Any
 
 import gymnasium as gym
 
+from benchmarks.files import target_error
+
 __all__ = [
+    "COMMITTED_RESULTS",
     "SB3_ALGOS",
     "CliError",
     "file_option_error",
+    "holds_full_run",
     "import_attribute",
     "load_cli_policy",
     "one_of",
     "options_parser",
+    "out_folder_error",
+    "output_folder",
     "parse_options",
+    "plain_name_error",
+    "quick_folder",
+    "quick_out_error",
 ]
 
 SB3_ALGOS = ("a2c", "ddpg", "ppo", "sac", "td3")
@@ -117,13 +131,102 @@ def parse_options(parser: argparse.ArgumentParser, options: type, argv: list[str
 
 
 def file_option_error(name: str, path: Any) -> str | None:
-    """Why ``path`` cannot be the output file of option ``name`` (a folder, or in a folder that
-    does not exist); None if it can."""
+    """Why ``path`` cannot be the output file of option ``name``: a folder or another node
+    :func:`benchmarks.files.write_atomic` refuses (a FIFO or a character device such as
+    ``/dev/null`` is written into), in a folder that does not exist or cannot be written into;
+    None if it can."""
     path = Path(path)
-    if path.is_dir():
-        return f"{name} {path}: is a folder; expected a file path in an existing folder"
+    error = target_error(path)
+    if error is not None:
+        return f"{name} {path}: {error}; expected a file path in an existing folder"
     if not path.parent.is_dir():
         return f"{name} {path}: the folder {path.parent} does not exist"
+    if path.exists() and not path.is_file():  # a FIFO or a device: written into, not replaced
+        return None if os.access(path, os.W_OK) else f"{name} {path}: cannot be written into"
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        return f"{name} {path}: the folder {path.parent} cannot be written into"
+    return None
+
+
+# ----------------------------------------------------------------------------- output folders
+#: The repository's committed results (``results/`` beside the ``benchmarks`` package): no
+#: quick mode writes there.
+COMMITTED_RESULTS = Path(__file__).resolve().parent.parent / "results"
+
+
+def out_folder_error(name: str, path: Any) -> str | None:
+    """Why ``path`` cannot be the output folder of option ``name``: something that is not a
+    folder stands there or where one of its parent folders would be, or the nearest folder that
+    exists on its way cannot be written into (permissions, a read-only file system); None if
+    the run can make it and write into it."""
+    path = Path(path)
+    probe = path
+    while not os.path.lexists(probe) and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        where = "" if probe == path else f" ({probe} is not a folder)"
+        return f"{name} {path}: not a folder{where}; expected a folder to write into"
+    if not os.access(probe, os.W_OK | os.X_OK):
+        return (
+            f"{name} {path}: the folder {probe} cannot be written into; expected a writable folder"
+        )
+    return None
+
+
+def holds_full_run(out: Path) -> bool:
+    """Whether ``out/summary.json`` is the report of a run without ``--quick`` (its recorded
+    options say ``quick: false``)."""
+    try:
+        options = json.loads((Path(out) / "summary.json").read_text())["options"]
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):
+        return False
+    return isinstance(options, dict) and options.get("quick") is False
+
+
+def quick_out_error(name: str, path: Any) -> str | None:
+    """Why a quick run (a smoke test) must not write into the folder ``path`` of option
+    ``name``: it is :data:`COMMITTED_RESULTS` or inside it, or it holds the report of a full run
+    (:func:`holds_full_run`), which the smoke test would replace; None if it may."""
+    resolved = Path(path).resolve()
+    if resolved == COMMITTED_RESULTS or COMMITTED_RESULTS in resolved.parents:
+        why = f"that folder is in the committed results ({COMMITTED_RESULTS})"
+    elif holds_full_run(resolved):
+        why = "that folder holds the report of a full run"
+    else:
+        return None
+    return (f"--quick with {name} {path}: {why}, which a smoke test never replaces; give "
+            f"another {name} (or none: --quick writes to a new temporary folder)")  # fmt: skip
+
+
+def quick_folder(script: str) -> Path:
+    """A new temporary folder for one quick run of ``script``
+    (``<temp>/sdjls-gym-<script>-XXXXXXXX``): two quick runs never share their outputs."""
+    return Path(tempfile.mkdtemp(prefix=f"sdjls-gym-{script}-"))
+
+
+def output_folder(parser: argparse.ArgumentParser, name: str, out: Any, *, quick: bool,
+                  default: Any, script: str) -> Path:  # fmt: skip
+    """The output folder of option ``name`` (``--out``), checked before any work: ``out`` if
+    given, else ``default``; with ``quick`` and no ``out``, a new temporary folder of this run
+    (:func:`quick_folder`). A parser error (exit status 2) names the option if the folder cannot
+    be written into (:func:`out_folder_error`) or if a quick run would write into the committed
+    results or over a full run's report (:func:`quick_out_error`). Call it after the other
+    checks, so that a refused command leaves no temporary folder behind."""
+    if out is None and quick:
+        return quick_folder(script)
+    folder = Path(default if out is None else out)
+    error = out_folder_error(name, folder) or (quick_out_error(name, folder) if quick else None)
+    if error is not None:
+        parser.error(error)
+    return folder
+
+
+def plain_name_error(name: str, value: str) -> str | None:
+    """Why ``value`` of option ``name`` is not a plain name (a file name made from it must stay
+    in its folder): empty, ``.`` or ``..``, or with a path separator or a NUL; None if it is."""
+    if value in ("", ".", "..") or any(c in value for c in "/\\\0"):
+        return (f"{name} = {value!r}; expected a plain name (no / or \\, not . or ..): it names "
+                "files in the output folder")  # fmt: skip
     return None
 
 

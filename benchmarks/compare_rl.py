@@ -37,7 +37,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -49,7 +48,7 @@ from tqdm import tqdm
 
 from benchmarks import rl_hyperparams as HP
 from benchmarks.backends import BACKENDS, train_all
-from benchmarks.cli_options import one_of, options_parser, parse_options
+from benchmarks.cli_options import one_of, options_parser, output_folder, parse_options
 from benchmarks.commands import prog
 from benchmarks.evaluate import REFERENCE_XIS, check_evaluation, evaluate
 from benchmarks.files import stable_floats, write_atomic
@@ -79,6 +78,7 @@ from benchmarks.rl_train import (
     policy_path,
     run_specs,
 )
+from benchmarks.runs import check_kept_runs
 from benchmarks.stats import curve_status, interval_check
 from benchmarks.tune_summary import read_summary
 from benchmarks.versions import package_versions
@@ -114,8 +114,6 @@ PRESETS: dict[str, dict[str, Any]] = {
 DEFAULT_OUT = PRESETS["suite"]["out"]
 #: Every ``--configs`` value: ``<algo>_<variant>``.
 CONFIGS = tuple(f"{a}_{v}" for a in ALGOS for v in VARIANTS)
-#: Where ``--quick`` writes by default: outside the repository (a temporary folder).
-QUICK_OUT = Path(tempfile.gettempdir()) / "sdjls-gym" / "compare_rl-quick"
 
 
 # ----------------------------------------------------------------------------- controllers
@@ -250,8 +248,8 @@ class Options:
         default=None,
         metadata={
             "help": "folder for figures, summary files, REPORT.md and runs/ (*.json, *.pt); "
-            "default: the preset's (results/rl_suite, results/rl), or "
-            f"{QUICK_OUT} with --quick (a smoke test never writes into the committed results)"
+            "default: the preset's (results/rl_suite, results/rl), or a new temporary folder "
+            "with --quick (a smoke test never writes into the committed results)"
         },
     )
     workers: int = field(
@@ -375,14 +373,16 @@ def parse_args(argv: list[str] | None = None) -> Options:
             f"report of these runs would replace the full report in {preset['out']}; give --out "
             "(or --train-only to train into the preset's runs)"
         )
-    if opts.out is None:
-        opts.out = QUICK_OUT if opts.quick else preset["out"]
-    elif opts.quick and _holds_a_full_comparison(opts.out):
-        parser.error(
-            f"--quick with --out {opts.out}: that folder holds the report of a full comparison, "
-            "which a smoke test would replace; give another --out (or none: "
-            f"--quick writes to {QUICK_OUT})"
-        )
+    if opts.score_only and opts.quick and opts.out is None:
+        parser.error("--score-only --quick needs --out, the folder of the quick runs to score "
+                     "(each --quick run writes into a new temporary folder)")  # fmt: skip
+    opts.out = output_folder(parser, "--out", opts.out, quick=opts.quick, default=preset["out"],
+                             script="compare_rl")  # fmt: skip
+    if opts.score_only:  # every kept run loads before a minute of scoring
+        try:
+            check_kept_runs(specs_of(opts), opts.out / "runs")
+        except (TypeError, ValueError) as exc:
+            parser.error(f"--score-only: {' '.join(str(exc).split())}")
     return opts
 
 
@@ -420,15 +420,6 @@ def specs_of(opts: Options) -> list[Any]:
                      filled("tasks", opts.tasks), PRESETS[opts.preset]["budgets"],
                      {key: o for key, (o, _) in studies.items()},
                      {key: steps for key, (_, steps) in studies.items()})  # fmt: skip
-
-
-def _holds_a_full_comparison(out: Path) -> bool:
-    """Whether ``out/summary.json`` is the report of a run without ``--quick``."""
-    try:
-        options = json.loads((out / "summary.json").read_text())["options"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return False
-    return isinstance(options, dict) and options.get("quick") is False
 
 
 # ----------------------------------------------------------------------------- scoring
@@ -482,6 +473,8 @@ def main(argv: list[str] | None = None) -> Summary | dict[str, Any] | None:
         filled("tasks", opts.tasks),
         filled("configs", opts.configs),
     )
+    if opts.quick:
+        _log(f"--quick: writing to {out}")
     out.mkdir(parents=True, exist_ok=True)
     log = _log
     specs = specs_of(opts)

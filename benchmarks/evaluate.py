@@ -59,7 +59,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.cli_options import SB3_ALGOS, CliError, load_cli_policy
+from benchmarks.cli_options import SB3_ALGOS, CliError, file_option_error, load_cli_policy
 from benchmarks.commands import prog
 from benchmarks.files import write_atomic
 from benchmarks.montecarlo import Rollouts, rollout
@@ -395,12 +395,8 @@ def main(argv: list[str] | None = None) -> Score:
         parser.error(
             str(exc).replace("episodes = ", "--episodes = ").replace("seed = ", "--seed = ")
         )
-    if opts.json is not None and (opts.json.is_dir() or not opts.json.parent.is_dir()):
-        parser.error(
-            f"--json {opts.json}: "
-            + ("is a folder" if opts.json.is_dir() else f"the folder {opts.json.parent} does not exist")
-            + "; expected a file path in an existing folder"
-        )  # fmt: skip
+    if opts.json is not None and (error := file_option_error("--json", opts.json)):
+        parser.error(error)  # a folder, a block device, a folder that is missing or read-only
     env_kwargs: dict[str, Any] = {}
     if opts.run is not None:
         for flag in ("algo", "train_env", "vec_normalize"):

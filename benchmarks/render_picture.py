@@ -42,7 +42,7 @@ import gymnasium as gym
 import numpy as np
 
 import sdjls_gym  # noqa: F401  (registers the ids)
-from benchmarks.cli_options import options_parser, parse_options
+from benchmarks.cli_options import options_parser, output_folder, parse_options
 from benchmarks.commands import prog
 from sdjls_gym.env import SDJLSEnv
 from sdjls_gym.systems.macro import HORIZON, PAPER_K, PAPER_RHC, macro
@@ -273,6 +273,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     opts = parse_options(parser, Options, argv)
     if opts.episodes < 1:
         parser.error(f"--episodes = {opts.episodes}; expected an int >= 1")
+    opts.out = output_folder(parser, "--out", opts.out, quick=False, default=None,
+                             script="render_picture")  # fmt: skip
     opts.out.mkdir(parents=True, exist_ok=True)
 
     result: dict[str, Any] = {

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from benchmarks.cli_options import options_parser, parse_options
+from benchmarks.cli_options import options_parser, output_folder, parse_options
 from benchmarks.commands import prog
 from benchmarks.files import stable_floats, write_atomic
 from benchmarks.montecarlo import Rollouts, paper_rhc, rollout
@@ -79,6 +79,8 @@ def parse_args(argv: list[str] | None = None) -> Options:
             f"--stat-runs = {opts.stat_runs}; expected an integer >= 2 (the intervals are over "
             "runs)"
         )
+    opts.out = output_folder(parser, "--out", opts.out, quick=False, default=None,
+                             script="reproduce_paper")  # fmt: skip
     return opts
 
 

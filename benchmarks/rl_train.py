@@ -45,6 +45,7 @@ from benchmarks.rl_envs import (
 )
 from benchmarks.rl_records import CurvePoint, DualPoint, RunRecord
 from benchmarks.task_env import resolve_env, rollout_statistics
+from sdjls_gym.errors import InvalidRunError
 
 __all__ = [
     "ACTION_KINDS",
@@ -54,6 +55,7 @@ __all__ = [
     "DualPoint",
     "RunRecord",
     "RunSpec",
+    "config_fingerprint",
     "env_from_config",
     "kept_run_path",
     "load_policy",
@@ -157,16 +159,17 @@ class RunSpec:
         return config
 
     def fingerprint(self) -> str:
-        return _hash(self.config())
+        return config_fingerprint(self.config())
 
     def legacy_fingerprint(self) -> str | None:
         """The fingerprint the macro comparison gave this run before the suite (its
         configuration without the task), under which ``results/rl/runs`` is kept; None off the
         macro task."""
-        return _hash(self._base_config()) if self.task == MACRO else None
+        return config_fingerprint(self._base_config()) if self.task == MACRO else None
 
 
-def _hash(config: dict[str, Any]) -> str:
+def config_fingerprint(config: dict[str, Any]) -> str:
+    """The fingerprint of a run's configuration: 16 hex digits of the SHA-256 of its JSON."""
     return hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -489,7 +492,7 @@ def kept_run_path(run_dir: Path, spec: RunSpec) -> Path | None:
             continue
         try:
             data = json.loads(path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError):
+        except (ValueError, RecursionError):  # not JSON, or nested too deep to read
             continue
         if isinstance(data, dict) and data.get("fingerprint") in accepted:
             return path
@@ -507,7 +510,14 @@ def policy_from_config(
 ) -> RawEnvPolicy:
     """The policy whose state dict is at ``path``, rebuilt from a run's recorded ``config``
     (its hyperparameters' ``policy_kwargs`` and its training environment,
-    :func:`env_from_config`), acting on the raw environment."""
+    :func:`env_from_config`), acting on the raw environment.
+
+    Raises
+    ------
+    InvalidRunError
+        The file at ``path`` is not a state dict (truncated, not torch's) or does not fit the
+        network ``config`` describes.
+    """
     import torch
     from stable_baselines3 import PPO, SAC, TD3
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -519,7 +529,21 @@ def policy_from_config(
     policy = cls.policy_aliases["MlpPolicy"](
         env.observation_space, env.action_space, lambda _: 0.0, **kwargs
     )
-    policy.load_state_dict(torch.load(path, map_location="cpu", weights_only=True))
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - truncated, not torch's, or not weights alone
+        raise InvalidRunError(
+            f"the policy file {path} cannot be read ({type(exc).__name__}: "
+            f"{' '.join(str(exc).split())[:200]}); expected the state dict a training saved"
+        ) from None
+    try:
+        policy.load_state_dict(state)
+    except (RuntimeError, TypeError, AttributeError) as exc:  # another network's weights
+        raise InvalidRunError(
+            f"the policy file {path} does not fit the {algo.upper()} network its run record "
+            f"describes ({' '.join(str(exc).split())[:200]}): another run's policy, or an edited "
+            "record"
+        ) from None
     policy.set_training_mode(False)
     return RawEnvPolicy(policy, env)
 

@@ -15,14 +15,26 @@ benchmarks.evaluate --run PATH``).
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any
 
 from benchmarks.policies import RawEnvPolicy
 from benchmarks.rl_envs import MACRO
-from benchmarks.rl_train import ALGOS, VARIANTS, RunRecord, policy_from_config, policy_path
+from benchmarks.rl_train import (
+    ALGOS,
+    VARIANTS,
+    RunRecord,
+    RunSpec,
+    config_fingerprint,
+    kept_run_path,
+    policy_from_config,
+    policy_path,
+    run_path,
+)
+from sdjls_gym.errors import InvalidRunError
 
-__all__ = ["load_agent", "read_run", "run_env"]
+__all__ = ["check_kept_runs", "load_agent", "read_run", "run_env"]
 
 
 def _json_path(run_path: str | Path) -> Path:
@@ -35,39 +47,95 @@ def _json_path(run_path: str | Path) -> Path:
     else:
         path = path.with_name(path.name + ".json")
     if not path.is_file():
-        raise ValueError(f"run_path = {str(run_path)!r}: no run record {path} exists")
+        raise InvalidRunError(f"run_path = {str(run_path)!r}: no run record {path} exists")
     if not policy_path(path).is_file():
-        raise ValueError(
+        raise InvalidRunError(
             f"run_path = {str(run_path)!r}: the run's policy {policy_path(path)} is missing"
         )
     return path
 
 
+def _record(path: Path) -> RunRecord:
+    """The record in ``path``, checked: an :class:`InvalidRunError` says what is wrong (the
+    caller names the file)."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise InvalidRunError(f"is not a run record (not UTF-8 JSON: {exc})") from None
+    except RecursionError:
+        raise InvalidRunError("is not a run record (nested too deep to read)") from None
+    if not isinstance(data, dict):
+        raise InvalidRunError(
+            f"is not a run record: it holds a JSON {type(data).__name__}; expected an object"
+        )
+    try:
+        record = RunRecord.from_json(data)
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise InvalidRunError(f"is not a run record ({type(exc).__name__}: {exc})") from None
+    config = record.config
+    if record.algo not in ALGOS or record.variant not in VARIANTS or not isinstance(config, dict):
+        raise InvalidRunError(
+            f"records algorithm {record.algo!r}, variant {record.variant!r}; expected one of "
+            f"{ALGOS} and {VARIANTS} with a configuration"
+        )
+    # what the fingerprint covers: the configuration; the record's own fields must agree with it
+    fingerprint = config_fingerprint(config)
+    if record.fingerprint != fingerprint:
+        raise InvalidRunError(
+            f"fingerprint = {record.fingerprint!r} recorded, but its configuration hashes to "
+            f"{fingerprint!r}: the record was edited"
+        )
+    for field in ("algo", "variant", "seed"):
+        if config.get(field) != getattr(record, field) or type(config.get(field)) is bool:
+            raise InvalidRunError(
+                f"{field} = {getattr(record, field)!r} recorded, {config.get(field)!r} in its "
+                "configuration: the record was edited"
+            )
+    if record.name != f"{record.algo}_{record.variant}_s{record.seed}" or path.stem not in (
+        record.name,
+        f"{record.name}-{record.fingerprint}",
+    ):
+        raise InvalidRunError(
+            f"name = {record.name!r}, fingerprint {record.fingerprint!r}: they do not name the "
+            f"file {path.name!r} (<algo>_<variant>_s<seed>-<fingerprint>.json): a renamed or "
+            "edited record"
+        )
+    if "task" in config and not re.fullmatch(r"[0-9a-f]{16}", str(config.get("task_digest"))):
+        raise InvalidRunError(
+            f"task_digest = {config.get('task_digest')!r} in its configuration of task "
+            f"{config['task']!r}; expected the digest of the task it was trained on"
+        )
+    if record.task != config.get("task", MACRO):
+        raise InvalidRunError(
+            f"task = {record.task!r} recorded, {config.get('task', MACRO)!r} in its "
+            "configuration: the record was edited"
+        )
+    return record
+
+
 def read_run(run_path: str | Path) -> RunRecord:
     """The :class:`~benchmarks.rl_train.RunRecord` kept at ``run_path`` (``.json``, ``.pt`` or the
-    name without a suffix).
+    name without a suffix), checked.
+
+    The record must be a JSON object of a run's fields; its fingerprint must be the hash of its
+    configuration (:func:`benchmarks.rl_train.config_fingerprint`), which must agree with its
+    algorithm, variant, seed and task; its file name must be its name and fingerprint; a run of
+    the suite (a task in its configuration) must record its task's digest.
 
     Raises
     ------
     TypeError
         ``run_path`` is not a path.
-    ValueError
-        The record or its policy is missing, or the record is not a run of the comparison.
+    InvalidRunError
+        (a :class:`ValueError`) The record or its policy is missing, or the record is not a run
+        record or was edited; the message names the file and what is wrong.
     """
     path = _json_path(run_path)
     try:
-        data = json.loads(path.read_text())
-        record = RunRecord.from_json(data)
-    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as exc:
-        raise ValueError(
-            f"run_path = {str(run_path)!r}: {path} is not a run record ({exc})"
-        ) from None
-    if record.algo not in ALGOS or record.variant not in VARIANTS or not record.config:
-        raise ValueError(
-            f"run_path = {str(run_path)!r}: algorithm {record.algo!r}, variant "
-            f"{record.variant!r}; expected one of {ALGOS} and {VARIANTS} with a configuration"
-        )
-    return record
+        return _record(path)
+    except InvalidRunError as exc:
+        record = "" if Path(run_path) == path else f" (its record {path})"
+        raise InvalidRunError(f"run_path = {str(run_path)!r}{record}: {exc}") from None
 
 
 def run_env(run_path: str | Path) -> tuple[str, dict[str, Any]]:
@@ -97,10 +165,47 @@ def load_agent(run_path: str | Path) -> RawEnvPolicy:
 
     Raises
     ------
-    TypeError, ValueError
-        See :func:`read_run`; also a ValueError when the run's task changed since it was
-        trained (its recorded task digest).
+    TypeError
+        ``run_path`` is not a path.
+    InvalidRunError
+        (a :class:`ValueError`) See :func:`read_run`; also when the run's task changed since it
+        was trained (its recorded task digest), when its configuration does not build an
+        environment and a network, or when its policy file is truncated or does not fit that
+        network (another run's policy). The message names the file.
     """
     path = _json_path(run_path)
     record = read_run(path)
-    return policy_from_config(record.algo, record.variant, record.config, policy_path(path))
+    try:
+        return policy_from_config(record.algo, record.variant, record.config, policy_path(path))
+    except InvalidRunError as exc:
+        raise InvalidRunError(f"run_path = {str(run_path)!r}: {exc}") from None
+    except (AttributeError, IndexError, KeyError, TypeError, ValueError) as exc:
+        raise InvalidRunError(
+            f"run_path = {str(run_path)!r}: the configuration in {path} does not rebuild its "
+            f"agent ({type(exc).__name__}: {exc})"
+        ) from None
+
+
+def check_kept_runs(specs: list[RunSpec], run_dir: Path) -> list[Path | None]:
+    """The record file of each of ``specs``' kept runs under ``run_dir`` (None where it is
+    missing), each loaded as :func:`load_agent` loads it, so that a command stops before any
+    scoring when one is tampered with or corrupted.
+
+    A run whose files are in the place of its configuration (``<task>/<name>-<fingerprint>``)
+    but do not read as that run is refused, not counted as missing.
+
+    Raises
+    ------
+    InvalidRunError
+        Naming the file and what is wrong (:func:`load_agent`).
+    """
+    paths = []
+    for spec in specs:
+        path = kept_run_path(run_dir, spec)
+        there = run_path(Path(run_dir) / spec.task, spec.name, spec.fingerprint())
+        if path is None and there.exists():
+            path = there  # in the run's place, but not readable as it: load_agent says why
+        if path is not None:
+            load_agent(path)
+        paths.append(path)
+    return paths

@@ -1,9 +1,10 @@
 """Speed of the environment and the controllers, as ratios against references in the same run.
 
-``python -m benchmarks.speed [--out results/speed] [--quick]`` measures, in one process, with
-warm-up and medians over repeats (the env against Pendulum, each ``act()`` against its DAQP
-floor, and the cvxpy rebuild with each ``act()`` path in alternating rounds, a ratio the median
-of the rounds' ratios; :func:`paired_times`, :func:`timed_rounds`):
+``python -m benchmarks.speed [--out results/speed] [--quick]`` (``--quick``: into a new temporary
+folder) measures, in one process, with warm-up and medians over repeats (the env against
+Pendulum, each ``act()`` against its DAQP floor, and the cvxpy rebuild with each ``act()`` path
+in alternating rounds, a ratio the median of the rounds' ratios; :func:`paired_times`,
+:func:`timed_rounds`):
 
 1. one env step of ``SDJLS-Macro-v0`` against ``Pendulum-v1`` (both from ``gym.make`` with
    their default wrappers; resets are not timed);
@@ -28,8 +29,8 @@ of the rounds' ratios; :func:`paired_times`, :func:`timed_rounds`):
 
 It reads no private attribute of the controllers (``path_counts``, ``reset_path_counts`` and
 ``set_warm_start`` are their public hooks). It writes ``speed.json`` and ``SPEED.md`` to
-``--out``. BLAS runs single-threaded (set in
-``benchmarks/__init__.py``): the products here are small and thread start-up would dominate.
+``--out``. BLAS runs single-threaded (set in ``benchmarks/__init__.py``): the products here are
+small and thread start-up would dominate.
 """
 
 from __future__ import annotations
@@ -49,7 +50,9 @@ import gymnasium as gym
 import numpy as np
 
 import sdjls_gym
+from benchmarks.cli_options import output_folder
 from benchmarks.commands import prog
+from benchmarks.files import write_atomic
 from benchmarks.speed_references import CvxpyParametric, DaqpFloor, P3Data
 from benchmarks.speed_report import TARGETS, write_markdown
 from benchmarks.versions import package_versions
@@ -552,20 +555,18 @@ def measure_scaling(opts) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = argparse.ArgumentParser(prog=prog("speed"), description=__doc__.split("\n\n")[0])
-    parser.add_argument(
-        "--out", type=Path, default=Path("results/speed"), help="folder for speed.json and SPEED.md"
-    )
-    parser.add_argument(
-        "--quick", action="store_true", help="small sizes and few repeats (a smoke test)"
-    )
-    parser.add_argument(
-        "--repeats", type=int, default=None, help="repeats per measurement (default 7, quick 2)"
-    )
+    parser.add_argument("--out", type=Path, help="folder for speed.json and SPEED.md (default "
+                        "results/speed; with --quick a new temporary folder)")  # fmt: skip
+    parser.add_argument("--quick", action="store_true", help="small sizes, few repeats: a smoke "
+                        "test")  # fmt: skip
+    parser.add_argument("--repeats", type=int, help="repeats per measurement (default 7, quick 2)")
     opts = parser.parse_args(argv)
-    if opts.repeats is None:
-        opts.repeats = 2 if opts.quick else 7
+    opts.repeats = (2 if opts.quick else 7) if opts.repeats is None else opts.repeats
     if opts.repeats < 1:
         parser.error(f"--repeats = {opts.repeats}; expected a positive integer")
+    opts.out = output_folder(parser, "--out", opts.out, quick=opts.quick,
+                             default=Path("results/speed"), script="speed")  # fmt: skip
+    print(f"writing to {opts.out}", flush=True)
     opts.out.mkdir(parents=True, exist_ok=True)
     episodes = 50 if opts.quick else 500
     print("env step ...", flush=True)
@@ -588,9 +589,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     res["tree"]["large"] = measure_large_tree(opts, res["act"]["act_us"])
     print("scaling ...", flush=True)
     res["scaling"] = measure_scaling(opts)
-    (opts.out / "speed.json").write_text(json.dumps(res, indent=1) + "\n")
+    write_atomic(opts.out / "speed.json", json.dumps(res, indent=1) + "\n")
     md = write_markdown(res, res["command"])
-    (opts.out / "SPEED.md").write_text(md)
+    write_atomic(opts.out / "SPEED.md", md)
     print(md)
     return res
 

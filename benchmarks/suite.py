@@ -353,7 +353,7 @@ class Options:
     )
     out: str | None = field(
         default=None,
-        metadata={"help": "references: output folder; default results/suite, or a temporary "
+        metadata={"help": "references: output folder; default results/suite, or a new temporary "
                   "folder with --quick (a smoke test never writes into the committed results)"},
     )  # fmt: skip
     tree_episodes: int | None = field(
@@ -373,7 +373,6 @@ def parse_args(argv: list[str] | None = None) -> tuple[Options, Any]:
     """The options, each checked before any work (a bad one: exit status 2, naming it); with
     ``--policy``, also the factory it names."""
     import argparse
-    from pathlib import Path
 
     from benchmarks.cli_options import (
         CliError,
@@ -423,18 +422,11 @@ def parse_args(argv: list[str] | None = None) -> tuple[Options, Any]:
         return opts, factory
     if opts.json is not None:
         parser.error("--json applies with --policy only (the references write into --out)")
-    from benchmarks.suite_report import DEFAULT_OUT, QUICK_OUT, holds_full_references
+    from benchmarks.cli_options import output_folder
+    from benchmarks.suite_report import DEFAULT_OUT
 
-    if opts.out is None:
-        opts.out = str(QUICK_OUT if opts.quick else DEFAULT_OUT)
-    elif Path(opts.out).exists() and not Path(opts.out).is_dir():
-        parser.error(f"--out {opts.out}: is a file; expected a folder")
-    elif opts.quick and holds_full_references(Path(opts.out)):
-        parser.error(
-            f"--quick with --out {opts.out}: that folder holds the full references, which a "
-            f"smoke test would replace; give another --out (or none: --quick writes to "
-            f"{QUICK_OUT})"
-        )
+    opts.out = str(output_folder(parser, "--out", opts.out, quick=opts.quick, default=DEFAULT_OUT,
+                                 script="suite"))  # fmt: skip
     return opts, None
 
 
@@ -447,6 +439,8 @@ def main(argv: list[str] | None = None) -> Any:
     if factory is None:
         from benchmarks.suite_report import run_references
 
+        if opts.quick:
+            print(f"--quick: writing to {opts.out}", file=sys.stderr)
         return run_references(opts, argv)
     from benchmarks.files import write_atomic
     from benchmarks.versions import package_versions

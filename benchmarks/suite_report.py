@@ -17,8 +17,8 @@ numbers):
 Each controller's normalized gap (% of the reference curve's cost at its own violation
 frequency, :mod:`benchmarks.suite`) and, for the controllers at the task's own level (the joint
 RHC, the 3-step tree) and the two baselines, rliable's aggregate across the tasks. Outputs under
-``--out`` (default :data:`DEFAULT_OUT`; with ``--quick`` :data:`QUICK_OUT`, outside the
-repository): ``summary.json``, ``summary.csv``, ``REPORT.md`` (written atomically), one
+``--out`` (default :data:`DEFAULT_OUT`; with ``--quick`` a new temporary folder,
+:func:`benchmarks.cli_options.quick_folder`): ``summary.json``, ``summary.csv``, ``REPORT.md`` (written atomically), one
 cost-violation figure per task (``fig_<env id>.png``) and ``fig_aggregate.png``
 (:mod:`benchmarks.suite_figures`).
 """
@@ -29,7 +29,6 @@ import csv
 import io
 import json
 import sys
-import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -47,21 +46,17 @@ from sdjls_gym.systems import TASKS, Task
 
 __all__ = [
     "DEFAULT_OUT",
-    "QUICK_OUT",
     "QUICK_XIS",
     "TREE_EPISODES",
     "TREE_STEPS",
     "TREE_XIS",
     "Point",
     "TaskReferences",
-    "holds_full_references",
     "run_references",
     "task_references",
 ]
 
 DEFAULT_OUT = Path("results/suite")
-#: Where ``--quick`` writes by default: outside the repository.
-QUICK_OUT = Path(tempfile.gettempdir()) / "sdjls-gym" / "suite-quick"
 TREE_STEPS = 3
 #: Levels of the 3-step tree curve (and the task's own ``xi``), and its episodes per level.
 TREE_XIS: tuple[float, ...] = (0.5, 0.7, 0.85, 0.9, 0.95)
@@ -112,15 +107,6 @@ class TaskReferences:
         """The point of ``family`` at the task's level (or its only point)."""
         pts = [p for p in self.points if p.family == family]
         return next((p for p in pts if p.xi == self.xi), pts[0])
-
-
-def holds_full_references(out: Path) -> bool:
-    """Whether ``out/summary.json`` holds references computed without ``--quick``."""
-    try:
-        options = json.loads((out / "summary.json").read_text())["options"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return False
-    return isinstance(options, dict) and options.get("quick") is False
 
 
 def _point(family: str, xi: float | None, episodes: int, stats: dict[str, Any],

@@ -19,7 +19,7 @@ violation frequency (on the learning curve's own episodes, not the evaluation's)
 RHC's cost at the task's ``xi``; riskier than the curve scores above 1, diverging above 2. The
 trial's value is the mean over seeds of the points after 70% of training (lower is better).
 
-Outputs under ``--out`` (default ``results/tune``; with ``--quick``, a temporary folder): the
+Outputs under ``--out`` (default ``results/tune``; with ``--quick``, a new temporary folder): the
 study database (unless ``--storage`` names another), ``runs/<task>/`` (the trials' kept runs) and
 ``<study>.json`` (the search space, every trial with its spending, and the best).
 """
@@ -30,7 +30,6 @@ import argparse
 import functools
 import json
 import sys
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -39,7 +38,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from benchmarks import rl_hyperparams as HP
-from benchmarks.cli_options import options_parser, parse_options
+from benchmarks.cli_options import options_parser, output_folder, parse_options, plain_name_error
 from benchmarks.commands import prog
 from benchmarks.files import stable_floats, write_atomic
 from benchmarks.rl_envs import get_task, task_settings
@@ -63,8 +62,6 @@ __all__ = [
 #: First seed of the tuning trials: the comparison trains seeds 0, 1, ...; tuning never does.
 TUNE_SEED0 = 100
 DEFAULT_OUT = Path("results/tune")
-#: Where ``--quick`` writes by default: outside the repository.
-QUICK_OUT = Path(tempfile.gettempdir()) / "sdjls-gym" / "tune-quick"
 QUICK = {"trials": 3, "timesteps": 500, "curve_points": 3, "curve_episodes": 20}
 
 
@@ -237,13 +234,14 @@ class Options:
     )
     study_name: str | None = field(
         default=None,
-        metadata={"help": "study name (default: <task>-<algo>-<variant>-<timesteps>-<seeds>s)"},
-    )
+        metadata={"help": "study name, a plain name: <out>/<study>.json is its summary (default: "
+                  "<task>-<algo>-<variant>-<timesteps>-<seeds>s)"},
+    )  # fmt: skip
     out: Path | None = field(
         default=None,
         metadata={
             "help": f"folder for the study database, runs/ and <study>.json (default: "
-            f"{DEFAULT_OUT}, or {QUICK_OUT} with --quick)"
+            f"{DEFAULT_OUT}, or a new temporary folder with --quick)"
         },  # fmt: skip
     )
     backend: str = field(
@@ -311,15 +309,22 @@ def parse_args(argv: list[str] | None = None) -> Options:
     if opts.timesteps is None:
         opts.timesteps = (QUICK["timesteps"] if opts.quick
                           else HP.suite_timesteps(opts.task, opts.algo, opts.variant))  # fmt: skip
-    if opts.out is None:
-        opts.out = QUICK_OUT if opts.quick else DEFAULT_OUT
-    opts.out = opts.out.resolve()  # Ray's trials run in folders of their own
-    if opts.storage is None:
-        opts.storage = f"sqlite:///{(opts.out / 'studies.db').resolve()}"
-    elif not opts.storage.startswith(("sqlite:///", "postgresql", "mysql")):
+    if opts.study_name is not None and (error := plain_name_error("--study-name", opts.study_name)):
+        parser.error(error)
+    if opts.storage is not None and not opts.storage.startswith(("sqlite:///", "postgresql",
+                                                                 "mysql")):  # fmt: skip
         parser.error(
             f"--storage = {opts.storage!r}; expected an Optuna RDB URL, e.g. sqlite:///PATH.db"
         )
+    if opts.storage is not None and opts.storage.startswith("sqlite:///"):  # its folder too
+        output_folder(parser, "--storage", Path(opts.storage[len("sqlite:///") :]).parent,
+                      quick=opts.quick, default=None, script="tune")  # fmt: skip
+    quick = opts.quick and not opts.print_space  # a new folder only for a run that writes
+    opts.out = output_folder(parser, "--out", opts.out, quick=quick, default=DEFAULT_OUT,
+                             script="tune")  # fmt: skip
+    opts.out = opts.out.resolve()  # Ray's trials run in folders of their own
+    if opts.storage is None:
+        opts.storage = f"sqlite:///{(opts.out / 'studies.db').resolve()}"
     if opts.study_name is None:
         opts.study_name = f"{opts.task}-{opts.algo}-{opts.variant}-{opts.timesteps}-{opts.seeds}s"
     return opts
@@ -565,6 +570,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any] | None:
         print("\n".join(describe_space(opts.algo, opts.variant)))
         return None
     out = _resolved(opts.out, "out")
+    if opts.quick:
+        print(f"--quick: writing to {out}", file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
     study = load_study(opts)
     log(f"study {opts.study_name} ({opts.storage}): {finished(study)} of {opts.trials} trials "

@@ -16,7 +16,8 @@ its stratified-bootstrap 95% interval). A group in which a run has no gap (diver
 a curve's range) is not summarized: the table says why, as the suite's report does.
 
 Writes ``TUNED.md`` and ``tuned.json`` to ``--out`` (default ``results/tune``; with
-``--quick``, a temporary folder, and the quick budgets of ``compare_rl --quick``).
+``--quick``, a new temporary folder, and the quick budgets of ``compare_rl --quick``, whose runs
+``--runs`` names).
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -33,6 +33,7 @@ import numpy as np
 
 from benchmarks import compare_rl
 from benchmarks.aggregate import AGGREGATE_RESAMPLES, compare_gaps, iqm_interval
+from benchmarks.cli_options import output_folder
 from benchmarks.commands import prog
 from benchmarks.evaluate import check_evaluation
 from benchmarks.files import stable_floats, write_atomic
@@ -45,13 +46,12 @@ from benchmarks.rl_suite_report import (
 )
 from benchmarks.rl_suite_tables import gap_text
 from benchmarks.rl_train import RunSpec, run_specs
+from benchmarks.runs import check_kept_runs
 from benchmarks.tune_summary import read_summary
 
-__all__ = ["DEFAULT_OUT", "QUICK_OUT", "compare_study", "main"]
+__all__ = ["DEFAULT_OUT", "compare_study", "main"]
 
 DEFAULT_OUT = Path("results/tune")
-#: Where ``--quick`` writes by default: outside the repository.
-QUICK_OUT = Path(tempfile.gettempdir()) / "sdjls-gym" / "tuned-quick"
 #: The gaps compared: to the one-step RHC curve and to the 3-step tree's curve.
 WHICH = (("rhc", "one-step RHC"), ("tree", "3-step tree"))
 
@@ -116,11 +116,10 @@ def _group(agents: list[AgentScore], resamples: int) -> dict[str, Any]:
     return out
 
 
-def compare_study(path: Path, run_dir: Path, seeds: int, episodes: int, seed: int,
-                  quick: bool, log: Any = print) -> dict[str, Any]:  # fmt: skip
-    """The comparison of one study's tuned runs with the default ones (see the module
-    docstring): the study, both groups and, per curve, rliable's comparison or why there is
-    none."""
+def study_specs(path: Path, seeds: int,
+                quick: bool) -> tuple[dict[str, Any], list[RunSpec], list[RunSpec]]:  # fmt: skip
+    """The study summary at ``path``, and the runs of its configuration on ``seeds`` seeds at
+    the budget it tuned at: with the default hyperparameters, and with its best overrides."""
     key, overrides, summary = read_summary(path)
     task, algo, variant = key
     pair = [(algo, variant)]
@@ -128,6 +127,16 @@ def compare_study(path: Path, run_dir: Path, seeds: int, episodes: int, seed: in
     default = run_specs(pair, seeds, None, quick, [task], tuned_timesteps=budget)
     tuned = run_specs(pair, seeds, None, quick, [task], tuned={key: overrides},
                       tuned_timesteps=budget)  # fmt: skip
+    return summary, default, tuned
+
+
+def compare_study(path: Path, run_dir: Path, seeds: int, episodes: int, seed: int,
+                  quick: bool, log: Any = print) -> dict[str, Any]:  # fmt: skip
+    """The comparison of one study's tuned runs with the default ones (see the module
+    docstring): the study, both groups and, per curve, rliable's comparison or why there is
+    none."""
+    summary, default, tuned = study_specs(path, seeds, quick)
+    task, algo, variant = default[0].task, default[0].algo, default[0].variant
     specs: list[RunSpec] = [*default, *tuned]
     records = kept_runs(specs, run_dir)
     log(f"{task} {algo}_{variant}: {sum(r is not None for r in records)} of {len(specs)} "
@@ -144,7 +153,7 @@ def compare_study(path: Path, run_dir: Path, seeds: int, episodes: int, seed: in
         "study": str(path),
         "task": task,
         "config": f"{algo}_{variant}",
-        "overrides": dict(overrides),
+        "overrides": dict(tuned[0].overrides),
         "trials": _trial_states(summary),
         "best_trial": summary["best"].get("number"),
         "budget": {k: summary["settings"].get(k) for k in ("timesteps", "seeds")},
@@ -253,15 +262,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--tuned", type=Path, nargs="+", required=True, metavar="STUDY.json",
                         help="summaries of benchmarks.tune studies (<out>/<study>.json)")  # fmt: skip
     parser.add_argument("--runs", type=Path, default=None,
-                        help="the kept runs (default results/rl_suite/runs; with --quick, "
-                        "compare_rl --quick's folder)")  # fmt: skip
+                        help="the kept runs (default results/rl_suite/runs; needed with --quick: "
+                        "the runs/ of the folder compare_rl --quick wrote into)")  # fmt: skip
     parser.add_argument("--seeds", type=int, default=5, help="seeds 0 .. SEEDS - 1 per group")
     parser.add_argument("--eval-episodes", type=int, default=None,
                         help="evaluation episodes (default 1000, 200 with --quick)")  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, help="noise seed of the evaluation")
     parser.add_argument("--out", type=Path, default=None,
-                        help=f"folder of TUNED.md and tuned.json (default {DEFAULT_OUT}, "
-                        f"{QUICK_OUT} with --quick)")  # fmt: skip
+                        help=f"folder of TUNED.md and tuned.json (default {DEFAULT_OUT}, a new "
+                        "temporary folder with --quick)")  # fmt: skip
     parser.add_argument("--quick", action="store_true",
                         help="the quick budgets of compare_rl --quick (a smoke test)")  # fmt: skip
     opts = parser.parse_args(argv)
@@ -278,10 +287,18 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         compare_rl.tuned_studies(opts.tuned)
     except ValueError as exc:
         parser.error(str(exc))
-    if opts.runs is None:
-        opts.runs = (compare_rl.QUICK_OUT if opts.quick else Path("results/rl_suite")) / "runs"
-    if opts.out is None:
-        opts.out = QUICK_OUT if opts.quick else DEFAULT_OUT
+    if opts.runs is None and opts.quick:
+        parser.error("--quick needs --runs: the runs/ folder of a compare_rl --quick run (each "
+                     "writes into a new temporary folder, printed at its start)")  # fmt: skip
+    opts.runs = Path("results/rl_suite/runs") if opts.runs is None else opts.runs
+    try:  # every kept run loads before any scoring
+        for path in opts.tuned:
+            _, default, tuned = study_specs(path, opts.seeds, opts.quick)
+            check_kept_runs([*default, *tuned], opts.runs)
+    except (TypeError, ValueError) as exc:
+        parser.error(" ".join(str(exc).split()))
+    opts.out = output_folder(parser, "--out", opts.out, quick=opts.quick, default=DEFAULT_OUT,
+                             script="tuned_report")  # fmt: skip
     return opts
 
 
@@ -297,6 +314,8 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     def log(msg: str) -> None:
         print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
 
+    if opts.quick:
+        log(f"--quick: writing to {opts.out}")
     results = [compare_study(p, opts.runs, opts.seeds, opts.eval_episodes, opts.seed,
                              opts.quick, log) for p in opts.tuned]  # fmt: skip
     command = "python -m benchmarks.tuned_report" + ("" if not argv else " " + " ".join(argv))

@@ -128,16 +128,40 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def own_spec(spec: EnvSpec | None, max_episode_steps: int) -> EnvSpec | None:
+def own_spec(
+    spec: EnvSpec | None, max_episode_steps: int, model: SDJLSModel | None = None
+) -> EnvSpec | None:
     """``spec`` with JSON-friendly kwargs and ``max_episode_steps`` set when it is None.
 
     ``gymnasium.make`` gives an env a spec whose ``max_episode_steps`` is None when no
     ``TimeLimit`` is added; the environment truncates at its own horizon, which is reported
     there instead, so that ``env.spec.max_episode_steps`` says when episodes end and
     ``env.spec.to_json()`` works with a model object among the arguments.
+
+    Raises
+    ------
+    ValueError
+        ``spec.id`` is a preset task (``sdjls_gym.systems.TASKS``, but ``SDJLS-Random-v0``,
+        whose system its own arguments choose) and ``model``, the environment's model, is
+        not that task's: ``gym.make("SDJLS-Solar-v0", model="macro")`` would build the macro
+        system under the Solar id. ``gym.make("SDJLS-v0", model=...)`` takes any model.
     """
     if spec is None:
         return None
+    if model is not None:
+        from sdjls_gym.systems import TASKS
+
+        task = TASKS.get(spec.id) if spec.id != "SDJLS-Random-v0" else None
+        if task is not None and model != task.model:
+            given = spec.kwargs.get("model")
+            shown = (
+                repr(given) if isinstance(given, str) else f"a model with n={model.n}, N={model.N}"
+            )
+            raise ValueError(
+                f"model = {shown} given to {spec.id}, a preset task whose model is fixed; "
+                f'leave model out, or use gym.make("SDJLS-v0", model=..., horizon=...) for '
+                "another system"
+            )
     steps = spec.max_episode_steps if spec.max_episode_steps is not None else max_episode_steps
     kwargs = {key: _plain(value) for key, value in spec.kwargs.items()}
     return dataclasses.replace(spec, kwargs=kwargs, max_episode_steps=steps)
@@ -378,7 +402,7 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
 
     @spec.setter
     def spec(self, value: EnvSpec | None) -> None:
-        self._spec = own_spec(value, self.horizon)
+        self._spec = own_spec(value, self.horizon, self.model)
 
     # ------------------------------------------------------------------ current state
     @property

@@ -12,6 +12,7 @@ class                           bases                                 raised whe
 ==============================  ====================================  ===================================
 ``InvalidModelError``           ``ValueError``                        a model or model file is malformed
 ``InvalidModelTypeError``       ``InvalidModelError``, ``TypeError``  a model field has the wrong type
+``InvalidRunError``             ``ValueError``                        a kept RL run's files are bad
 ``NotAnIntError``               ``TypeError``, ``ValueError``         a float where an int belongs
 ``NotANumberError``             ``TypeError``, ``ValueError``         an action entry is not a number
 ``ResetNeededError``            ``gymnasium.error.ResetNeeded``,      ``step()`` before ``reset()`` or
@@ -24,8 +25,7 @@ class                           bases                                 raised whe
 ``ImpossibleObservationError``  ``ValueError``                        no mode explains an observed state
 ``InsufficientDataError``       ``ValueError``                        trajectories do not determine a
                                                                       model (``controllers.identify``)
-==============================  ====================================  ===================================
-
+==============================  ====================================  ============================
 The package namespaces export the ones users catch most: ``sdjls_gym.InvalidModelError``,
 ``sdjls_gym.InvalidModelTypeError``, ``controllers.LMIError`` and its subclasses,
 ``controllers.ModeNotObservedError``, ``controllers.ImpossibleObservationError`` and
@@ -39,6 +39,7 @@ from gymnasium.error import ResetNeeded
 __all__ = [
     "InvalidModelError",
     "InvalidModelTypeError",
+    "InvalidRunError",
     "NotAnIntError",
     "NotANumberError",
     "ResetNeededError",
@@ -68,6 +69,19 @@ class InvalidModelTypeError(InvalidModelError, TypeError):
 
     Both an :class:`InvalidModelError` (so a :class:`ValueError`) and a :class:`TypeError`, so
     ``except InvalidModelError`` catches every model error.
+    """
+
+
+class InvalidRunError(ValueError):
+    """A kept run of the RL comparison (``benchmarks.runs``) cannot be used. Subclass of
+    :class:`ValueError`.
+
+    Raised by ``benchmarks.runs.read_run`` and ``load_agent`` (so by ``python -m
+    benchmarks.evaluate --run`` and ``python -m benchmarks.compare_rl --score-only``) for a
+    record that is not a run record (not a JSON object, nested too deep, a field missing or of
+    the wrong type), that was edited (its fingerprint, configuration, file name or task digest
+    disagree), or whose policy file is truncated or is another network's. The message names the
+    file and what is wrong.
     """
 
 

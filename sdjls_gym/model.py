@@ -82,9 +82,12 @@ class SDJLSModel:
     mode0 : int or (N,) array
         Initial mode ``0 <= mode0 < N``, or a probability vector to draw it from.
     mode_names : list or tuple of N str, optional
-        Human-readable names of the modes (``"mode 0"``, ... by default).
+        Human-readable names of the modes (``"mode 0"``, ... by default). Names are labels:
+        printable text, without control characters (tab, newline, DEL, U+0080-U+009F, ...) or
+        lone surrogates, so that every name round-trips through ``save_model`` / ``load_model``.
     state_names : list or tuple of n str, optional
-        Human-readable names of the states ``x(1) .. x(n)``; None (the default) when not given.
+        Human-readable names of the states ``x(1) .. x(n)`` (the same rule); None (the
+        default) when not given.
 
     Raises
     ------

@@ -13,6 +13,7 @@ multiplied by ``1e-12`` or ``1e12`` gets the same verdict as the original.
 from __future__ import annotations
 
 import contextlib
+import unicodedata
 from collections.abc import Iterator
 from typing import Any
 
@@ -180,8 +181,23 @@ def _check_mode0(value: Any, N: int) -> int | np.ndarray:
 
 
 def _check_names(name: str, value: Any, count: int) -> tuple[str, ...]:
+    """The names as a tuple of ``count`` str. A name is a label (a legend, a table cell, a key
+    of a TOML or JSON file): a control character (Unicode category Cc: U+0000-U+001F, DEL,
+    U+0080-U+009F; tab and newline too) or a lone surrogate (which no UTF-8 file can hold) is
+    refused, so that every accepted name round-trips through ``save_model`` / ``load_model``."""
     with model_errors(name):
-        return check_str_sequence(name, value, length=count)
+        names = check_str_sequence(name, value, length=count)
+    for i, item in enumerate(names):
+        bad = next((c for c in item if unicodedata.category(c) in ("Cc", "Cs")), None)
+        if bad is not None:
+            kind = (
+                "a lone surrogate" if unicodedata.category(bad) == "Cs" else "a control character"
+            )
+            raise InvalidModelError(
+                f"{name}[{i}] = {item!r} holds {kind} (U+{ord(bad):04X}); a name is a label: "
+                "expected printable text"
+            )
+    return names
 
 
 def validate_fields(f: dict[str, Any]) -> dict[str, Any]:  # noqa: C901 - a flat list of checks

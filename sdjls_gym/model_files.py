@@ -33,8 +33,9 @@ def load_model(path: str | os.PathLike) -> SDJLSModel:
     Raises
     ------
     InvalidModelError
-        If the file cannot be parsed (the message names the file), has a key twice, or a field
-        is missing or malformed (the message names the file and the field).
+        If ``path`` is a folder, the file cannot be parsed (the message names the file), has a
+        key twice, or a field is missing or malformed (the message names the file and the
+        field).
     FileNotFoundError
         If there is no such file.
     """
@@ -42,6 +43,10 @@ def load_model(path: str | os.PathLike) -> SDJLSModel:
     suffix = path.suffix.lower()
     if suffix not in SUFFIXES:
         raise InvalidModelError(f"path = {str(path)!r}: a model file must end in .json or .toml")
+    if path.is_dir():
+        raise InvalidModelError(
+            f"path = {str(path)!r} is a folder; expected a model file (.json or .toml)"
+        )
     text = None
     try:
         text = path.read_text(encoding="utf-8")
@@ -99,7 +104,7 @@ def save_model(model: SDJLSModel, path: str | os.PathLike) -> None:
     TypeError
         ``model`` is not an :class:`SDJLSModel` or ``path`` is not a str or path.
     ValueError
-        ``path`` does not end in ``.json`` or ``.toml``.
+        ``path`` does not end in ``.json`` or ``.toml``, or is a folder.
     """
     if not isinstance(model, SDJLSModel):
         hint = " (SDJLSModel.from_dict builds one from a dict)" if isinstance(model, dict) else ""
@@ -110,6 +115,8 @@ def save_model(model: SDJLSModel, path: str | os.PathLike) -> None:
     suffix = path.suffix.lower()
     if suffix not in SUFFIXES:
         raise ValueError(f"path = {str(path)!r} must end in .json or .toml")
+    if path.is_dir():
+        raise ValueError(f"path = {str(path)!r} is a folder; expected a file path")
     data = model.to_dict()
     if suffix == ".json":
         text = json.dumps(data, indent=2, ensure_ascii=False) + "\n"
@@ -130,8 +137,8 @@ def _to_toml(data: dict[str, Any]) -> str:
             if not math.isfinite(v):
                 raise ValueError(f"cannot write non-finite number {v} to TOML")
             return repr(v)
-        if isinstance(v, str):  # a TOML basic string: JSON's escapes, raw non-ASCII
-            return json.dumps(v, ensure_ascii=False)
+        if isinstance(v, str):  # a TOML basic string: JSON's escapes, raw non-ASCII but DEL
+            return json.dumps(v, ensure_ascii=False).replace("\x7f", "\\u007f")
         if isinstance(v, list):
             return "[" + ", ".join(value(item) for item in v) + "]"
         raise TypeError(f"cannot write {type(v).__name__} to TOML")

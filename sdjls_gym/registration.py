@@ -10,7 +10,9 @@ Imported by ``sdjls_gym/__init__.py``, so ``import sdjls_gym`` registers:
 Every id has a ``vector_entry_point`` (:class:`~sdjls_gym.vector_env.SDJLSVectorEnv`) and none
 registers a ``TimeLimit``: the environments truncate at their own ``horizon``. Every id accepts
 the environments' arguments, among them ``observe="state"`` (the mode hidden from the
-observation; ``gym.make(env_id, observe="state")``).
+observation; ``gym.make(env_id, observe="state")``). The id of a preset task builds that task's
+system only: ``gym.make("SDJLS-Solar-v0", model=...)`` with another model is a ``ValueError``
+(:func:`sdjls_gym.env.own_spec`); ``SDJLS-v0`` takes any model.
 """
 
 from __future__ import annotations

@@ -170,7 +170,7 @@ class SDJLSVectorEnv(VectorEnv):
 
     @spec.setter
     def spec(self, value: EnvSpec | None) -> None:
-        self._spec = own_spec(value, self.episode_steps)
+        self._spec = own_spec(value, self.episode_steps, self.model)
 
     # ------------------------------------------------------------------ helpers
     def _infos(self, stage_cost: np.ndarray, diverged: np.ndarray, values: Any = None) -> dict:

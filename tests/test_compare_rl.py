@@ -207,7 +207,7 @@ def test_rerun_reuses_finished_trainings(quick_run):
 def test_policies_are_kept_small_and_fit_their_architecture(quick_run):
     """Each run keeps its policy (tens of KB); it loads strictly into the rebuilt policy."""
     out, summary = quick_run
-    opts = compare_rl.parse_args(ARGS)
+    opts = compare_rl.parse_args([*ARGS, "--out", str(out)])  # no new quick folder
     specs = compare_rl.specs_of(opts)
     assert {s.name for s in specs} == {r.name for r in summary.rl_runs}
     obs = np.random.default_rng(0).uniform(-1, 1, (64, 6)).astype(np.float32)

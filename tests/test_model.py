@@ -262,6 +262,44 @@ def test_non_ascii_names_round_trip_under_the_c_locale(tmp_path):
     assert out.stdout.strip() == "ok"
 
 
+# --------------------------------------------------------------------------- names as labels
+#: Names the model accepts: printable text, however exotic; each must survive both file formats.
+PRINTABLE_NAMES = ["é ü", "line\u2028separator", "\ufeffbom", "emoji \U0001f600",
+                   'quote " and \\ backslash', "\uffff", "\U0010ffff", "[x] = {y}", " "]  # fmt: skip
+
+
+@pytest.mark.parametrize("bad", ["\x7f", "\ud800", "\x00", "a\nb", "\t", "\x85", "\udfff"])
+@pytest.mark.parametrize("field", ["mode_names", "state_names"])
+def test_a_name_with_a_control_character_or_a_lone_surrogate_is_refused(paper_kwargs, bad, field):
+    """A name is a label: DEL (refused by TOML when written raw), a lone surrogate (no UTF-8
+    file can hold it) and the other control characters are refused when the model is built."""
+    size = 3 if field == "mode_names" else 2
+    names = [f"name {i}" for i in range(size)]
+    names[1] = f"x{bad}y"
+    with raises_naming(InvalidModelError, f"{field}[1]", names[1]):
+        SDJLSModel(**{**paper_kwargs, field: names})
+
+
+@pytest.mark.parametrize("suffix", [".json", ".toml"])
+def test_every_printable_name_round_trips_through_both_formats(tmp_path, paper_kwargs, suffix):
+    for i in range(0, len(PRINTABLE_NAMES), 3):
+        names = (PRINTABLE_NAMES[i : i + 3] + ["a", "b", "c"])[:3]
+        model = SDJLSModel(**{**paper_kwargs, "mode_names": names,
+                              "state_names": names[:2]})  # fmt: skip
+        save_model(model, tmp_path / f"m{suffix}")
+        loaded = load_model(tmp_path / f"m{suffix}")
+        assert loaded == model and loaded.mode_names == tuple(names)
+
+
+def test_load_model_names_a_folder(tmp_path):
+    folder = tmp_path / "model.json"
+    folder.mkdir()
+    with raises_naming(InvalidModelError, "path", str(folder)):
+        load_model(folder)
+    with raises_naming(ValueError, "path", str(folder)):
+        save_model(sdjls_gym.macro(), folder)
+
+
 # --------------------------------------------------------------------------- state names
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -76,9 +77,10 @@ def test_a_run_in_the_older_layout_is_reused_and_never_written(tmp_path, monkeyp
     assert {name: after[name] for name in before} == before and len(after) == 4
 
 
-def test_quick_writes_outside_the_committed_results_by_default(capsys):
+def test_quick_writes_outside_the_committed_results_by_default(capsys, tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # the quick folder made here
     opts = compare_rl.parse_args(["--quick"])
-    assert opts.out == compare_rl.QUICK_OUT
+    assert opts.out.parent == tmp_path and opts.out.name.startswith("sdjls-gym-compare_rl-")
     assert ROOT not in opts.out.resolve().parents
     assert compare_rl.parse_args([]).out == Path("results/rl_suite")
     assert compare_rl.parse_args(["--preset", "macro"]).out == Path("results/rl")

@@ -313,18 +313,17 @@ def test_tuned_configuration_is_retrained_at_the_study_budget(tmp_path, capsys):
         assert f"settings.timesteps = {bad!r}; expected the study's budget" in err
 
 
-def test_quick_on_two_tasks(tmp_path, monkeypatch):
+def test_quick_on_two_tasks(tmp_path):
     """``--quick`` on two tasks trains every configuration asked for, keeps the runs by task,
     scores each agent on its own task against both model-based curves (the report of
     benchmarks.rl_suite_report: its sections, figures and JSON keys), writes nothing into
     results/, and resumes; ``--score-only`` after a run is lost names it as missing."""
-    monkeypatch.setattr(compare_rl, "QUICK_OUT", tmp_path / "quick")
     results = ROOT / "results"
     before = {p: p.stat().st_mtime_ns for p in results.rglob("*")}
     two = ["SDJLS-Solar-v0", "SDJLS-Degradation-v0"]  # the cheapest trees of the suite
     args = ["--quick", "--tasks", *two, "--configs", "ppo_residual", "ppo_lagrangian", "--seeds",
             "1", "--timesteps", "2048", "--eval-episodes", "20", "--workers", "1",
-            "--no-progress"]  # fmt: skip
+            "--no-progress", "--out", str(tmp_path / "quick")]  # fmt: skip
     summary = compare_rl.main(args)
     assert {p: p.stat().st_mtime_ns for p in results.rglob("*")} == before
     out = tmp_path / "quick"

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import json
 import sys
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,7 +28,6 @@ from benchmarks.reference import (
     reference_curve,
 )
 from benchmarks.suite import check_tasks, evaluate_suite, main, parse_args
-from benchmarks.suite_report import QUICK_OUT
 from controllers import LinearFeedbackController, MJLSLQRController
 from sdjls_gym.systems import TASKS, random_task
 from sdjls_gym.systems.macro import HORIZON, macro
@@ -270,9 +271,12 @@ def test_cli_refuses_bad_options_with_exit_2(factory_module, capsys, argv, named
     assert named in capsys.readouterr().err
 
 
-def test_cli_quick_writes_elsewhere_and_never_over_full_references(tmp_path, capsys):
+def test_cli_quick_writes_elsewhere_and_never_over_full_references(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "temp"))  # the quick folder made here
+    (tmp_path / "temp").mkdir()
     opts, factory = parse_args(["--quick"])
-    assert factory is None and opts.out == str(QUICK_OUT) and "results" not in opts.out
+    assert factory is None and Path(opts.out).parent == tmp_path / "temp"
+    assert Path(opts.out).name.startswith("sdjls-gym-suite-")
     assert opts.episodes == 50
     (tmp_path / "summary.json").write_text(json.dumps({"options": {"quick": False}}))
     with pytest.raises(SystemExit) as exc:

@@ -14,6 +14,7 @@ import warnings
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import UNSHOWN, raises_naming
 from gymnasium.utils.env_checker import check_env as gymnasium_check_env
 from gymnasium.wrappers import RescaleAction
 from scipy import stats
@@ -482,6 +483,42 @@ def test_gym_make_builds_the_generated_system_and_reset_seeds_the_noise():
     assert np.array_equal(first, env.reset(seed=1)[0]) and not np.array_equal(o1, o2)
     other = gym.make("SDJLS-Random-v0", n=5, m=2, N=3, r=4, system_seed=10, spectral_radius=1.4)
     assert other.unwrapped.model != task.model
+
+
+@pytest.mark.parametrize("env_id", ["SDJLS-Macro-v0", *NEW_FIXED])
+def test_an_id_of_a_preset_task_builds_only_that_task(env_id):
+    """``model=`` given to a preset task's id is refused (it would build another system under
+    that id), in gym.make and gym.make_vec; the task's own model, and SDJLS-v0, are accepted."""
+    other = "macro" if env_id != "SDJLS-Macro-v0" else TASKS["SDJLS-Solar-v0"].model
+    shown = "macro" if isinstance(other, str) else UNSHOWN
+    with raises_naming(ValueError, "model", shown):
+        gym.make(env_id, model=other)
+    for mode in ("vector_entry_point", "sync"):
+        with raises_naming(ValueError, "model", shown):
+            gym.make_vec(env_id, num_envs=2, vectorization_mode=mode, model=other)
+    assert gym.make(env_id, model=TASKS[env_id].model).unwrapped.model == TASKS[env_id].model
+    assert gym.make("SDJLS-v0", model=other).unwrapped.model is not None
+
+
+def test_the_largest_random_task_takes_few_eigenvalue_computations(monkeypatch):
+    """random_task(64, 64, 64, 64) costs its eigenvalue computations: about 12 per mode with
+    Brent's method (a bisection to the last bit needs about 100). Counted, not timed."""
+    from sdjls_gym.systems import random_system
+
+    calls = [0]
+    radius = random_system._radius
+
+    def counted(M):
+        calls[0] += 1
+        return radius(M)
+
+    monkeypatch.setattr(random_system, "_radius", counted)
+    random_system._random_task.cache_clear()
+    task = random_task(64, 64, 64, 64)
+    random_system._random_task.cache_clear()  # not the counted draw for later tests
+    assert calls[0] <= 20 * 64, calls[0]
+    radius_bad = np.max(np.abs(np.linalg.eigvals(task.model.A[-1])))
+    assert radius_bad == pytest.approx(1.2, rel=1e-9)
 
 
 def test_gym_make_refuses_seed_and_unknown_arguments():

@@ -4,6 +4,7 @@ space written once, the objective on the learning curve, and the Ray Tune path (
 from __future__ import annotations
 
 import json
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -53,9 +54,12 @@ def test_quick_study_resumes_with_the_next_trial_numbers(tmp_path):
     assert second["best"]["number"] in (0, 1, 2)
 
 
-def test_quick_writes_outside_the_repository_and_a_changed_study_is_refused(tmp_path):
+def test_quick_writes_outside_the_repository_and_a_changed_study_is_refused(tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "temp"))  # the quick folder made here
+    (tmp_path / "temp").mkdir()
     opts = tune.parse_args(["--quick"])
     assert ROOT not in opts.out.parents and opts.storage.startswith("sqlite:///")
+    assert opts.out.parent == tmp_path / "temp" and opts.out.name.startswith("sdjls-gym-tune-")
     assert (opts.trials, opts.timesteps) == (3, 500)
     args = [
         "--quick",
