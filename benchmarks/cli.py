@@ -26,12 +26,12 @@ def _run(module: str) -> int:
 
 
 def reproduce_paper() -> int:
-    """``sdjls-reproduce-paper``: :func:`benchmarks.reproduce_paper.main`."""
+    """``sdjls-reproduce-paper``: :func:`benchmarks.paper.reproduce.main`."""
     return _run("reproduce_paper")
 
 
 def compare_rl() -> int:
-    """``sdjls-compare-rl``: :func:`benchmarks.compare_rl.main`."""
+    """``sdjls-compare-rl``: :func:`benchmarks.rl.compare.main`."""
     return _run("compare_rl")
 
 
@@ -51,5 +51,5 @@ def suite() -> int:
 
 
 def tune() -> int:
-    """``sdjls-tune``: :func:`benchmarks.tune.main`."""
+    """``sdjls-tune``: :func:`benchmarks.rl.tune.main`."""
     return _run("tune")

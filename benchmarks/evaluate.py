@@ -1,4 +1,4 @@
-"""Score any policy on an SDJLS environment with the benchmarks' evaluation protocol.
+"""The public scoring protocol, and its command line ``python -m benchmarks.evaluate``.
 
 >>> from benchmarks.evaluate import evaluate
 >>> from controllers import LinearFeedbackController
@@ -7,44 +7,14 @@
 >>> score.violation > 0.9, score.diverged
 (True, 0)
 
-The protocol, the same for every controller of ``python -m benchmarks.compare_rl`` and for any
-user's agent: ``episodes`` episodes of the *raw* environment (``gym.make(env_id, **env_kwargs)``,
-actions in units of ``u``), simulated together on :class:`~sdjls_gym.SDJLSVectorEnv` from one
-noise seed, so that two policies scored with the same seed see the same noise (common random
-numbers). An episode whose state exceeds the divergence bound ends there; its cost is the cost
-up to then and its remaining steps count as violated. :class:`Score` holds the mean episode cost
-with a 95% Student-t interval and the median; the per-step violation frequency (any row of
-``G x <= H_k``) with its 95% Wilson interval and a Student-t interval over the episodes' shares
-of violated steps; the diverged episodes; the largest ``|u|``; the decision time per state; and,
-on a task of the suite (:data:`sdjls_gym.systems.TASKS`), the paired gap to the task's reference
-curve, its one-step receding-horizon controller over a sweep of ``xi`` scored on the same episodes
-(:mod:`benchmarks.reference`; on the paper's system, the paper's controller with individual
-constraints at ``xi`` in :data:`REFERENCE_XIS`).
-
-A policy is one of
-
-* an object with the controllers' ``act_batch(x, mode, k)`` (the project's controllers,
-  :class:`RawEnvPolicy`): called with the exact states, once per step for the whole batch;
-* an object with stable-baselines3's ``predict(obs, deterministic=True)`` (an SB3 model trained
-  on the raw environment, a user's object), or a plain callable ``obs -> action``: called with
-  the environment's observations. A policy that accepts a batch of observations (B, n + N + 1)
-  and returns (B, m) actions is called once per step; this is checked on the first step against
-  row-by-row calls, and a policy that fails the check is called row by row.
-
-An agent trained behind wrappers that rescale its actions or observations
-(``gymnasium.wrappers.RescaleAction``, :class:`~sdjls_gym.wrappers.ScaleObservationReward`,
-:class:`~sdjls_gym.wrappers.ResidualAction`, SB3's ``VecNormalize``) acts in other units: wrap it
-with ``RawEnvPolicy(agent, train_env)``, which reads the wrappers of its training environment.
-An agent whose ``observation_space`` / ``action_space`` are not the scored environment's is
-refused (:func:`benchmarks.policies.check_spaces`). A ``predict`` with SB3's ``state`` and
-``episode_start`` parameters (recurrent policies) gets its state back at each step, as SB3's
-``evaluate_policy`` does. A policy's actions are read by ``env.step``'s rule
-(:func:`sdjls_gym.validation.check_numbers`). A diverged episode's state never reaches the policy.
+The protocol lives in :mod:`benchmarks.core.evaluate` (its module docstring states it); this
+module is its public face: :func:`evaluate`, :class:`Score`, :class:`RawEnvPolicy` and the
+names users import from here, and the command line.
 
 Command line: ``python -m benchmarks.evaluate --policy PATH.zip --algo ppo`` (an SB3 model;
 ``--train-env package.module:attribute`` names its training environment, ``--vec-normalize
 PATH.pkl`` its VecNormalize statistics), ``--policy package.module:attribute``, or ``--run
-runs/NAME.json`` (a kept run of the RL comparison, rebuilt by :func:`benchmarks.runs.load_agent`
+runs/NAME.json`` (a kept run of the RL comparison, rebuilt by :func:`benchmarks.rl.runs.load_agent`
 and scored on its own task); ``--json PATH`` writes the score. Every input is checked before the
 evaluation; a bad one is a parser error (exit status 2) naming the file, module, attribute or
 option.
@@ -53,313 +23,53 @@ option.
 from __future__ import annotations
 
 import json
-import time
-from dataclasses import asdict, dataclass, field
 from typing import Any
 
-import numpy as np
-
-from benchmarks.cli_options import SB3_ALGOS, CliError, file_option_error, load_cli_policy
-from benchmarks.commands import prog
-from benchmarks.files import write_atomic
-from benchmarks.montecarlo import Rollouts, rollout
-from benchmarks.policies import RawEnvPolicy, as_controller, check_policy, unwrap_vec_env
-from benchmarks.reference import (
-    REFERENCE_CONSTRAINT,
-    REFERENCE_XIS,
-    curve_xis,
-    gap_reason,
-    reference_curve,
+from benchmarks.core.cli import SB3_ALGOS, CliError, file_option_error, load_cli_policy
+from benchmarks.core.commands import prog
+from benchmarks.core.environment import (
+    TaskEnv,
+    check_fits,
+    infer_env,
+    resolve_env,
+    rollout_statistics,
 )
-from benchmarks.score_table import TABLE_HEADER, table_row
-from benchmarks.stats import CurveGap
-from benchmarks.task_env import TaskEnv, check_fits, infer_env, resolve_env, rollout_statistics
-from sdjls_gym.messages import a_type, describe
-from sdjls_gym.systems import TASKS
-from sdjls_gym.validation import check_int, check_mapping
+from benchmarks.core.evaluate import (
+    MAX_EPISODES,
+    Score,
+    check_evaluation,
+    describe_score,
+    evaluate,
+    evaluate_rollouts,
+)
+from benchmarks.core.files import write_atomic
+from benchmarks.core.policies import RawEnvPolicy, as_controller
+from benchmarks.core.reference import REFERENCE_CONSTRAINT, REFERENCE_XIS
 
 __all__ = [
+    "MAX_EPISODES",
     "REFERENCE_CONSTRAINT",
     "REFERENCE_XIS",
     "RawEnvPolicy",
     "Score",
+    "TaskEnv",
     "check_evaluation",
     "evaluate",
     "evaluate_rollouts",
-    "score_run",
+    "main",
+    "resolve_env",
+    "rollout_statistics",
 ]
-
-#: Visited states drawn from the rollouts to time the decisions on.
-TIMING_STATES = 1000
-#: Most episodes one evaluation simulates: they run together, and their rollouts are held in
-#: memory (about 1 GB for 10**6 episodes of the paper's system).
-MAX_EPISODES = 1_000_000
-
-
-@dataclass(frozen=True)
-class Score:
-    """The evaluation of one policy (see the module docstring for the protocol).
-
-    Attributes
-    ----------
-    env_id : str
-    episodes, steps, seed : int
-        Episodes of ``steps`` steps, noise seed.
-    cost_mean, cost_ci95, cost_median
-        Episode cost ``sum_k x_k'Q x_k + u_k'R u_k``: mean, 95% Student-t interval over the
-        episodes (cut at 0), median.
-    violation, violation_wilson95
-        Share of the ``episodes x steps`` steps whose next state violates a row of the band,
-        with its 95% Wilson interval (which treats the steps as independent).
-    violation_episode_t95
-        95% Student-t interval over the episodes' shares of violated steps (cut to [0, 1]),
-        which allows for dependence between the steps of an episode.
-    diverged : int
-        Episodes whose state exceeded the divergence bound.
-    max_abs_u : float
-        Largest ``|u|`` applied.
-    decision_time_batched_s, decision_time_single_s : float
-        Seconds per state: a batch of visited states at once, and one state at a time.
-    curve_gap : CurveGap or None
-        Mean cost minus the task's reference curve's at this violation frequency, paired over
-        the episodes, with a 95% bootstrap interval, also in percent of the curve's cost
-        (:func:`benchmarks.stats.paired_curve_gap`, :mod:`benchmarks.reference`); None where
-        the frequency is outside the curve's range, an episode diverged, or the system is not
-        a task of the suite.
-    episode_costs, episode_violations : (episodes,) arrays
-        Each episode's cost and share of violated steps (for paired comparisons).
-    curve_gap_reason : str or None
-        Why ``curve_gap`` is None (diverged episodes, a violation frequency above or below the
-        curve's range and that range, a system that is not a task of the suite); None when
-        there is a gap.
-    curve_points : tuple of dict
-        The reference curve's points on the same episodes, one dict per level ``xi`` (``xi``,
-        ``cost_mean``, ``cost_ci95``, ``cost_median``, ``violation``, ``violation_wilson95``,
-        ``diverged``), to plot a policy against; empty when no curve was computed (a diverged
-        episode, or not a task of the suite). Neither this nor the reason is in
-        :meth:`to_dict`, whose schema the committed summaries share.
-    """
-
-    env_id: str
-    episodes: int
-    steps: int
-    seed: int
-    cost_mean: float
-    cost_ci95: tuple[float, float]
-    cost_median: float
-    violation: float
-    violation_wilson95: tuple[float, float]
-    violation_episode_t95: tuple[float, float]
-    diverged: int
-    max_abs_u: float
-    decision_time_batched_s: float
-    decision_time_single_s: float
-    curve_gap: CurveGap | None
-    episode_costs: np.ndarray = field(repr=False, compare=False)
-    episode_violations: np.ndarray = field(repr=False, compare=False)
-    curve_gap_reason: str | None = field(default=None, compare=False)
-    curve_points: tuple[dict[str, Any], ...] = field(default=(), repr=False, compare=False)
-
-    def to_dict(self, per_episode: bool = False) -> dict[str, Any]:
-        """Plain JSON types; the per-episode arrays only with ``per_episode``."""
-        out = asdict(self)
-        out.pop("curve_gap_reason"), out.pop("curve_points")
-        costs, viols = out.pop("episode_costs"), out.pop("episode_violations")
-        if per_episode:
-            out["episode_costs"] = np.asarray(costs).tolist()
-            out["episode_violations"] = np.asarray(viols).tolist()
-        return json.loads(json.dumps(out))  # tuples become lists
-
-
-# ----------------------------------------------------------------------------- the protocol
-def decision_states(
-    ro: Rollouts, size: int, seed: int = 0
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``size`` visited states ``(x (B, n), mode (B,), k (B,))``, k < T, drawn from ``ro``;
-    none from after a diverged episode ended."""
-    runs, T = ro.ended.shape
-    rng = np.random.default_rng(seed)
-    lived = np.flatnonzero(~ro.ended.ravel())
-    i, k = np.divmod(lived[rng.integers(0, lived.size, size)], T)
-    return ro.x[i, k], ro.mode[i, k].astype(np.int64), k.astype(np.int64)
-
-
-def decision_time(
-    controller: Any, x: np.ndarray, mode: np.ndarray, k: np.ndarray, single: int = 50,
-    repeats: int = 3,
-) -> tuple[float, float]:  # fmt: skip
-    """Seconds per state: the best of ``repeats`` calls of ``act_batch`` on all of ``x`` (B, n)
-    divided by B, and the mean of ``single`` calls of ``act`` on one state."""
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        controller.act_batch(x, mode, k)
-        best = min(best, time.perf_counter() - t0)
-    idx = np.linspace(0, len(x) - 1, min(single, len(x))).astype(int)
-    t0 = time.perf_counter()
-    for i in idx:
-        controller.act(x[i], int(mode[i]), int(k[i]))
-    return float(best / len(x)), float((time.perf_counter() - t0) / len(idx))
-
-
-def evaluate_rollouts(
-    controller: Any, spec: TaskEnv, episodes: int, seed: int, env_id: str = "SDJLS-Macro-v0"
-) -> tuple[Score, Rollouts]:
-    """The protocol on a controller with ``act_batch``: its :class:`Score` and its rollouts."""
-    ro = rollout(
-        spec.model, controller, episodes, spec.horizon, seed, spec.action_bound, None,
-        spec.divergence_bound,
-    )  # fmt: skip
-    stats = rollout_statistics(ro, spec.divergence_bound)
-    states = decision_states(ro, min(TIMING_STATES, ro.runs * spec.horizon))
-    batched, single = decision_time(controller, *states)
-    gap = None
-    points: tuple[dict[str, Any], ...] = ()
-    if spec.task is None:
-        reason: str | None = f"{env_id} is not a task of the suite: it has no reference curve"
-    elif stats["diverged"]:
-        reason = gap_reason(stats["violation"], stats["diverged"], None, np.zeros((1, 1)))
-    else:
-        curve = reference_curve(
-            spec.task, episodes, seed, horizon=spec.horizon, action_bound=spec.action_bound,
-            divergence_bound=spec.divergence_bound,
-        )  # fmt: skip
-        gap = curve.gap(stats["episode_costs"], stats["episode_violations"])
-        reason = gap_reason(stats["violation"], 0, gap, curve.violations, curve.costs)
-        points = tuple(curve.point(i) for i in range(len(curve.xis)))
-    score = Score(
-        curve_gap_reason=reason,
-        curve_points=points,
-        env_id=env_id,
-        seed=seed,
-        decision_time_batched_s=batched,
-        decision_time_single_s=single,
-        curve_gap=gap,
-        **stats,
-    )
-    return score, ro
-
-
-def check_evaluation(episodes: Any, seed: Any) -> tuple[int, int]:
-    """``(episodes, seed)`` as :func:`evaluate` accepts them: ``2 <= episodes <=``
-    :data:`MAX_EPISODES`, ``seed >= 0``; the checks every script runs before its work."""
-    episodes = check_int(
-        "episodes", episodes, low=2, high=MAX_EPISODES,
-        what="the intervals are over episodes; the rollouts of all of them are held in memory",
-    )  # fmt: skip
-    return episodes, check_int("seed", seed, low=0)
-
-
-def evaluate(
-    policy: Any,
-    *,
-    episodes: int = 1000,
-    seed: int = 0,
-    env_id: str | None = None,
-    env_kwargs: dict[str, Any] | None = None,
-    env: Any = None,
-) -> Score:
-    """Score ``policy`` on ``episodes`` episodes of the raw ``env_id`` from noise seed ``seed``.
-
-    Parameters
-    ----------
-    policy : object
-        A controller with ``act_batch(x, mode, k)``, an object with ``predict(obs,
-        deterministic=True)``, or a callable ``obs -> action`` (see the module docstring). An
-        agent trained behind rescaling wrappers goes in as ``RawEnvPolicy(agent, train_env)``,
-        or with ``env=train_env``.
-    episodes : int
-        At least 2 (the intervals are over episodes), at most :data:`MAX_EPISODES`.
-    seed : int
-        Noise seed, >= 0; the same seed gives every policy the same noise.
-    env_id : str, optional
-        A registered SDJLS environment. Default: the policy's own task
-        (:func:`benchmarks.task_env.infer_env`): a ``RawEnvPolicy``'s training environment, a
-        controller's model's task (``SDJLS-v0`` with that model when it is not a registered
-        task's), else ``SDJLS-Macro-v0``.
-    env_kwargs : dict, optional
-        Keyword arguments of ``gym.make(env_id, ...)``.
-    env : gymnasium.Env or stable-baselines3 VecEnv, optional
-        Instead of ``env_id``: the environment the policy acts on, as stable-baselines3's
-        ``evaluate_policy(model, env)`` takes it. The policy is scored on its raw environment
-        (the same id and keyword arguments); an agent (with ``predict``) acting on a wrapped
-        ``env`` is wrapped as ``RawEnvPolicy(policy, env)``, which undoes the wrappers.
-
-    Returns
-    -------
-    Score
-
-    Raises
-    ------
-    TypeError, ValueError
-        A bad argument (a class instead of an agent, an agent whose spaces are not the raw
-        environment's, an unknown ``env_id``), before any episode is run.
-    sdjls_gym.errors.NotANumberError
-        The policy returned what ``env.step`` refuses (``"1.0"``, ``True``, None).
-    """
-    episodes, seed = check_evaluation(episodes, seed)
-    if env_id is not None and not isinstance(env_id, str):
-        raise TypeError(f"env_id = {describe(env_id)} is {a_type(env_id)}; expected a str")
-    env_kwargs = check_mapping("env_kwargs", env_kwargs)
-    check_policy(policy)
-    if env is not None:
-        env, _ = unwrap_vec_env(env)
-        if not callable(getattr(policy, "act_batch", None)) and env is not env.unwrapped:
-            policy = RawEnvPolicy(policy, env)  # an agent on its (wrapped) training env
-    env_id, env_kwargs, how = infer_env(policy, env_id, env_kwargs, env)
-    spec = resolve_env(env_id, env_kwargs)
-    check_fits(policy, spec, how)
-    try:
-        controller = as_controller(policy, spec)
-    except ValueError as exc:
-        if how == "env_id":
-            raise
-        raise ValueError(f"{exc} (scored on env_id = {env_id!r}: {how}; pass env_id or env= of "
-                         "the policy's task)") from None  # fmt: skip
-    return evaluate_rollouts(controller, spec, episodes, seed, env_id)[0]
-
-
-# ----------------------------------------------------------------------------- command line
-def score_run(run_path: Any, *, episodes: int = 1000, seed: int = 0) -> Score:
-    """The :class:`Score` of the kept run at ``run_path`` (``runs/NAME.json``, ``.pt`` or the
-    name without a suffix) on its own task: its agent rebuilt by
-    :func:`benchmarks.runs.load_agent`, scored by :func:`evaluate` on ``episodes`` episodes from
-    noise seed ``seed`` (``python -m benchmarks.evaluate --run PATH``)."""
-    from benchmarks.runs import load_agent, run_env
-
-    episodes, seed = check_evaluation(episodes, seed)
-    env_id, env_kwargs = run_env(run_path)
-    return evaluate(load_agent(run_path), episodes=episodes, seed=seed, env_id=env_id,
-                    env_kwargs=env_kwargs)  # fmt: skip
-
-
-def describe_score(name: str, score: Score) -> list[str]:
-    """The table row of ``score`` (the RL comparison's columns) and where it sits on the curve."""
-    from types import SimpleNamespace
-
-    lines = [*TABLE_HEADER, table_row(SimpleNamespace(name=name, score=score))]
-    g = score.curve_gap
-    if g is None:
-        lines.append("Against the RHC curve: no paired gap (an episode diverged, the violation "
-                     "frequency is outside the curve's range, or the system is not a task of "
-                     "the suite).")  # fmt: skip
-    else:
-        xis = curve_xis(TASKS[score.env_id]) if score.env_id in TASKS else REFERENCE_XIS
-        lines.append(
-            f"Against the RHC curve ({REFERENCE_CONSTRAINT} constraints, xi in {xis[0]:g}.."
-            f"{xis[-1]:g}): at violation frequency {g.violation:.3f} the curve, at xi = "
-            f"{g.xi:.3f}, costs {g.curve_cost:.4g}; cost minus curve {g.mean:+.1f} (95% bootstrap "
-            f"interval {g.ci95[0]:+.1f} to {g.ci95[1]:+.1f})."
-        )
-    return lines
 
 
 def main(argv: list[str] | None = None) -> Score:
+    """``python -m benchmarks.evaluate``: score a policy (``--policy``) or a kept run
+    (``--run``) and print its row; see the module docstring and ``--help``."""
     import argparse
     import sys
     from pathlib import Path
 
-    from benchmarks.versions import package_versions
+    from benchmarks.core.versions import package_versions
 
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = argparse.ArgumentParser(
@@ -373,7 +83,7 @@ def main(argv: list[str] | None = None) -> Score:
                        "package.module:attribute (an object with predict, or a callable)")  # fmt: skip
     which.add_argument("--run", type=Path,
                        help="a kept run of the RL comparison (runs/NAME.json, .pt or NAME): its "
-                       "agent rebuilt with its wrappers (benchmarks.runs.load_agent) and scored "
+                       "agent rebuilt with its wrappers (benchmarks.rl.runs.load_agent) and scored "
                        "on its own task")  # fmt: skip
     parser.add_argument("--algo", choices=SB3_ALGOS, help="algorithm of a .zip file")
     parser.add_argument("--train-env", help="package.module:attribute: the .zip agent's training "
@@ -403,7 +113,7 @@ def main(argv: list[str] | None = None) -> Score:
             if getattr(opts, flag) is not None:
                 parser.error(f"--{flag.replace('_', '-')} does not apply to --run (a kept run "
                              "records its algorithm and training environment)")  # fmt: skip
-        from benchmarks.runs import load_agent, run_env
+        from benchmarks.rl.runs import load_agent, run_env  # the RL wing, only for --run
 
         try:
             run_id, env_kwargs = run_env(opts.run)
@@ -438,6 +148,10 @@ def main(argv: list[str] | None = None) -> Score:
         data = {**score.to_dict(), "policy": name, "versions": package_versions()}
         write_atomic(opts.json, json.dumps(data, indent=1) + "\n")
     return score
+
+
+if __name__ == "__main__":
+    main()
 
 
 if __name__ == "__main__":

@@ -37,10 +37,13 @@ def module_file(module: str) -> Path:
 
 @cache
 def all_modules() -> tuple[str, ...]:
-    """Every module of the three packages, in file order."""
+    """Every module of the three packages, in file order (a package's ``__main__``, which runs a
+    script when imported, is its package's: ``python -m package``)."""
     out = []
     for package in PACKAGES:
         for path in sorted((ROOT / package).rglob("*.py")):
+            if path.name == "__main__.py":
+                continue
             parts = path.relative_to(ROOT).with_suffix("").parts
             out.append(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
     return tuple(out)

@@ -73,11 +73,11 @@ class InvalidModelTypeError(InvalidModelError, TypeError):
 
 
 class InvalidRunError(ValueError):
-    """A kept run of the RL comparison (``benchmarks.runs``) cannot be used. Subclass of
+    """A kept run of the RL comparison (``benchmarks.rl.runs``) cannot be used. Subclass of
     :class:`ValueError`.
 
-    Raised by ``benchmarks.runs.read_run`` and ``load_agent`` (so by ``python -m
-    benchmarks.evaluate --run`` and ``python -m benchmarks.compare_rl --score-only``) for a
+    Raised by ``benchmarks.rl.runs.read_run`` and ``load_agent`` (so by ``python -m
+    benchmarks.evaluate --run`` and ``python -m benchmarks.rl.compare --score-only``) for a
     record that is not a run record (not a JSON object, nested too deep, a field missing or of
     the wrong type), that was edited (its fingerprint, configuration, file name or task digest
     disagree), or whose policy file is truncated or is another network's. The message names the

@@ -175,7 +175,7 @@ class ResidualAction(gym.ActionWrapper):
 
 
 # ----------------------------------------------------------------------------- learning scalings
-# The fixed scalings of the RL comparison (``python -m benchmarks.compare_rl``): the
+# The fixed scalings of the RL comparison (``python -m benchmarks.rl.compare``): the
 # observation's state ``x / X_SCALE`` clipped to ``+-OBS_CLIP``, the reward
 # ``-log(1 + c / REWARD_SCALE)`` of the per-step cost ``c = -reward``, and training episodes
 # ended once ``max |x| > TERMINATE_BOUND``.

@@ -22,7 +22,17 @@ from test_structure import ROOT, imports, internal_graph, modules
 PACKAGES = ("sdjls_gym", "controllers", "benchmarks")
 #: The package faces (``__init__`` files) hand names on; a cycle through one is a cycle of the
 #: modules it names, checked without it.
-FACES = {"sdjls_gym", "sdjls_gym.systems", "controllers", "benchmarks", "benchmarks.zoo"}
+FACES = {
+    "sdjls_gym",
+    "sdjls_gym.systems",
+    "controllers",
+    "benchmarks",
+    "benchmarks.core",
+    "benchmarks.suite",
+    "benchmarks.speed",
+}
+#: The wings of ``benchmarks``: each assembles the core's pieces into one study.
+WINGS = ("paper", "pictures", "rl", "speed", "suite")
 
 
 def import_graph() -> dict[str, set[str]]:
@@ -68,8 +78,8 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 def test_the_checks_see_lazy_imports_and_cycles():
     """The checks below can fail: an import inside a function is an edge, and a cycle of two
     or three modules is found."""
-    lazy = imports(ROOT / "benchmarks" / "suite.py")  # main() imports suite_report lazily
-    assert ("benchmarks.suite_report", "run_references") in lazy
+    lazy = imports(ROOT / "benchmarks" / "suite" / "cli.py")  # main() imports the report lazily
+    assert ("benchmarks.suite.report", "run_references") in lazy
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert cycles({"a": {"b"}, "b": set()}) == []
 
@@ -98,6 +108,42 @@ def test_no_package_imports_a_package_above_it():
         if order[t.split(".")[0]] > order[m.split(".")[0]]
     )
     assert not back, back
+
+
+def _layer(module: str) -> str:
+    """``core``, a wing's name, or ``entry`` (the package face and the ``python -m`` entry
+    points at the top of ``benchmarks``)."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 and parts[1] in ("core", *WINGS) else "entry"
+
+
+def test_the_scoring_core_imports_no_wing_and_no_wing_another():
+    """benchmarks/core is the protocol, owned once: it imports no wing and no entry point; a
+    wing imports the core (and sdjls_gym, controllers), never another wing."""
+    wrong = sorted(
+        f"{m} -> {t}"
+        for m, ts in import_graph().items()
+        if m.startswith("benchmarks.")
+        for t in ts
+        if t.startswith("benchmarks.")
+        and _layer(t) != _layer(m)
+        and _layer(t) != "core"
+        and _layer(m) != "entry"
+    )
+    assert not wrong, wrong
+    layers = {_layer(m) for m in modules("benchmarks") if m != "benchmarks"}
+    assert layers == {"core", "entry", *WINGS}, layers
+
+
+def test_the_entry_points_are_thin():
+    """The modules at the top of benchmarks hand over to a wing: a few lines each, except the
+    public face of the protocol (benchmarks/evaluate.py, which holds the command line)."""
+    sizes = {
+        name: len(path.read_text(encoding="utf-8").splitlines())
+        for name, path in modules("benchmarks").items()
+        if _layer(name) == "entry" and name not in ("benchmarks", "benchmarks.evaluate")
+    }
+    assert max(sizes.values()) <= 60, sizes
 
 
 def _private_imports(package: str) -> list[str]:
@@ -216,10 +262,10 @@ def test_evaluate_and_the_suite_run_without_stable_baselines3(tmp_path):
 # ----------------------------------------------------------------------------- command lines
 def test_one_builder_makes_the_command_lines_of_dataclasses():
     """No script builds ``argparse`` options from a dataclass's fields by itself:
-    :func:`benchmarks.cli_options.options_parser` does, for all of them."""
+    :func:`benchmarks.core.cli.options_parser` does, for all of them."""
     builders = []
     for name, path in modules("benchmarks").items():
-        if name == "benchmarks.cli_options":
+        if name == "benchmarks.core.cli":
             continue
         tree = ast.parse(path.read_text(encoding="utf-8"))
         for node in ast.walk(tree):

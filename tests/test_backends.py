@@ -13,7 +13,8 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from benchmarks import backends, compare_rl  # noqa: E402
+from benchmarks.rl import backends as backends  # noqa: E402
+from benchmarks.rl import compare as compare_rl
 
 ARGS = [
     "--quick", "--tasks", "SDJLS-Macro-v0", "--algos", "ppo", "td3", "--variants", "reward", "residual", "--seeds", "1",
@@ -121,7 +122,7 @@ def test_ray_missing_names_the_extra(monkeypatch, tmp_path):
 
 def test_a_worker_stops_when_asked(monkeypatch):
     """The process backend's stop signal reaches a training through its callback."""
-    from benchmarks import rl_train
+    from benchmarks.rl import train as rl_train
 
     spec = rl_train.RunSpec("ppo", "residual", 0, 10_000_000, 1, 5, 1)
     with pytest.raises(rl_train.TrainingStopped, match="ppo_residual_s0 was stopped"):

@@ -7,8 +7,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from benchmarks.rl_report import aggregate, curve_xi
-from benchmarks.stats import CurveGap
+from benchmarks.core.stats import CurveGap
+from benchmarks.rl.report import aggregate, curve_xi
 
 
 def test_curve_xi_refuses_a_point_without_xi():

@@ -247,7 +247,7 @@ def test_rhc_ignores_xi_once_the_tightened_band_is_empty():
     """Past the half-width the slack absorbs the excess tightening: the QP's nu is the same for
     individual xi = 0.95, 0.99 and joint xi = 0.85 (all empty bands), rho > 0, and differs from
     the non-empty individual xi = 0.85."""
-    from benchmarks.montecarlo import paper_rhc
+    from benchmarks.core.reference import paper_rhc
 
     model = macro()
     rng = np.random.default_rng(3)

@@ -1,4 +1,4 @@
-"""The command lines built from dataclasses (:mod:`benchmarks.cli_options`): the builder's rules,
+"""The command lines built from dataclasses (:mod:`benchmarks.core.cli`): the builder's rules,
 and every script's flags and parsed values, written out here by hand (they are the scripts'
 contract: the flags were the same before the scripts shared the builder)."""
 
@@ -12,8 +12,9 @@ from pathlib import Path
 import pytest
 from conftest import raises_naming
 
-from benchmarks import cli_options
-from benchmarks.cli_options import options_parser, parse_options
+from benchmarks.core import cli as cli_options
+from benchmarks.core.cli import options_parser, parse_options
+from benchmarks.core.commands import SCRIPTS
 
 
 class _Parsed(Exception):
@@ -23,7 +24,7 @@ class _Parsed(Exception):
 
 def parsed(monkeypatch, module: str, argv: list[str]):
     """``(parser, options)`` a script builds from ``argv``, stopped before its checks and work."""
-    mod = importlib.import_module(f"benchmarks.{module}")
+    mod = importlib.import_module(SCRIPTS[module])
 
     def stop(parser, options, argv):
         raise _Parsed(parser, parse_options(parser, options, argv))

@@ -21,15 +21,13 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from benchmarks import (
-    compare_rl,  # noqa: E402
-    rl_train,  # noqa: E402
-)
-from benchmarks import rl_hyperparams as HP  # noqa: E402
-from benchmarks.backends import train_all  # noqa: E402
-from benchmarks.files import stable_floats  # noqa: E402
-from benchmarks.rl_report import CSV_HEADER, best_agent, best_config  # noqa: E402
-from benchmarks.versions import PACKAGES  # noqa: E402
+from benchmarks.core.files import stable_floats  # noqa: E402
+from benchmarks.core.versions import PACKAGES  # noqa: E402
+from benchmarks.rl import compare as compare_rl  # noqa: E402
+from benchmarks.rl import hyperparams as HP  # noqa: E402
+from benchmarks.rl import train as rl_train  # noqa: E402
+from benchmarks.rl.backends import train_all  # noqa: E402
+from benchmarks.rl.report import CSV_HEADER, best_agent, best_config  # noqa: E402
 
 ARGS = [
     "--quick",
@@ -299,7 +297,7 @@ def test_committed_runs_match_the_current_configuration():
     opts = compare_rl.parse_args(["--preset", "macro"])
     assert opts.out == Path("results/rl") and opts.tasks == ["SDJLS-Macro-v0"]
     specs = compare_rl.specs_of(opts)
-    root = Path(compare_rl.__file__).resolve().parents[1]
+    root = Path(compare_rl.__file__).resolve().parents[2]
     assert all(rl_train.load_run(root / "results/rl/runs", s) is not None for s in specs)
     # in the layout that names a run by its configuration (issue 28: a run of another
     # configuration must land beside a kept run, never in its place)
@@ -396,7 +394,7 @@ def test_linear_learning_rate_schedule_reaches_the_agent(monkeypatch):
 def test_trainings_start_longest_first(tmp_path, monkeypatch):
     """train_all starts the runs by estimated training time, longest first; the records keep the
     order of the specs, and every finished run is written at once."""
-    from benchmarks import backends
+    from benchmarks.rl import backends as backends
 
     order = []
 
@@ -497,7 +495,7 @@ def test_quick_run_scores_the_multistep_curve_and_compares_with_it(quick_run):
     # the one-step point at xi = 0.85 lies inside the 3-step curve's range of frequencies
     assert "RHC individual xi=0.85" in {d.name for d in rows}
     saved = json.loads((out / "summary.json").read_text())["against_curves"]["RHC 3-step"]
-    # the file holds the digits that are the same on every machine (benchmarks.files)
+    # the file holds the digits that are the same on every machine (benchmarks.core.files)
     assert saved == stable_floats([dataclasses.asdict(d) | {"ci95": list(d.ci95)} for d in rows])
     assert "## Against the RHC 3-step curve" in (out / "REPORT.md").read_text()
 
@@ -508,7 +506,7 @@ def test_against_curve_interpolates_at_the_controllers_own_frequency():
     a diverged controller and one outside the curve's range are left out."""
     from types import SimpleNamespace
 
-    from benchmarks.rl_report import against_curve
+    from benchmarks.rl.report import against_curve
 
     E = 50
 

@@ -235,14 +235,14 @@ def test_getting_started_has_the_newcomers_path():
 
 # ----------------------------------------------------------------------------- the tree picture
 def test_tree_picture_draws_the_plan(tmp_path):
-    from benchmarks import tree_picture
+    from benchmarks.pictures import tree as tree_picture
 
     out = tree_picture.main(["--out", str(tmp_path / "plan.png"), "--steps", "2"])
     assert out.is_file() and out.stat().st_size > 10_000
 
 
 def test_tree_picture_checks_its_arguments_first(tmp_path, capsys):
-    from benchmarks import tree_picture
+    from benchmarks.pictures import tree as tree_picture
 
     with pytest.raises(SystemExit) as exc:
         tree_picture.main(["--out", str(tmp_path / "missing" / "plan.png")])

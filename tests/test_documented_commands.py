@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.commands import COMMANDS
+from benchmarks.core.commands import COMMANDS
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]

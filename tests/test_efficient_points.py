@@ -1,4 +1,4 @@
-"""``benchmarks.stats.efficient_points``: the curve points a gap is measured against, and the
+"""``benchmarks.core.stats.efficient_points``: the curve points a gap is measured against, and the
 gaps that use them (paired_curve_gap, gap_reason, the learning-curve points' point_gap)."""
 
 from __future__ import annotations
@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.reference import ReferenceCurve, gap_reason
-from benchmarks.rl_suite_report import point_gap
-from benchmarks.stats import efficient_points, paired_curve_gap
+from benchmarks.core.reference import ReferenceCurve, gap_reason
+from benchmarks.core.stats import efficient_points, paired_curve_gap
+from benchmarks.rl.suite_report import point_gap
 
 
 def _dominated_by_hand(v: np.ndarray, c: np.ndarray) -> set[int]:

@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 from conftest import raises_naming
 
+from benchmarks.core.montecarlo import rollout
+from benchmarks.core.reference import paper_rhc
 from benchmarks.evaluate import (
     REFERENCE_XIS,
     RawEnvPolicy,
@@ -20,7 +22,6 @@ from benchmarks.evaluate import (
     main,
     rollout_statistics,
 )
-from benchmarks.montecarlo import paper_rhc, rollout
 from controllers import LinearFeedbackController
 from sdjls_gym.systems.macro import PAPER_K, macro
 
@@ -108,7 +109,7 @@ def test_a_callable_that_mishandles_a_batch_is_called_row_by_row():
 
 def test_raw_env_policy_undoes_the_training_wrappers():
     """The adapter sees what the wrapped env shows the agent and applies the same input u."""
-    from benchmarks.rl_train import make_train_env
+    from benchmarks.rl.train import make_train_env
 
     class Fixed:
         def __init__(self):
@@ -232,12 +233,12 @@ def test_cli_scores_an_sb3_zip_with_its_training_env(tmp_path, monkeypatch, caps
     pytest.importorskip("stable_baselines3")
     from stable_baselines3 import PPO
 
-    from benchmarks.rl_train import make_train_env
+    from benchmarks.rl.train import make_train_env
 
     env = make_train_env("residual", 1000.0, None, PAPER_K)
     PPO("MlpPolicy", env, n_steps=64, batch_size=64, seed=0, device="cpu").save(tmp_path / "a.zip")
     (tmp_path / "train_env.py").write_text(
-        "from benchmarks.rl_train import make_train_env\n"
+        "from benchmarks.rl.train import make_train_env\n"
         "from sdjls_gym.systems.macro import PAPER_K\n"
         "def make():\n    return make_train_env('residual', 1000.0, None, PAPER_K)\n"
     )

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from conftest import raises_naming
 
-from benchmarks import compare_rl
 from benchmarks import evaluate as evaluate_module
 from benchmarks.evaluate import MAX_EPISODES, RawEnvPolicy, evaluate, main
+from benchmarks.rl import compare as compare_rl
 from controllers import LinearFeedbackController
 from sdjls_gym import SDJLSModel
 from sdjls_gym.errors import NotANumberError
@@ -125,7 +125,7 @@ def _trained_behind_wrappers():
     pytest.importorskip("stable_baselines3")
     from stable_baselines3 import PPO
 
-    from benchmarks.rl_train import make_train_env
+    from benchmarks.rl.train import make_train_env
 
     env = make_train_env("residual", 1000.0, None, PAPER_K)
     return PPO("MlpPolicy", env, n_steps=64, batch_size=64, seed=0, device="cpu"), env
@@ -159,7 +159,7 @@ def test_vec_normalize_statistics_are_applied():
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-    from benchmarks.rl_train import make_train_env
+    from benchmarks.rl.train import make_train_env
 
     venv = VecNormalize(DummyVecEnv([lambda: make_train_env("residual", 1000.0, None, PAPER_K)]))
     rng = np.random.default_rng(0)
@@ -314,7 +314,7 @@ def test_cli_applies_saved_vec_normalize_statistics(tmp_path, monkeypatch, capsy
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-    from benchmarks.rl_train import make_train_env
+    from benchmarks.rl.train import make_train_env
 
     venv = VecNormalize(DummyVecEnv([lambda: make_train_env("residual", 1000.0, None, PAPER_K)]))
     venv.obs_rms.mean = np.linspace(-1, 1, 6)
@@ -323,7 +323,7 @@ def test_cli_applies_saved_vec_normalize_statistics(tmp_path, monkeypatch, capsy
     agent.save(tmp_path / "agent.zip")
     venv.save(tmp_path / "vecnormalize.pkl")
     (tmp_path / "zoo_env.py").write_text(
-        "from benchmarks.rl_train import make_train_env\n"
+        "from benchmarks.rl.train import make_train_env\n"
         "from sdjls_gym.systems.macro import PAPER_K\n"
         "def make():\n    return make_train_env('residual', 1000.0, None, PAPER_K)\n"
     )

@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 from test_structure import modules
 
-from benchmarks import rl_figures, rl_suite_figures, suite_figures
-from benchmarks.figure_parts import cost_violation_axes, errbars, interval_point
+from benchmarks.core.figures import cost_violation_axes, errbars, interval_point
+from benchmarks.rl import figures as rl_figures
+from benchmarks.rl import suite_figures as rl_suite_figures
+from benchmarks.suite import figures as suite_figures
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -78,4 +80,4 @@ def test_the_figure_modules_share_the_pieces():
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
         if isinstance(node, ast.FunctionDef) and node.name.strip("_").endswith("errbars")
     ]
-    assert defined == ["benchmarks.figure_parts.errbars"], defined
+    assert defined == ["benchmarks.core.figures.errbars"], defined

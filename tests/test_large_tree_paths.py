@@ -21,7 +21,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from benchmarks.speed import large_tree_model
+from benchmarks.speed.measure import large_tree_model
 from controllers import ScenarioTreeController, qp_daqp
 from controllers.dual_qp import WHITEN_MIN_VARIABLES, daqp_data, run_daqp
 from sdjls_gym import SDJLSVectorEnv

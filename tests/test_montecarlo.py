@@ -1,5 +1,5 @@
-"""``benchmarks.montecarlo.rollout``: how an episode that diverges is recorded and scored, and the
-intervals of ``benchmarks.stats``."""
+"""``benchmarks.core.montecarlo.rollout``: how an episode that diverges is recorded and scored, and the
+intervals of ``benchmarks.core.stats``."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from conftest import raises_naming
 
+from benchmarks.core.montecarlo import Rollouts, rollout
+from benchmarks.core.stats import mean_ci, wilson
 from benchmarks.evaluate import rollout_statistics
-from benchmarks.montecarlo import Rollouts, rollout
-from benchmarks.stats import mean_ci, wilson
 from controllers import LinearFeedbackController
 from sdjls_gym import SDJLSModel
 from sdjls_gym.systems.macro import PAPER_K, macro

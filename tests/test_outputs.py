@@ -4,6 +4,7 @@ for a folder it cannot write into, a study name that stays in its folder)."""
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import stat
@@ -15,7 +16,8 @@ import pytest
 from conftest import raises_naming
 
 import benchmarks
-from benchmarks.files import write_atomic
+from benchmarks.core.commands import SCRIPTS as SCRIPT_MODULES
+from benchmarks.core.files import write_atomic
 
 ROOT = Path(benchmarks.__file__).resolve().parents[1]
 STUDY = {
@@ -97,7 +99,7 @@ def _parse(script: str, argv: list[str], tmp_path: Path, monkeypatch) -> None:
     if script not in ("suite", "reproduce_paper"):
         pytest.importorskip("stable_baselines3")
     if script == "speed":
-        from benchmarks import speed
+        from benchmarks.speed import measure as speed
 
         def started(*args, **kwargs):
             raise _Started
@@ -110,8 +112,7 @@ def _parse(script: str, argv: list[str], tmp_path: Path, monkeypatch) -> None:
         study = tmp_path / "study.json"
         study.write_text(json.dumps(STUDY))
         argv = [*argv, "--tuned", str(study), "--runs", str(tmp_path / "runs")]
-    module = __import__(f"benchmarks.{script}", fromlist=["parse_args"])
-    module.parse_args(argv)
+    importlib.import_module(SCRIPT_MODULES[script]).parse_args(argv)
 
 
 @pytest.mark.parametrize("script", SCRIPTS)
@@ -167,7 +168,7 @@ def test_an_unwritable_out_is_a_parser_error(script, unwritable, tmp_path, monke
 @pytest.mark.parametrize("name", ["../../x", "a/b", "..", "a\\b"])
 def test_a_study_name_is_a_plain_name(name, tmp_path, capsys):
     pytest.importorskip("stable_baselines3")
-    from benchmarks import tune
+    from benchmarks.rl import tune as tune
 
     with pytest.raises(SystemExit) as exc:
         tune.parse_args(["--study-name", name, "--out", str(tmp_path)])

@@ -14,7 +14,7 @@ import re
 import numpy as np
 import pytest
 
-from benchmarks import reproduce_paper
+from benchmarks.paper import reproduce as reproduce_paper
 
 STAT_RUNS = 1500
 FIGURES = {
@@ -270,7 +270,7 @@ def test_bad_options_are_rejected(capsys):
 
 
 def test_summary_records_the_package_versions(run):
-    from benchmarks.versions import CORE_PACKAGES
+    from benchmarks.core.versions import CORE_PACKAGES
 
     out, _ = run
     versions = json.loads((out / "summary.json").read_text())["versions"]

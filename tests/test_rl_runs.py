@@ -17,7 +17,10 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from benchmarks import backends, compare_rl, files, rl_train  # noqa: E402
+from benchmarks.core import files  # noqa: E402
+from benchmarks.rl import backends as backends  # noqa: E402
+from benchmarks.rl import compare as compare_rl  # noqa: E402
+from benchmarks.rl import train as rl_train  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -1,4 +1,4 @@
-"""``benchmarks.stats``: the paired gap to a curve, paired differences, the flatness test of the
+"""``benchmarks.core.stats``: the paired gap to a curve, paired differences, the flatness test of the
 learning curves and the check of the Wilson intervals (synthetic data with known answers)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from benchmarks.stats import (
+from benchmarks.core.stats import (
     curve_status,
     format_p,
     interval_check,

@@ -1,6 +1,6 @@
 """The RL comparison on every task of the suite (issue 31): the training recipe per task and
 variant, run fingerprints that name the task, ``--quick`` on two tasks, and the kept runs'
-agents rebuilt by ``benchmarks.runs``."""
+agents rebuilt by ``benchmarks.rl.runs``."""
 
 from __future__ import annotations
 
@@ -14,10 +14,15 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from benchmarks import backends, compare_rl, rl_envs, rl_train, runs  # noqa: E402
-from benchmarks import rl_hyperparams as HP  # noqa: E402
-from benchmarks.evaluate import evaluate, score_run  # noqa: E402
-from benchmarks.reference import tree_rhc  # noqa: E402
+from benchmarks.core.reference import tree_rhc  # noqa: E402
+from benchmarks.evaluate import evaluate  # noqa: E402
+from benchmarks.rl import backends as backends  # noqa: E402
+from benchmarks.rl import compare as compare_rl  # noqa: E402
+from benchmarks.rl import envs as rl_envs  # noqa: E402
+from benchmarks.rl import hyperparams as HP  # noqa: E402
+from benchmarks.rl import runs  # noqa: E402
+from benchmarks.rl import train as rl_train  # noqa: E402
+from benchmarks.rl.runs import score_run  # noqa: E402
 from sdjls_gym import SUITE  # noqa: E402
 from sdjls_gym.systems import TASKS  # noqa: E402
 from sdjls_gym.wrappers import (  # noqa: E402
@@ -316,7 +321,7 @@ def test_tuned_configuration_is_retrained_at_the_study_budget(tmp_path, capsys):
 def test_quick_on_two_tasks(tmp_path):
     """``--quick`` on two tasks trains every configuration asked for, keeps the runs by task,
     scores each agent on its own task against both model-based curves (the report of
-    benchmarks.rl_suite_report: its sections, figures and JSON keys), writes nothing into
+    benchmarks.rl.suite_report: its sections, figures and JSON keys), writes nothing into
     results/, and resumes; ``--score-only`` after a run is lost names it as missing."""
     results = ROOT / "results"
     before = {p: p.stat().st_mtime_ns for p in results.rglob("*")}
@@ -379,7 +384,7 @@ def test_quick_on_two_tasks(tmp_path):
     stamps = {p: p.stat().st_mtime_ns for p in out.rglob("*")}
     assert compare_rl.main([*args, "--train-only"]) is None
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == stamps
-    # a kept run of the suite's layout is rebuilt by benchmarks.runs and acts as the report's
+    # a kept run of the suite's layout is rebuilt by benchmarks.rl.runs and acts as the report's
     (path,) = (out / "runs" / two[1]).glob("ppo_residual_s0-*.json")
     score = score_run(path, episodes=20, seed=0)
     kept = next(r for r in summary["tasks"][two[1]]["rl_runs"] if r["name"] == "ppo_residual_s0")
@@ -446,7 +451,7 @@ def test_evaluate_cli_scores_a_kept_run(tmp_path, capsys):
     out = tmp_path / "score.json"
     cli = evaluate.main(["--run", str(COMMITTED.with_suffix("")), "--episodes", "50",
                          "--json", str(out)])  # fmt: skip
-    direct = evaluate.score_run(COMMITTED, episodes=50, seed=0)
+    direct = score_run(COMMITTED, episodes=50, seed=0)
     assert cli.cost_mean == direct.cost_mean and cli.violation == direct.violation
     data = json.loads(out.read_text())
     assert data["policy"] == str(COMMITTED.with_suffix("")) and data["episodes"] == 50

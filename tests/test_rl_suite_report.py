@@ -10,10 +10,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from benchmarks.aggregate import aggregate_gaps, iqm_interval
-from benchmarks.reference import ReferenceCurve
-from benchmarks.rl_suite_report import across_tasks, gap_table, point_gap, sample_efficiency
-from benchmarks.stats import CurveGap, paired_curve_gap
+from benchmarks.core.aggregate import aggregate_gaps, iqm_interval
+from benchmarks.core.reference import ReferenceCurve
+from benchmarks.core.stats import CurveGap, paired_curve_gap
+from benchmarks.rl.suite_report import across_tasks, gap_table, point_gap, sample_efficiency
 
 RESAMPLES = 100  # rliable's bootstrap is slow (a Mann-Whitney test per task and resample)
 

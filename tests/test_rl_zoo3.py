@@ -1,4 +1,4 @@
-"""The rl-zoo3 hyperparameter files of ``benchmarks/zoo/``: they load, name existing wrappers, and
+"""The rl-zoo3 hyperparameter files of ``benchmarks/rl/zoo/``: they load, name existing wrappers, and
 train exactly the RL comparison's agents (hyperparameters, budget, wrapper chain)."""
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from benchmarks import rl_hyperparams as HP
-from benchmarks.rl_train import make_train_env, variant_setup
+from benchmarks.rl import hyperparams as HP
+from benchmarks.rl.train import make_train_env, variant_setup
 from sdjls_gym.systems.macro import PAPER_K
 
 yaml = pytest.importorskip("yaml")
@@ -44,7 +44,7 @@ FILES = {"ppo": "residual", "sac": "beta10000", "td3": "beta10000"}  # algo: the
 
 
 def _entry(algo: str) -> dict:
-    data = yaml.safe_load((ROOT / "benchmarks" / "zoo" / f"{algo}.yml").read_text())
+    data = yaml.safe_load((ROOT / "benchmarks" / "rl" / "zoo" / f"{algo}.yml").read_text())
     assert list(data) == ["SDJLS-Macro-v0"]
     return data["SDJLS-Macro-v0"]
 
@@ -107,10 +107,10 @@ def test_zoo_file_builds_the_comparisons_training_env(algo, zoo_utils):
 
 
 def test_one_training_env_function_per_variant():
-    """benchmarks.train_envs has exactly one public function per variant, each the recipe
+    """benchmarks.rl.train_envs has exactly one public function per variant, each the recipe
     make_train_env(task, variant) on the macro task by default and on any task given."""
-    from benchmarks import train_envs
-    from benchmarks.rl_envs import VARIANTS
+    from benchmarks.rl import train_envs as train_envs
+    from benchmarks.rl.envs import VARIANTS
 
     assert sorted(train_envs.__all__) == sorted(VARIANTS)
     for variant in VARIANTS:
@@ -123,7 +123,7 @@ def test_one_training_env_function_per_variant():
 def test_an_agent_of_a_zoo_file_is_scored_with_one_flag(algo, zoo_utils, tmp_path, capsys):
     """An agent built as rl-zoo3 builds it from the file (its wrappers, untrained: the scoring
     is what is tested) and saved is scored by ``benchmarks.evaluate`` with ``--train-env
-    benchmarks.train_envs:VARIANT``; without the flag it is refused (its spaces are the wrapped
+    benchmarks.rl.train_envs:VARIANT``; without the flag it is refused (its spaces are the wrapped
     env's), a parser error naming --train-env."""
     sb3 = pytest.importorskip("stable_baselines3")
     from benchmarks import evaluate
@@ -132,14 +132,14 @@ def test_an_agent_of_a_zoo_file_is_scored_with_one_flag(algo, zoo_utils, tmp_pat
     zoo_env = zoo_utils.get_wrapper_class(entry)(
         gym.make("SDJLS-Macro-v0", **entry.get("env_kwargs", {}))
     )
-    from benchmarks import train_envs
+    from benchmarks.rl import train_envs as train_envs
 
     # the flag's env is the file's: same wrappers, same scalings and bounds
     assert _chain(zoo_env) == _chain(getattr(train_envs, FILES[algo])())
     agent = getattr(sb3, algo.upper())("MlpPolicy", zoo_env, seed=0, device="cpu")
     path = tmp_path / f"{algo}.zip"
     agent.save(path)
-    flag = f"benchmarks.train_envs:{FILES[algo]}"
+    flag = f"benchmarks.rl.train_envs:{FILES[algo]}"
     score = evaluate.main(["--policy", str(path), "--algo", algo, "--train-env", flag,
                            "--episodes", "20"])  # fmt: skip
     assert score.episodes == 20 and np.isfinite(score.violation)
@@ -156,7 +156,7 @@ def test_rl_zoo3_trains_a_few_hundred_steps_with_the_file(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     cmd = [
         sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", "SDJLS-Macro-v0",
-        "--gym-packages", "sdjls_gym", "-conf", "benchmarks/zoo/ppo.yml", "-n", "512",
+        "--gym-packages", "sdjls_gym", "-conf", "benchmarks/rl/zoo/ppo.yml", "-n", "512",
         "--log-folder", str(tmp_path), "--eval-freq", "-1", "--seed", "0",
         "--hyperparams", "n_steps:64", "batch_size:64",
     ]  # fmt: skip
@@ -176,5 +176,5 @@ def test_readme_zoo_command_writes_outside_the_checkout():
         folder = command.split(" -f ")[1].split()[0]
         assert Path(folder).is_absolute() and ROOT not in Path(folder).parents, command
     for algo in FILES:
-        text = (ROOT / "benchmarks" / "zoo" / f"{algo}.yml").read_text()
-        assert f"-conf benchmarks/zoo/{algo}.yml -f /tmp/sdjls-zoo" in text
+        text = (ROOT / "benchmarks" / "rl" / "zoo" / f"{algo}.yml").read_text()
+        assert f"-conf benchmarks/rl/zoo/{algo}.yml -f /tmp/sdjls-zoo" in text

@@ -1,5 +1,5 @@
 """A kept run whose files were tampered with or corrupted is refused, naming the file and what
-is wrong: by ``benchmarks.runs.load_agent``, by ``python -m benchmarks.evaluate --run`` (a parser
+is wrong: by ``benchmarks.rl.runs.load_agent``, by ``python -m benchmarks.evaluate --run`` (a parser
 error, exit status 2) and by ``python -m benchmarks.compare_rl --score-only`` before it scores
 anything.
 
@@ -19,7 +19,9 @@ import pytest
 pytest.importorskip("stable_baselines3")
 
 import benchmarks  # noqa: E402
-from benchmarks import compare_rl, evaluate, runs  # noqa: E402
+from benchmarks import evaluate  # noqa: E402
+from benchmarks.rl import compare as compare_rl  # noqa: E402
+from benchmarks.rl import runs  # noqa: E402
 from sdjls_gym.errors import InvalidRunError  # noqa: E402
 
 ROOT = Path(benchmarks.__file__).resolve().parents[1]

@@ -36,7 +36,7 @@ from hypothesis import strategies as st
 from scipy import special, stats
 from test_properties import problems  # the random systems of P3's property tests
 
-from benchmarks.speed import closed_loop_states
+from benchmarks.speed.measure import closed_loop_states
 from controllers import (
     RecedingHorizonController,
     ScenarioTreeController,

@@ -8,10 +8,14 @@ the load: every section is written, and the decisions it times agree with the re
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+import numpy as np
 import pytest
 
-from benchmarks import speed
+from benchmarks.speed import measure as speed
+from controllers import RecedingHorizonController
+from sdjls_gym.systems import TASKS
 
 
 @pytest.fixture(scope="module")
@@ -103,7 +107,6 @@ def test_scaling_rows_agree_with_the_daqp_floor_and_act_batch(quick):
 def test_no_controller_privates_are_read():
     """speed.py uses the controllers' public hooks only (issue 32)."""
     import re
-    from pathlib import Path
 
     source = Path(speed.__file__).read_text(encoding="utf-8")
     assert not re.findall(r"(?:ctrl|fast|fam|engine)\._[a-z]", source)
@@ -121,3 +124,28 @@ def test_round_ratio_is_the_median_of_each_rounds_ratio():
     got = speed.timed_rounds(blocks, 3, after_warmup=lambda: calls.append("warm"))
     assert got == [[1.0, 2.0]] * 3
     assert calls == ["a", "b", "warm", "a", "b", "a", "b", "a", "b"]  # alternating, warm-up first
+
+
+def test_the_references_import_none_of_the_projects_solver_code():
+    """A reference shares no code with what it measures: benchmarks/speed/references.py imports
+    no module of controllers (DAQP, scipy and cvxpy through their public APIs)."""
+    from test_structure import imports
+
+    path = Path(speed.__file__).with_name("references.py")
+    assert not [m for m, _ in imports(path) if m.split(".")[0] == "controllers"]
+
+
+@pytest.mark.parametrize("env_id", sorted(TASKS))
+def test_the_independent_floor_gives_the_controllers_inputs(env_id):
+    """The DAQP floor (daqp.Model on P3 written from the paper) and the controller answer the
+    same P3: the same u on 60 closed-loop states, to DAQP's tolerance (1e-6 of the scale)."""
+    from benchmarks.speed.references import DaqpFloor, P3Data
+
+    task = TASKS[env_id]
+    ctrl = RecedingHorizonController(task.model, task.K, horizon=task.horizon, **task.rhc)
+    floor = DaqpFloor(P3Data(task.model, task.K, dict(task.rhc)))
+    x, mode, k = speed.closed_loop_states(task.model, ctrl, 60, seed=2)
+    for xi, mi, ki in zip(x, mode, k, strict=True):
+        u = ctrl.act(xi, int(mi), int(ki))[0]
+        scale = max(1.0, float(np.max(np.abs(u))), float(np.max(np.abs(xi))))
+        assert np.allclose(floor.solve(xi, int(mi), int(ki))[0], u, rtol=0, atol=1e-6 * scale)

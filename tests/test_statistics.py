@@ -25,7 +25,7 @@ import gymnasium as gym
 import numpy as np
 from scipy import stats
 
-from benchmarks.montecarlo import rollout
+from benchmarks.core.montecarlo import rollout
 from controllers import (
     LinearFeedbackController,
     MJLSLQRController,
@@ -337,8 +337,8 @@ def test_no_global_random_generator_in_the_sources():
     # the one exception: rliable draws from the legacy generator, so aggregate.py seeds it for
     # the call and restores the caller's state (test_suite_benchmark.py checks both)
     scoped = [f"np.random.{name}" for name in ("get_state", "seed", "set_state")]
-    uses["benchmarks/aggregate.py"] = [
-        u for u in uses["benchmarks/aggregate.py"] if not any(u.endswith(s) for s in scoped)
+    uses["benchmarks/core/aggregate.py"] = [
+        u for u in uses["benchmarks/core/aggregate.py"] if not any(u.endswith(s) for s in scoped)
     ]
     assert {p: u for p, u in uses.items() if u} == {}
 

@@ -1,4 +1,4 @@
-"""benchmarks.stats against scipy's own implementations of the same statistics (issue 32:
+"""benchmarks.core.stats against scipy's own implementations of the same statistics (issue 32:
 "hand-written where a library does it"). The hand formulas stay (see the comments in
 benchmarks/stats.py); these tests pin them to scipy on many inputs, the extremes included."""
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from benchmarks.stats import two_proportion_p, wilson
+from benchmarks.core.stats import two_proportion_p, wilson
 
 
 def _pairs() -> list[tuple[int, int]]:
@@ -41,7 +41,7 @@ def test_wilson_matches_scipy_binomtest_to_1e_12_relative():
 
 
 def test_wilson_of_an_array_is_wilson_of_each_entry():
-    """The array path (the per-step intervals of benchmarks.reproduce_paper) gives, entry by
+    """The array path (the per-step intervals of benchmarks.paper.reproduce) gives, entry by
     entry, the scalar path's numbers, exactly: n = 2000 and every k in 0..2000."""
     ks = np.arange(2001)
     lo, hi = wilson(ks, 2000)

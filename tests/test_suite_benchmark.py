@@ -17,16 +17,17 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from benchmarks.aggregate import PROFILE_TAUS, aggregate_gaps
-from benchmarks.evaluate import evaluate
-from benchmarks.montecarlo import paper_rhc, rollout
-from benchmarks.reference import (
+from benchmarks.core.aggregate import PROFILE_TAUS, aggregate_gaps
+from benchmarks.core.montecarlo import rollout
+from benchmarks.core.reference import (
     REFERENCE_XIS,
     SUITE_XIS,
     curve_xis,
     one_step_rhc,
+    paper_rhc,
     reference_curve,
 )
+from benchmarks.evaluate import evaluate
 from benchmarks.suite import check_tasks, evaluate_suite, main, parse_args
 from controllers import LinearFeedbackController, MJLSLQRController
 from sdjls_gym.systems import TASKS, random_task

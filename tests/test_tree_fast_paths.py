@@ -30,7 +30,7 @@ import itertools
 import numpy as np
 import pytest
 
-from benchmarks.speed import closed_loop_states
+from benchmarks.speed.measure import closed_loop_states
 from controllers import RecedingHorizonController, ScenarioTreeController
 from controllers.kkt import active_set_factor, check_active_set, reduce_hessian, solve_stacked
 from controllers.kkt_maps import stacked_maps

@@ -27,7 +27,7 @@ import pytest
 from exact_p3 import exact_p3
 from scipy import optimize, special
 
-from benchmarks.speed import large_tree_model
+from benchmarks.speed.measure import large_tree_model
 from controllers import (
     RecedingHorizonController,
     ScenarioTreeController,

@@ -12,9 +12,10 @@ import pytest
 pytest.importorskip("stable_baselines3")
 optuna = pytest.importorskip("optuna")
 
-from benchmarks import rl_hyperparams as HP  # noqa: E402
-from benchmarks import rl_train, tune  # noqa: E402
-from benchmarks.rl_train import CurvePoint  # noqa: E402
+from benchmarks.rl import hyperparams as HP  # noqa: E402
+from benchmarks.rl import train as rl_train  # noqa: E402
+from benchmarks.rl import tune  # noqa: E402
+from benchmarks.rl.train import CurvePoint  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

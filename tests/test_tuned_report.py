@@ -1,4 +1,4 @@
-"""``benchmarks.tuned_report``: tuned runs against the default runs of the same configuration.
+"""``benchmarks.rl.tuned_report``: tuned runs against the default runs of the same configuration.
 
 The comparison's numbers are checked on synthetic scores against a hand computation (rliable's
 IQM is scipy's 25% trimmed mean; the probability of improvement is the share of (tuned,
@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 from scipy.stats import trim_mean
 
-from benchmarks import compare_rl, tuned_report
-from benchmarks.stats import CurveGap
+from benchmarks.core.stats import CurveGap
+from benchmarks.rl import compare as compare_rl
+from benchmarks.rl import tuned_report
 
 STUDY = {
     "settings": {"task": "SDJLS-Macro-v0", "algo": "ppo", "variant": "residual",
@@ -115,7 +116,7 @@ def test_bad_options_are_parser_errors(tmp_path, capsys):
     bad = tmp_path / "bad.json"
     bad.write_text("{}")
     for argv, words in (
-        (["--tuned", str(bad)], ["bad.json", "not a benchmarks.tune summary"]),
+        (["--tuned", str(bad)], ["bad.json", "not a benchmarks.rl.tune summary"]),
         (["--tuned", str(_study(tmp_path)), "--seeds", "0"], ["--seeds = 0"]),
         (["--tuned", str(_study(tmp_path)), "--eval-episodes", "1"], ["--eval-episodes = 1"]),
     ):

@@ -22,7 +22,7 @@ __all__ = ["macro", "HORIZON", "ACTION_BOUND", "PAPER_X", "PAPER_Y", "PAPER_K", 
 HORIZON = 20
 
 #: Bound on |u_k| of ``SDJLS-Macro-v0``. The paper's controller stays far inside it: the
-#: largest |u_k| it uses is in ``results/paper/REPORT.md`` (``python -m benchmarks.reproduce_paper``)
+#: largest |u_k| it uses is in ``results/paper/REPORT.md`` (``python -m benchmarks.paper.reproduce``)
 #: and in the action row of the manual's table (docs/environment.md, "Dynamics and time indexing").
 ACTION_BOUND = 200.0
 

@@ -1,0 +1,182 @@
+"""The text of the suite comparison's report (:mod:`benchmarks.rl.suite_report`): the sections
+of ``REPORT.md`` (the runs kept and missing, rliable's statistics across tasks, one section per
+task) and ``summary.csv``."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+from typing import Any
+
+from benchmarks.core.aggregate import SuiteAggregate
+from benchmarks.core.files import stable_floats, write_atomic
+from benchmarks.core.stats import CurveGap
+from benchmarks.rl.report import curve_table, table
+
+__all__ = [
+    "CSV_HEADER",
+    "across_section",
+    "gap_text",
+    "runs_section",
+    "task_section",
+    "write_csv",
+]
+
+
+def gap_text(g: CurveGap | None, reason: str | None) -> str:
+    """A gap in % with its 95% interval and the curve's xi there, or why it has none."""
+    if g is None or g.relative is None or g.relative_ci95 is None:
+        return "none: " + (reason or "-")
+    lo, hi = g.relative_ci95
+    at = "" if g.xi is None else f" at xi {g.xi:.3f}"
+    return f"{g.relative:+.1f} ({lo:+.1f} to {hi:+.1f}){at}"
+
+
+def _seeds(seeds: list[int]) -> str:
+    return ", ".join(map(str, seeds)) if seeds else "-"
+
+
+def _agg_cells(a: SuiteAggregate | None, tasks: tuple, seeds: tuple) -> list[str]:
+    if a is None:
+        return ["none", "-", "-"]
+    lo, hi = a.iqm_gap_ci95
+    plo, phi = a.probability_of_improvement_ci95
+    return [f"{len(seeds)} x {len(tasks)}", f"{a.iqm_gap:+.1f} ({lo:+.1f} to {hi:+.1f})",
+            f"{a.probability_of_improvement:.2f} ({plo:.2f} to {phi:.2f})"]  # fmt: skip
+
+
+def runs_section(reports: list[Any]) -> list[str]:
+    """The kept and missing runs, per task and configuration."""
+    expected = sum(len(s) for r in reports for s in r.expected.values())
+    kept = sum(len(r.agents) for r in reports)
+    lines = [
+        "## Runs",
+        "",
+        f"{kept} of the {expected} runs asked for are kept and scored, "
+        + ("none missing." if kept == expected else f"{expected - kept} missing:"),
+        "",
+        "| task | configuration | seeds kept | seeds missing |",
+        "|---|---|---|---|",
+    ]
+    for r in reports:
+        for config, seeds in r.expected.items():
+            miss = r.missing.get(config, [])
+            have = [s for s in seeds if s not in miss]
+            lines.append(f"| {r.env_id} | {config} | {len(have)} of {len(seeds)} "
+                         f"({_seeds(have)}) | {_seeds(miss)} |")  # fmt: skip
+    return lines + [""]
+
+
+def across_section(across: list[Any], tree_refs: dict[str, Any]) -> list[str]:
+    """rliable's statistics per configuration (:class:`~benchmarks.rl.suite_report.ConfigAcross`)
+    and the 3-step tree's own gaps (``tree_refs``: ``aggregate``, ``per_task``)."""
+    lines = [
+        "## Across tasks (rliable)",
+        "",
+        "Normalized gap: cost minus the one-step RHC curve at the agent's own violation "
+        "frequency, paired over the episodes, in % of the curve's cost (the suite's). Per "
+        "configuration, rliable on the (seeds x tasks) table of its gaps: the interquartile mean "
+        "(IQM) with a 95% stratified-bootstrap interval (seeds resampled within each task; one "
+        "seed: the interval is the point), and the probability of improvement P(gap < 0) "
+        "averaged over the tasks. Against the 3-step tree: the same on the gaps to the tree's "
+        "curve (% of its cost; on the tree's own episodes). A task where a kept run has no gap "
+        "is left out whole, and of the other tasks the seeds kept on all of them are used "
+        "(column 'left out'; each run's reason is in its task's section).",
+        "",
+        "| configuration | seeds x tasks | IQM of the gaps to the one-step RHC, % (95% CI) | "
+        "P(improvement over the one-step RHC) (95% CI) | seeds x tasks | IQM of the gaps to the "
+        "3-step tree, % (95% CI) | P(improvement over the 3-step tree) (95% CI) | left out |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for c in across:
+        left = [x if x in c.tree_left_out else f"vs RHC: {x}" for x in c.rhc_left_out]
+        left += [f"vs tree: {x}" for x in c.tree_left_out if x not in c.rhc_left_out]
+        cells = [c.config, *_agg_cells(c.vs_rhc, c.rhc_tasks, c.rhc_seeds),
+                 *_agg_cells(c.vs_tree, c.tree_tasks, c.tree_seeds), "<br>".join(left) or "-"]  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
+    ref = tree_refs.get("aggregate")
+    lines += ["", "The 3-step tree itself at each task's xi, against the one-step curve on its "
+              "own episodes: " + (f"IQM {ref.iqm_gap:+.1f}% over {ref.tasks} task(s)"
+                                  if isinstance(ref, SuiteAggregate) else "no aggregate")
+              + "; " + "; ".join(f"{t} {v}" for t, v in tree_refs["per_task"].items()) + ".", ""]  # fmt: skip
+    return lines
+
+
+def task_section(r: Any, figures: list[str]) -> list[str]:
+    """One task's section (:class:`~benchmarks.rl.suite_report.TaskReport`): its references,
+    missing runs, agents' table, each run's two gaps, the flatness test and ``figures``."""
+    lines = [
+        f"## {r.env_id}",
+        "",
+        f"Level xi = {r.xi:g} (target violation frequency {1 - r.xi:.2f}); "
+        f"{r.rhc.episodes} evaluation episodes (noise seed {r.rhc.seed}); the 3-step tree on "
+        f"{r.tree.episodes} episodes at xi {', '.join(f'{x:g}' for x in r.tree.xis)}.",
+        "",
+        "| reference | episodes | mean episode cost (95% CI) | median cost | violation frequency "
+        "(95% Wilson) | diverged |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, p in r.reference_rows():
+        (lo, hi), (vlo, vhi) = p["cost_ci95"], p["violation_wilson95"]
+        eps = r.rhc.episodes if "one-step" in name else r.tree.episodes
+        lines.append(f"| {name} | {eps} | {p['cost_mean']:.4g} ({lo:.4g} to {hi:.4g}) | "
+                     f"{p['cost_median']:.4g} | {p['violation']:.3f} ({vlo:.3f}-{vhi:.3f}) | "
+                     f"{p['diverged']} |")  # fmt: skip
+    lines += ["", f"The tree at xi = {r.xi:g} against the one-step curve, % of its cost: "
+              f"{gap_text(r.tree_gap, r.tree_reason)}.", ""]  # fmt: skip
+    missing = [f"{c} seed(s) {_seeds(s)}" for c, s in r.missing.items()]
+    lines += [f"Missing runs: {'; '.join(missing)}." if missing else "No run is missing.", ""]
+    if r.agents:
+        lines += ["Agents (seeds pooled as in results/rl/REPORT.md):", "",
+                  *table(r.aggregates), "",
+                  "Paired gaps of each run, in % of the curve's cost (95% bootstrap interval; "
+                  "the xi of the curve at the run's violation frequency):", "",
+                  "| run | violation frequency | mean episode cost | gap to the one-step RHC, % "
+                  "| gap to the 3-step tree, % |", "|---|---|---|---|---|"]  # fmt: skip
+        for a in sorted(r.agents, key=lambda a: a.run.name):
+            s = a.result.score
+            lines.append(f"| {a.run.name} | {s.violation:.3f} | {s.cost_mean:.4g} | "
+                         f"{gap_text(a.gap, a.reason)} | {gap_text(a.tree_gap, a.tree_reason)} |")  # fmt: skip
+        lines += ["", "Learning curves (the flatness test of results/rl):", "",
+                  *curve_table(r.status), ""]  # fmt: skip
+    for name in figures:
+        lines += [f"![{name}]({name})", ""]
+    return lines
+
+
+CSV_HEADER = ["task", "name", "kind", "algo", "variant", "seed", "xi", "episodes", "cost_mean",
+              "cost_ci95_low", "cost_ci95_high", "cost_median", "violation",
+              "violation_wilson95_low", "violation_wilson95_high", "diverged", "timesteps",
+              "gap_rhc_pct", "gap_rhc_pct_low", "gap_rhc_pct_high", "gap_tree_pct",
+              "gap_tree_pct_low", "gap_tree_pct_high", "reason"]  # fmt: skip
+
+
+def _gap_cells(g: CurveGap | None) -> list[Any]:
+    if g is None or g.relative is None or g.relative_ci95 is None:
+        return ["", "", ""]
+    return [g.relative, *g.relative_ci95]
+
+
+def write_csv(path: Path, reports: list[Any]) -> None:
+    """``summary.csv``: a row per reference point at the task's xi and per kept run."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(CSV_HEADER)
+    for r in reports:
+        for (name, p), gap, reason, eps in zip(r.reference_rows(), (None, r.tree_gap),
+                                               (None, r.tree_reason),
+                                               (r.rhc.episodes, r.tree.episodes), strict=True):  # fmt: skip
+            w.writerow(stable_floats([r.env_id, name, "model-based", "", "", "", r.xi, eps,
+                                      p["cost_mean"], *p["cost_ci95"], p["cost_median"],
+                                      p["violation"], *p["violation_wilson95"], p["diverged"],
+                                      "", *_gap_cells(None), *_gap_cells(gap), reason or ""]))  # fmt: skip
+        for a in r.agents:
+            s = a.result.score
+            w.writerow(stable_floats([r.env_id, a.run.name, "rl-seed", a.run.algo,
+                                      a.run.variant, a.run.seed, "", s.episodes, s.cost_mean,
+                                      *s.cost_ci95, s.cost_median, s.violation,
+                                      *s.violation_wilson95, s.diverged, a.run.timesteps,
+                                      *_gap_cells(a.gap), *_gap_cells(a.tree_gap),
+                                      "; ".join(x for x in (a.reason, a.tree_reason) if x)]))  # fmt: skip
+    write_atomic(path, buf.getvalue())
