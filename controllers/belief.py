@@ -226,22 +226,33 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
             Pi = np.stack([f.Pi for f in fams])
             F = np.einsum("iam,iab,ibn->imn", model.B, Pi, model.A)  # B_i'Pi_i A_i
             lin = np.concatenate([s.K, F, model.G @ model.A, model.A, model.Q], axis=1)
+            # the cost as a quadratic form in (x, u) per mode, for families whose terms do not
+            # cancel (P3's own test, p3.cost_condition): [[Q + A'Pi A, A'Pi B], [., R + B'Pi B]]
+            M = np.zeros((N, n + m, n + m))
+            M[:, :n, :n] = model.Q + np.einsum("ian,iab,ibk->ink", model.A, Pi, model.A)
+            M[:, :n, n:] = F.transpose(0, 2, 1)
+            M[:, n:, :n] = F
+            M[:, n:, n:] = np.stack([f.H_nu for f in fams])
             self._region.append(
                 {
                     "lin": np.ascontiguousarray(lin.reshape(-1, n)),
-                    "H": np.stack([f.H_nu for f in fams]).reshape(N, m * m),
+                    "KH": np.concatenate(
+                        [s.K.reshape(N, -1), np.stack([f.H_nu for f in fams]).reshape(N, -1)],
+                        axis=1,
+                    ),
                     "Pi": Pi,
                     "noise": np.array([f.noise_term for f in fams]),
+                    "M": M.reshape(N, -1) if all(f.expand_cost for f in fams) else None,
                 }
             )
         self._rows_per_mode = 2 * m + r + 2 * n
         self._GB = model.G @ model.B  # (N, r, m)
         self._GB_flat = self._GB.reshape(-1, m)
         self._B_flat = model.B.reshape(-1, m)
-        self._K_flat = s.K.reshape(N, -1)
         self._tail = np.concatenate([np.full(2 * m, s.nu_bound), [0.0]])  # box, rho >= 0
         self._R_flat = model.R.reshape(-1, m)
         self._all_kept = tuple(range(N))
+        self._risk_xi = np.full(N, 1.0 - s.xi)
         self._qp = BeliefQP(self._GB, s.osqp_settings)
         self._uses_socp = s.nu_set == "ball" and model.m > 1  # a cone, not a QP: cvxpy
 
@@ -303,7 +314,8 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
                     f"belief has shape {belief.shape}; expected ({N},), one probability per mode"
                 )
             belief = self._check_belief(belief)
-        k = check_int("k", k, low=0, high=self.max_k, what=self._k_what)
+        if not (type(k) is int and 0 <= k <= self.max_k):
+            k = check_int("k", k, low=0, high=self.max_k, what=self._k_what)
         return x, belief, k
 
     # ------------------------------------------------------------------ the pieces of P3
@@ -331,11 +343,13 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         (len(kept), r) at level ``1 - eps`` (P3's own table when ``m_D = 0``)."""
         xi = self.settings.xi
         assert xi is not None
+        if mass == 0.0 and len(kept) == self.model.N:
+            return self._risk_xi.copy(), self.tightening
         idx = list(kept)
         risk = np.ones(self.model.N)
         if mass == 0.0:
             risk[idx] = 1.0 - xi
-            return risk, (self.tightening if len(idx) == self.model.N else self.tightening[idx])
+            return risk, self.tightening[idx]
         eps = (1.0 - xi - mass) / (1.0 - mass)
         risk[idx] = eps
         model = self.model
@@ -390,13 +404,14 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         inside = max(model.constraint_values_one(x, k).tolist()) <= 0.0  # in C1 at time k
         data = self._region[inside]
         y = (data["lin"] @ x).reshape(N, self._rows_per_mode)  # every mode's maps of x
+        mixed = pi @ data["KH"]  # sum_i pi_i [K_i, R_i + B_i'Pi_i B_i], flattened
+        H = mixed[m * n :].reshape(m, m)
         if self.gain == "weighted":
-            Kpi = (pi @ self._K_flat).reshape(m, n)
+            Kpi = mixed[: m * n].reshape(m, n)
             v = pi @ y[:, :m]  # K(pi) x
         else:
             top = int(np.argmax(pi))
             Kpi, v = self.K[top], y[top, :m]
-        H = (pi @ data["H"]).reshape(m, m)
         if m > 1:
             H = 0.5 * (H + H.T)
         P = np.zeros((m + 1, m + 1))
@@ -406,7 +421,8 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         band = model.H(k + 1) - y[:, 2 * m : 2 * m + r] - (self._GB_flat @ v).reshape(N, r)
         kept, mass = self.allocation(pi)
         risk, tight = self.risk_of(kept, mass)
-        hbar = band[list(kept)] - tight  # eq. (constraint:feasibility)
+        # eq. (constraint:feasibility), the rows of the kept modes
+        hbar = (band if len(kept) == N else band[list(kept)]) - tight
         w = np.concatenate([head, hbar.ravel(), self._tail])
         notes: list[str] = []
         nu, rho, status, path = self._solve(self._qp.rows(kept), P, w, notes)
@@ -449,10 +465,18 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         rho: float,
     ) -> float:
         """The objective at ``u``: ``sum_i pi_i [x'Q_i x + u'R_i u + mean_i'Pi_i mean_i +
-        tr(Pi_i E_i W E_i')] + alpha rho``, written with ``u`` and the means themselves (no
-        cancellation of expanded terms); ``y`` the stacked maps of ``x``."""
+        tr(Pi_i E_i W E_i')] + alpha rho``; expanded in ``(x, u)`` where P3 expands its cost
+        (its terms cancel by at most :data:`controllers.p3.EXPAND_COST_CONDITION`), else
+        written with ``u`` and the means themselves; ``y`` the stacked maps of ``x``."""
         model = self.model
         m, n, r = model.m, model.n, model.r
+        M = data["M"]
+        if M is not None:  # expanded: x'(Q + A'Pi A)x + 2 x'A'Pi B u + u'(R + B'Pi B)u
+            xu = np.concatenate([x, u])
+            with np.errstate(over="ignore", invalid="ignore"):
+                total = float(xu @ (pi @ M).reshape(n + m, n + m) @ xu + pi @ data["noise"])
+            if np.isfinite(total):
+                return total + self.settings.alpha * rho
         a = 2 * m + r
         mean = y[:, a : a + n] + (self._B_flat @ u).reshape(-1, n)  # A_i x + B_i u
         terms = (
