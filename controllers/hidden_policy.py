@@ -208,6 +208,11 @@ class HiddenModePolicy:
         ValueError, TypeError
             Arguments of the wrong shape or value (named); a row at ``k > 0`` that does not
             follow a call at ``k - 1``.
+
+        Notes
+        -----
+        A policy that holds no episodes, or another number of them, starts ``B`` episodes
+        (as :meth:`reset`) when every row is at ``k == 0``.
         """
         model = self.model
         x = check_array("x", x, shape=(None, model.n), what="the states x_k, one per row")
