@@ -51,7 +51,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy import special
 
 from sdjls_gym.errors import ModeNotObservedError
 from sdjls_gym.messages import describe
@@ -60,8 +59,9 @@ from sdjls_gym.model_checks import ROW_SUM_TOL
 from sdjls_gym.validation import check_array, check_choice, check_int, check_int_array, check_number
 
 from .base import MAX_STATE
-from .belief_qp import BeliefQP, answer_rho, min_rho, solve_belief_cvxpy
-from .chance import tightening
+from .belief_qp import BeliefQP
+from .belief_risk import RiskAllocation
+from .belief_rows import answer_rho, min_rho, solve_belief_cvxpy
 from .horizon import MAX_QP_ENTRY, RecedingHorizonBase, Status
 from .p3 import build_family, check_magnitudes
 from .qp import EnumerationBudget
@@ -73,9 +73,6 @@ GAINS = ("weighted", "most_probable")
 
 _FLOAT64 = np.dtype(np.float64)
 
-#: The level at which the unit tightening of a kind is read (any level with a positive factor).
-_REFERENCE_LEVEL = 0.9
-
 _PATHS = {
     "warm": "active_set_warm",
     "recent": "active_set_recent",
@@ -84,18 +81,6 @@ _PATHS = {
     "osqp": "osqp",
     "enumeration": "active_set",
 }
-
-
-def _factor(kind: str, eps: float, r: int, p: int) -> float:
-    """The tightening of ``kind`` at level ``1 - eps`` per unit of its row scale: the
-    ``(1 - eps)``-quantile of a standard normal (``"individual"``), at ``1 - eps / r``
-    (``"bonferroni"``), or the square root of the chi-square quantile with ``p`` degrees of
-    freedom (``"joint"``); computed from ``eps``, accurate for a small risk."""
-    if kind == "individual":
-        return float(-special.ndtri(eps))
-    if kind == "bonferroni":
-        return float(-special.ndtri(eps / r))
-    return float(np.sqrt(special.chdtri(p, eps)))
 
 
 class BeliefRecedingHorizonController(RecedingHorizonBase):
@@ -126,7 +111,9 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
     Attributes
     ----------
     tightening : (N, r) ndarray
-        The tightening at level ``xi`` (P3's); other levels are scaled from it.
+        The tightening at level ``xi`` (P3's).
+    risk_allocation : RiskAllocation
+        The allocation of the risk among the modes (:mod:`controllers.belief_risk`).
     settings : HorizonSettings
         The checked parameters of the base.
 
@@ -203,11 +190,8 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         """The tightening, every mode's matrices per region, and the QP's solver."""
         s, model = self.settings, self.model
         assert s.xi is not None  # checked: the chance constraints are imposed
-        self.tightening = tightening(model, s.xi, s.constraint)  # P3's table, level xi
-        self.tightening.setflags(write=False)
-        kind, r, p = s.constraint, model.r, model.p
-        reference = tightening(model, _REFERENCE_LEVEL, kind)
-        self._unit = reference / _factor(kind, 1.0 - _REFERENCE_LEVEL, r, p)
+        self.risk_allocation = RiskAllocation(model, s.xi, s.constraint, self.give_up)
+        self.tightening = self.risk_allocation.table  # P3's, level xi
         # P3's families, for the same magnitude checks and the same Pi, R + B'Pi B and noise
         # terms (eq. eq:exp_noise, Lemma 1)
         budget = EnumerationBudget()
@@ -219,7 +203,7 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         check_magnitudes(s, families.values(), MAX_QP_ENTRY)
         # per region: every mode's linear maps of x stacked, [K_i; B_i'Pi_i A_i; G A_i; A_i; Q_i]
         # (one product gives all), R_i + B_i'Pi_i B_i flattened, Pi_i and tr(Pi_i E_i W E_i')
-        N, m, n = model.N, model.m, model.n
+        N, m, n, r = model.N, model.m, model.n, model.r
         self._region = []
         for inside in (False, True):
             fams = [families[(i, inside)] for i in range(N)]
@@ -251,8 +235,6 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         self._B_flat = model.B.reshape(-1, m)
         self._tail = np.concatenate([np.full(2 * m, s.nu_bound), [0.0]])  # box, rho >= 0
         self._R_flat = model.R.reshape(-1, m)
-        self._all_kept = tuple(range(N))
-        self._risk_xi = np.full(N, 1.0 - s.xi)
         self._qp = BeliefQP(self._GB, s.osqp_settings)
         self._uses_socp = s.nu_set == "ball" and model.m > 1  # a cone, not a QP: cvxpy
 
@@ -319,42 +301,6 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         return x, belief, k
 
     # ------------------------------------------------------------------ the pieces of P3
-    def allocation(self, belief: np.ndarray) -> tuple[tuple[int, ...], float]:
-        """The risk allocation of a checked belief (N,): ``(kept, m_D)``, the kept modes
-        (ascending) and the total belief of the modes given up: the modes of zero belief, then
-        the smallest ones while their total is at most ``give_up * (1 - xi)``."""
-        xi = self.settings.xi
-        assert xi is not None
-        values = belief.tolist()
-        budget = self.give_up * (1.0 - xi)
-        if min(values) > budget:  # no mode given up: every mode at level xi
-            return self._all_kept, 0.0
-        mass, dropped = 0.0, set()
-        for i in sorted(range(len(values)), key=values.__getitem__):  # smallest first (stable)
-            if mass + values[i] > budget:
-                break
-            mass += values[i]
-            dropped.add(i)
-        return tuple(i for i in range(len(values)) if i not in dropped), mass
-
-    def risk_of(self, kept: tuple[int, ...], mass: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(risk, t)`` of an allocation: the risk ``eps_i`` of every mode (1 for a mode given
-        up; ``(1 - xi - m_D) / (1 - m_D)`` for the kept ones) and the kept modes' tightening
-        (len(kept), r) at level ``1 - eps`` (P3's own table when ``m_D = 0``)."""
-        xi = self.settings.xi
-        assert xi is not None
-        if mass == 0.0 and len(kept) == self.model.N:
-            return self._risk_xi.copy(), self.tightening
-        idx = list(kept)
-        risk = np.ones(self.model.N)
-        if mass == 0.0:
-            risk[idx] = 1.0 - xi
-            return risk, self.tightening[idx]
-        eps = (1.0 - xi - mass) / (1.0 - mass)
-        risk[idx] = eps
-        model = self.model
-        return risk, _factor(self.settings.constraint, eps, model.r, model.p) * self._unit[idx]
-
     def gain_of(self, belief: np.ndarray) -> np.ndarray:
         """``K(pi)`` (m, n) of a checked belief: ``sum_i pi_i K_i`` or the most probable mode's."""
         if self.gain == "most_probable":
@@ -419,8 +365,8 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         q = 2.0 * (H @ v + pi @ y[:, m : 2 * m])  # the gradient in nu at nu = 0
         head = np.concatenate([q, [s.alpha]])
         band = model.H(k + 1) - y[:, 2 * m : 2 * m + r] - (self._GB_flat @ v).reshape(N, r)
-        kept, mass = self.allocation(pi)
-        risk, tight = self.risk_of(kept, mass)
+        kept, mass = self.risk_allocation.allocate(pi)
+        risk, tight = self.risk_allocation.risks(kept, mass)
         # eq. (constraint:feasibility), the rows of the kept modes
         hbar = (band if len(kept) == N else band[list(kept)]) - tight
         w = np.concatenate([head, hbar.ravel(), self._tail])

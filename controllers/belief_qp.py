@@ -7,22 +7,26 @@ In ``z = (nu, rho)`` the belief controller's problem (:mod:`controllers.belief`)
 with the rows, in the order of P3's family (:mod:`controllers.p3`), ``[G B_i, -1]`` for each
 kept mode ``i`` (ascending), the box ``|nu_j| <= nu_bound`` (upper sides, then lower sides) and
 ``rho >= 0``. For one kept mode this is exactly P3's QP. The Hessian ``H(pi)`` changes with the
-belief at every decision, so the exact solution of an active set is computed for the one
-instance (:func:`controllers.kkt.check_active_set`, the one KKT test of every receding-horizon
-QP), with the factor that depends only on the rows cached per kept set and active set.
+belief at every decision. With one input (``m = 1``) it is a positive number and the instance is
+divided by it (the objective scaled: the same minimizer and active set), so that each kept set
+has a fixed Hessian and the exact maps of its active sets (:mod:`controllers.kkt_maps`) are
+cached as P3's are; with more inputs the exact solution of an active set is computed for the one
+instance (:func:`controllers.kkt.check_active_set`), with the factor that depends only on the
+rows cached. Either way the test is the one KKT test of every receding-horizon QP.
 
-How an instance is solved (:meth:`BeliefQP.solve`): the kept set's last active set, then the
-sets optimal before it; then DAQP (``"daqp"``, through :func:`controllers.dual_qp.run_daqp`,
-warm-started from the last set, then cold, then on regularized objectives) or OSQP
-(``"osqp"``), the active set of its multipliers and then subsets of the rows it leaves nearly
-active; then every candidate active set (at most :data:`controllers.qp.MAX_CANDIDATES`). Every
-answer is the exact solution of an active set that passed the KKT test. ``"active_set"``
-enumerates at every call.
+How an instance is solved (:meth:`BeliefQP.solve`): with one input, the kept set's last active
+set and the sets optimal before it, then DAQP in a workspace kept per kept set; with more, DAQP's
+``daqp.solve`` on the QP as it is, warm-started from the last set (cheaper than testing a warm
+set that fails), then the warm sets and a few primal-dual steps from them; then the engine's
+equilibrated DAQP (:func:`controllers.dual_qp.run_daqp`, then on regularized objectives), or
+OSQP with ``"osqp"``, each answer's active set verified (its multipliers', then subsets of the
+rows it leaves nearly active); then every candidate active set (at most
+:data:`controllers.qp.MAX_CANDIDATES`). Every answer is the exact solution of an active set that
+passed the KKT test. ``"active_set"`` enumerates at every call.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from itertools import chain, combinations
 from typing import Any
 
@@ -30,26 +34,15 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
+from .belief_rows import KeptRows, daqp_rows, kept_rows
 from .dual_qp import DAQP_INF, REGULARIZE, DaqpWorkspace, daqp_data, run_daqp
-from .kkt import KKT_TOL, ActiveSetFactor, active_set_factor, check_active_set
+from .kkt import ActiveSetFactor, active_set_factor, check_active_set
 from .kkt_maps import ActiveSetMaps, active_set_maps
 from .lru import BudgetedLRU
-from .p3 import CLARABEL_SETTINGS
 from .qp import MAX_CANDIDATES, MAX_LOCAL_CANDIDATES, Solution, candidate_count
 from .qp_daqp import NEAR_ACTIVE_TOL
 
-__all__ = [
-    "FACTOR_CACHE_FLOATS",
-    "RECENT_SETS",
-    "REPAIR_STEPS",
-    "SCREEN_TOL",
-    "BeliefQP",
-    "KeptRows",
-    "answer_rho",
-    "kept_rows",
-    "min_rho",
-    "solve_belief_cvxpy",
-]
+__all__ = ["FACTOR_CACHE_FLOATS", "RECENT_SETS", "REPAIR_STEPS", "SCREEN_TOL", "BeliefQP"]
 
 #: Floats of the active-set factors kept (least recently used dropped first; 16 MB).
 FACTOR_CACHE_FLOATS = 2_000_000
@@ -63,78 +56,6 @@ SCREEN_TOL = 1e-7
 
 #: Primal-dual active-set steps from a warm guess that fails the screen.
 REPAIR_STEPS = 2
-
-
-@dataclass(frozen=True, eq=False)
-class KeptRows:
-    """The rows of the QP for one set of kept modes (arrays read-only).
-
-    ``A`` holds the two-sided rows ``[G B_i, -1]`` (each kept mode), ``[I, 0]`` (the box),
-    ``[0, 1]`` (``rho``), the last ``d`` rows the identity; ``C = [A[upper_idx]; -A[lower_idx]]``
-    the one-sided rows of the KKT test; ``upper_of`` / ``lower_of`` the one-sided index of each
-    row's side (-1: absent); ``rho_row`` the index of ``-rho <= 0`` in ``C``.
-    """
-
-    modes: tuple[int, ...]
-    A: np.ndarray
-    C: np.ndarray
-    absC: np.ndarray
-    upper_idx: np.ndarray
-    lower_idx: np.ndarray
-    upper_of: np.ndarray
-    lower_of: np.ndarray
-    pivots: np.ndarray
-    n_chance: int
-    rho_row: int
-
-    @property
-    def d(self) -> int:
-        """Variables of the QP, ``m + 1``."""
-        return int(self.A.shape[1])
-
-    def two_sided(self, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Bounds ``lo <= A z <= hi`` of the one-sided right sides ``h`` (inf where absent)."""
-        rows = self.A.shape[0]
-        lo, hi = np.full(rows, -np.inf), np.full(rows, np.inf)
-        nu = self.upper_idx.size
-        hi[self.upper_idx] = h[:nu]
-        lo[self.lower_idx] = -h[nu:]
-        return lo, hi
-
-    def rows_of_multipliers(self, y: np.ndarray) -> tuple[int, ...] | None:
-        """The one-sided active set of multipliers ``y`` (one per row of ``A``, positive where
-        the upper side is active, negative for the lower), or None when it cannot be one."""
-        nz = np.flatnonzero(y)
-        if nz.size > self.d:
-            return None
-        rows = np.where(y[nz] > 0.0, self.upper_of[nz], self.lower_of[nz])
-        if nz.size and int(rows.min()) < 0:
-            return None
-        return tuple(sorted(rows.tolist()))
-
-
-def kept_rows(GB: np.ndarray, modes: tuple[int, ...]) -> KeptRows:
-    """:class:`KeptRows` of the kept ``modes`` for the rows ``G B_i`` (N, r, m)."""
-    r, m = GB.shape[1], GB.shape[2]
-    s = len(modes)
-    chance = np.hstack([np.concatenate([GB[i] for i in modes]), -np.ones((r * s, 1))])
-    box = np.hstack([np.eye(m), np.zeros((m, 1))])
-    slack = np.hstack([np.zeros((1, m)), np.ones((1, 1))])
-    A = np.vstack([chance, box, slack])
-    upper = np.concatenate([np.ones(r * s + m, bool), [False]])
-    lower = np.concatenate([np.zeros(r * s, bool), np.ones(m + 1, bool)])
-    upper_idx, lower_idx = np.flatnonzero(upper), np.flatnonzero(lower)
-    C = np.vstack([A[upper_idx], -A[lower_idx]])
-    upper_of = np.full(A.shape[0], -1, dtype=np.int64)
-    lower_of = np.full(A.shape[0], -1, dtype=np.int64)
-    upper_of[upper_idx] = np.arange(upper_idx.size)
-    lower_of[lower_idx] = upper_idx.size + np.arange(lower_idx.size)
-    pivots = np.zeros(m + 1, dtype=bool)
-    pivots[m] = True  # rho: no curvature
-    arrays = (A, C, np.abs(C), upper_idx, lower_idx, upper_of, lower_of, pivots)
-    for a in arrays:
-        a.setflags(write=False)
-    return KeptRows(tuple(modes), *arrays, n_chance=r * s, rho_row=C.shape[0] - 1)
 
 
 def _floats(entry: Any) -> int:
@@ -187,7 +108,7 @@ class BeliefQP:
         self._factors: BudgetedLRU[tuple, Any] = BudgetedLRU(FACTOR_CACHE_FLOATS, _floats)
         self._recent: dict[tuple[int, ...], list[tuple[int, ...]]] = {}
         self._daqp: dict[tuple[int, ...], Any] = {}  # per kept set: DaqpWorkspace or DaqpData
-        self._chance_rows: dict[tuple[int, ...], np.ndarray] = {}  # writable rows for DAQP
+        self._daqp_rows: dict[tuple[int, ...], tuple] = {}  # see belief_rows.daqp_rows
 
     def __getstate__(self) -> dict[str, Any]:
         return {"GB": self.GB, "osqp_settings": self.osqp_settings, "fixed": self.fixed,
@@ -397,28 +318,33 @@ class BeliefQP:
         d, nc = kr.d, kr.n_chance
         h = np.asarray(w[d:])
         m = d - 1
-        rows = self._chance_rows.get(kr.modes)
-        if rows is None:  # DAQP writes nothing, but takes writable buffers
-            rows = self._chance_rows[kr.modes] = np.array(kr.A[:nc])
+        held = self._daqp_rows.get(kr.modes)
+        if held is None:
+            held = self._daqp_rows[kr.modes] = daqp_rows(kr)
+        rows, upper_of, lower_of, index, bits = held
         bu = np.concatenate([h[nc : nc + m], [DAQP_INF], np.minimum(h[:nc], DAQP_INF)])
         bl = np.concatenate([-h[nc + m : nc + 2 * m], [-h[-1]], np.full(nc, -DAQP_INF)])
         sense = np.zeros(d + nc, dtype=np.int32)
-        for i in start or ():  # a one-sided row: its row of A and side, in DAQP's order
-            lower = i >= kr.upper_idx.size
-            a = int(kr.lower_idx[i - kr.upper_idx.size] if lower else kr.upper_idx[i])
-            sense[d + a if a < nc else a - nc] = 1 | (2 if lower else 0)
+        if start:
+            at = list(start)
+            sense[index[at]] = bits[at]
         try:
             x, _, flag, info = daqp.solve(np.array(P), np.array(w[:d]), rows, bu, bl, sense)
         except Exception:  # noqa: BLE001 - only a hint: the equilibrated attempts follow
             return None
-        if flag != 1:
+        z = np.asarray(x, dtype=np.float64)
+        if flag != 1 or not np.isfinite(z).all():
             return None
         lam = np.asarray(info["lam"])
-        y = np.concatenate([lam[d:], lam[:d]])  # in the order of A's rows
-        z = np.asarray(x, dtype=np.float64)
-        if not (np.isfinite(z).all() and np.isfinite(y).all()):
-            return None
-        return self._settle(kr, P, w, z, y, "daqp")
+        nz = np.flatnonzero(lam)
+        active = np.where(lam[nz] > 0.0, upper_of[nz], lower_of[nz])
+        if nz.size <= d and (not nz.size or int(active.min()) >= 0):
+            found = tuple(sorted(active.tolist()))
+            out = self.verify(kr, found, P, w)
+            if out is not None:
+                return Solution(out, found, "daqp")
+        sol = self._local(kr, P, w, z)
+        return None if sol is None else Solution(sol.z, sol.rows, "daqp")
 
     def _osqp_solve(
         self,
@@ -530,57 +456,3 @@ class BeliefQP:
             if out is not None:
                 return Solution(out, rows, "enumeration")
         return None
-
-
-def answer_rho(kr: KeptRows, sol: Solution, nu: np.ndarray, w: np.ndarray) -> float:
-    """``rho`` of the exact answer ``sol`` with offset ``nu`` (``z[:m]`` in ``U``): 0 when
-    ``rho >= 0`` is in the active set (the rows then hold to the KKT test's tolerance), else the
-    largest excess of a kept row over its right side (eq. constraint:feasibility), as P3's
-    :func:`controllers.p3.exact_answer`."""
-    if kr.rho_row in sol.rows:
-        return 0.0
-    m = kr.d - 1
-    excess = float(np.max(kr.C[: kr.n_chance, :m] @ nu - w[kr.d : kr.d + kr.n_chance]))
-    return max(excess, 0.0)
-
-
-def min_rho(kr: KeptRows, nu: np.ndarray, w: np.ndarray) -> float:
-    """The smallest ``rho >= 0`` that makes the offset ``nu`` (m,) feasible in the kept rows of
-    instance ``w``; an excess within :data:`controllers.kkt.KKT_TOL` of its row's terms is 0."""
-    m, d = kr.d - 1, kr.d
-    GB = kr.C[: kr.n_chance, :m]
-    h = np.asarray(w[d : d + kr.n_chance])
-    lhs = GB @ nu
-    excess = lhs - h
-    terms = np.abs(GB) @ np.abs(nu) + np.abs(h)
-    excess = np.where(excess > KKT_TOL * terms, excess, 0.0)
-    return float(max(excess.max(initial=0.0), 0.0))
-
-
-def solve_belief_cvxpy(
-    P: np.ndarray, w: np.ndarray, kr: KeptRows, nu_bound: float, ball: bool
-) -> tuple[np.ndarray | None, str]:
-    """The QP of instance ``w`` with Hessian ``P`` (the kept rows ``kr``) written with cvxpy
-    and solved by Clarabel, ``U`` the box or (``ball``) the Euclidean ball: ``(nu, status)``,
-    ``nu`` None unless Clarabel reports an optimal, finite answer. The rescue of the fast path
-    (its answer is verified by the caller) and the solver of the ball."""
-    import cvxpy as cp
-
-    d = kr.d
-    m = d - 1
-    nu, rho = cp.Variable(m), cp.Variable(nonneg=True)
-    H = 0.5 * P[:m, :m]
-    objective = cp.quad_form(nu, 0.5 * (H + H.T)) + w[:m] @ nu + w[m] * rho
-    GB = kr.C[: kr.n_chance, :m]
-    rows = [GB @ nu - rho <= w[d : d + kr.n_chance]]
-    rows.append(cp.norm(nu, 2) <= nu_bound if ball else cp.abs(nu) <= nu_bound)
-    problem = cp.Problem(cp.Minimize(objective), rows)
-    try:
-        problem.solve(solver=cp.CLARABEL, **CLARABEL_SETTINGS)
-    except Exception as exc:  # noqa: BLE001 - an episode must not crash on a solver error
-        return None, f"error {type(exc).__name__}: {exc}"
-    status = str(problem.status)
-    value = None if nu.value is None else np.asarray(nu.value, dtype=np.float64).reshape(-1)
-    if status != cp.OPTIMAL or value is None or not np.all(np.isfinite(value)):
-        return None, status
-    return value, status
