@@ -477,3 +477,24 @@ def test_predict_reads_the_mode_when_it_is_shown_and_refuses_a_hidden_one():
     )
     with pytest.raises(ModeNotObservedError, match="HiddenModePolicy"):
         ctrl.predict(hidden)
+
+
+@pytest.mark.parametrize("env_id", ["SDJLS-Macro-v0", "SDJLS-VTOL-v0"])
+def test_without_daqp_the_warm_sets_and_the_enumeration_give_the_same_answers(env_id, monkeypatch):
+    """The paths after DAQP (the warm sets with their screen and repair steps for m = 2, the
+    enumeration of every candidate active set) answer as the default path does."""
+    task = TASKS[env_id]
+    rng = np.random.default_rng(8)
+    xs, ks = _states(task, rng, 12)
+    beliefs = [_random_belief(rng, task.model.N) for _ in range(12)]
+    default = BeliefRecedingHorizonController(task.model, task.K, **task.rhc)
+    expected = [default.act(x, b, int(k)) for x, b, k in zip(xs, beliefs, ks, strict=True)]
+    monkeypatch.setattr(BeliefQP, "_daqp_solve", lambda self, *a: None)
+    ctrl = BeliefRecedingHorizonController(task.model, task.K, **task.rhc)
+    for x, b, k, (u0, i0) in zip(xs, beliefs, ks, expected, strict=True):
+        u, info = ctrl.act(x, b, int(k))
+        assert info["ok"] and info["solver"] != "daqp"
+        scale = np.abs(u0).sum() + np.abs(i0["gain"] @ x).sum() + 1.0
+        np.testing.assert_allclose(u, u0, rtol=0, atol=1e-9 * scale)
+        assert info["cost"] == pytest.approx(i0["cost"], rel=1e-9)
+    assert "active_set" in ctrl.path_counts  # the enumeration answered some
