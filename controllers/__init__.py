@@ -9,9 +9,11 @@ here too.
 
 from controllers.base import Controller
 from controllers.baselines import LinearFeedbackController, MJLSLQRController
+from controllers.belief import BeliefRecedingHorizonController
 from controllers.chance import row_satisfaction_probability, tightened_set_empty, tightening
 from controllers.env_policy import ControllerPolicy, policy_for
 from controllers.exploration import ExplorationPolicy
+from controllers.hidden_policy import HiddenModePolicy
 from controllers.horizon import Status
 from controllers.identify import IdentificationInfo, identify
 from controllers.lmi import (
@@ -51,9 +53,11 @@ __all__ += [
     "verify_mean_square_bound",
 ]
 __all__ += [
+    "BeliefRecedingHorizonController",
     "Controller",
     "ControllerPolicy",
     "ExplorationPolicy",
+    "HiddenModePolicy",
     "LinearFeedbackController",
     "MJLSLQRController",
     "ModeFilter",

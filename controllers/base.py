@@ -306,8 +306,9 @@ class Controller:
                 f"observation has shape {obs.shape}: the state-only layout [x ({model.n}), "
                 f"k / horizon (1)] of an environment made with observe='state', which does not "
                 f"show the mode; {type(self).__name__} needs the mode theta_k. Use observe='mode', "
-                "or a hidden-mode controller: the belief of the mode from the states and inputs "
-                "is controllers.ModeFilter's"
+                "or controllers.HiddenModePolicy(ctrl), which keeps the belief of the mode "
+                "(controllers.ModeFilter) across the episode and decides with its most probable "
+                "mode (or the belief itself, with a BeliefRecedingHorizonController)"
             )
         if obs.ndim not in (1, 2) or obs.shape[-1] != size:
             raise ValueError(
