@@ -25,7 +25,16 @@ from sdjls_gym.env import SDJLSEnv
 from sdjls_gym.systems import Task
 from sdjls_gym.validation import check_int
 
-__all__ = ["DEFAULT_ENV_ID", "TaskEnv", "infer_env", "resolve_env", "rollout_statistics"]
+__all__ = [
+    "DEFAULT_ENV_ID",
+    "TaskEnv",
+    "check_fits",
+    "check_hidden",
+    "infer_env",
+    "is_hidden_policy",
+    "resolve_env",
+    "rollout_statistics",
+]
 
 #: The task of a policy that says nothing of its own (a callable, an SB3 agent without its
 #: training environment): the paper's example.
@@ -46,6 +55,7 @@ class TaskEnv:
     observation_space: Any = None  # the raw environment's: what a scored agent must act on
     action_space: Any = None
     task: Task | None = None  # the suite's task of this system: its reference curve applies
+    observe: str = "mode"  # "state": the mode is hidden from the policies (env's observe)
 
 
 def _key(model: SDJLSModel) -> str:
@@ -95,6 +105,7 @@ def resolve_env(env_id: str, env_kwargs: dict[str, Any]) -> TaskEnv:
             observation_space=base.observation_space,
             action_space=base.action_space,
             task=task_of(env_id, env_kwargs, base.model),
+            observe=str(base.observe),
         )
     finally:
         env.close()
@@ -144,16 +155,48 @@ def _policy_env(policy: Any) -> tuple[str, dict[str, Any], str]:
     if isinstance(own, str):  # RawEnvPolicy: its training environment's id
         return own, dict(getattr(policy, "env_kwargs", None) or {}), "the policy's env_id"
     model = getattr(policy, "model", None)
+    hidden = {"observe": "state"} if is_hidden_policy(policy) else {}
     if isinstance(model, SDJLSModel):
         task = _registered_task(model)
         if task is not None:
-            return task[0], task[1], "the task of the policy's model"
-        kwargs: dict[str, Any] = {"model": model}
+            return task[0], {**task[1], **hidden}, "the task of the policy's model"
+        kwargs: dict[str, Any] = {"model": model, **hidden}
         horizon = getattr(policy, "horizon", None)
         if isinstance(horizon, int):
             kwargs["horizon"] = horizon
         return "SDJLS-v0", kwargs, "SDJLS-v0 with the policy's model"
     return DEFAULT_ENV_ID, {}, f"the default {DEFAULT_ENV_ID} (the policy names no task)"
+
+
+def is_hidden_policy(policy: Any) -> bool:
+    """Whether ``policy`` decides with the mode hidden by its own means: it has
+    ``act_hidden(x, k, u_applied)`` (:class:`controllers.HiddenModePolicy`)."""
+    return callable(getattr(policy, "act_hidden", None))
+
+
+def check_hidden(policy: Any, spec: TaskEnv) -> None:
+    """Refuse a controller that decides from the true mode on an environment that hides it
+    (``observe="state"``): the mode in ``info`` is for scoring only. Observation policies (an
+    agent with ``predict``, a callable, a ``RawEnvPolicy`` trained with the mode hidden) and
+    hidden-mode policies (``act_hidden``) are accepted."""
+    if spec.observe != "state" or is_hidden_policy(policy):
+        return
+    observed = getattr(policy, "observe_setting", None)
+    if observed is not None:  # RawEnvPolicy: what its training environment showed
+        if observed != "state":
+            raise ValueError(
+                f"the agent was trained with observe = {observed!r} and env_kwargs give "
+                "observe = 'state': it would read the mode it never sees; score it on the "
+                "environment it was trained on"
+            )
+        return
+    if callable(getattr(policy, "act_batch", None)):
+        raise ValueError(
+            f"env_kwargs give observe = 'state' (the mode hidden) but the policy is a "
+            f"{type(policy).__name__}, which decides from (x, mode, k): it would read the true "
+            "mode; wrap it as controllers.HiddenModePolicy(controller) (the mode filter's most "
+            "probable mode), or use controllers.BeliefRecedingHorizonController inside one"
+        )
 
 
 def check_fits(policy: Any, spec: TaskEnv, how: str) -> None:

@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from sdjls_gym import SDJLSModel, SDJLSVectorEnv
 
-__all__ = ["Rollouts", "decide_batch", "rollout"]
+__all__ = ["Rollouts", "decide_batch", "decide_hidden", "rollout"]
 
 
 @dataclass
@@ -83,6 +83,16 @@ def decide_batch(controller: Any, x: np.ndarray, mode: np.ndarray, k: np.ndarray
     return np.array(us), np.array(rhos), np.array(Js), np.array(oks)
 
 
+def decide_hidden(policy: Any, x: np.ndarray, k: np.ndarray, u_applied: np.ndarray | None) -> tuple:
+    """``policy.act_hidden(x, k, u_applied)`` of a policy that keeps the belief of a hidden mode
+    (:class:`controllers.HiddenModePolicy`); returns what :func:`decide_batch` does."""
+    u, info = _answer(policy.act_hidden(x, k, u_applied), "act_hidden")
+    B = x.shape[0]
+    rho = np.asarray(info.get("rho", np.zeros(B)), dtype=np.float64)
+    ok = np.asarray(info.get("ok", np.ones(B, dtype=bool)), dtype=bool)
+    return u, rho, np.asarray(info.get("cost", np.zeros(B)), dtype=np.float64), ok
+
+
 def _answer(out: Any, method: str) -> tuple[Any, Mapping[str, Any]]:
     """A controller's ``(u, info)``, checked: ``info`` a mapping (its keys ``"rho"``,
     ``"cost"``, ``"ok"`` optional)."""
@@ -106,7 +116,10 @@ def rollout(
 ) -> Rollouts:
     """Simulate ``runs`` closed-loop episodes on :class:`~sdjls_gym.SDJLSVectorEnv`.
 
-    The controller sees the exact state (``info["state"]``), the mode and ``k``. The
+    The controller sees the exact state (``info["state"]``), the mode and ``k``; a policy with
+    ``act_hidden`` (:class:`controllers.HiddenModePolicy`, the mode hidden) sees the state, ``k``
+    and the inputs the environment applied at the previous step, never the mode, and is
+    ``reset(runs)`` first. The
     environment's noise comes from ``seed``, so two controllers run with the same seed see the
     same noise sequence as long as they draw nothing themselves (common random numbers).
 
@@ -138,12 +151,21 @@ def rollout(
     ended = np.zeros((runs, horizon), dtype=bool)
     done = np.zeros(runs, dtype=bool)  # rows whose episode has diverged
     x[:, 0], modes[:, 0] = info["state"], info["mode"]
+    hidden = callable(getattr(controller, "act_hidden", None))
+    if hidden:
+        controller.reset(runs)
     for k in range(horizon):
         state = info["state"]
         if done.any():  # a diverged row's state (up to inf) never reaches the policy
             state = np.array(state, dtype=np.float64)
             state[done] = 0.0
-        u, rho[:, k], J[:, k], ok[:, k] = decide_batch(controller, state, info["mode"], info["k"])
+        if hidden:  # the mode hidden: the policy sees (x, k) and the inputs applied before
+            applied = u_all[:, k - 1] if k else None
+            u, rho[:, k], J[:, k], ok[:, k] = decide_hidden(controller, state, info["k"], applied)
+        else:
+            u, rho[:, k], J[:, k], ok[:, k] = decide_batch(
+                controller, state, info["mode"], info["k"]
+            )
         if done.any():
             u = np.array(u, dtype=np.float64)
             u[done] = 0.0

@@ -200,7 +200,7 @@ class _ObservationPolicy:
         self, x: np.ndarray, mode: np.ndarray, k: np.ndarray
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         s = self.spec
-        obs = encode_observation(s.model, x, mode, k, s.horizon, s.divergence_bound)
+        obs = encode_observation(s.model, x, mode, k, s.horizon, s.divergence_bound, s.observe)
         u = self._batch(obs, np.asarray(k))
         if not np.all(np.isfinite(u)):
             row = int(np.argwhere(~np.isfinite(u))[0, 0])
@@ -236,7 +236,8 @@ def check_policy(policy: Any) -> None:
     with neither ``act_batch``, ``predict`` nor ``__call__``."""
     _refuse_class("policy", policy)
     if not (
-        callable(getattr(policy, "act_batch", None))
+        callable(getattr(policy, "act_hidden", None))
+        or callable(getattr(policy, "act_batch", None))
         or callable(getattr(policy, "predict", None))
         or callable(policy)
     ):
@@ -254,6 +255,8 @@ def as_controller(policy: Any, spec: Any) -> Any:
     environment's (``spec.observation_space``, ``spec.action_space``): see :func:`check_spaces`.
     """
     check_policy(policy)
+    if callable(getattr(policy, "act_hidden", None)):  # keeps its own belief of the mode
+        return policy
     if callable(getattr(policy, "act_batch", None)) and callable(getattr(policy, "act", None)):
         return policy
     where = f"the raw environment it is scored on ({spec.env_id})"
@@ -326,6 +329,8 @@ class RawEnvPolicy:
             vec_normalize = agent.get_vec_normalize_env()
         self.normalization = None if vec_normalize is None else _normalization(vec_normalize)
         self.agent, self.model = agent, base.model
+        #: what the training environment showed: the mode (``"mode"``) or not (``"state"``)
+        self.observe_setting = str(base.observe)
         #: the raw environment's id and keyword arguments: where evaluate scores the agent
         self.env_id, self.env_kwargs = raw_env_of(base)
         self._predict = _Predict(agent)
@@ -366,8 +371,11 @@ class RawEnvPolicy:
             e = inner
 
     def observe(self, x: np.ndarray, mode: np.ndarray, k: np.ndarray) -> np.ndarray:
-        """The observations (B, n + N + 1) the agent was trained on, for states (B, n)."""
-        obs = encode_observation(self.model, x, mode, k, self.horizon, self.divergence_bound)
+        """The observations the agent was trained on, for states (B, n): (B, n + N + 1), or
+        (B, n + 1) for an agent trained with the mode hidden (``mode`` then unused)."""
+        obs = encode_observation(
+            self.model, x, mode, k, self.horizon, self.divergence_bound, self.observe_setting
+        )
         if self.scaling is not None:
             obs = scale_observation(obs, self.model.n, *self.scaling)
         if self.normalization is not None:  # VecNormalize.normalize_obs on float32 observations
@@ -412,7 +420,11 @@ class RawEnvPolicy:
     ) -> tuple[np.ndarray, Any]:  # fmt: skip
         """stable-baselines3's ``predict`` on raw observations (the state at float32 precision)."""
         single = np.ndim(observation) == 1
-        x, mode, k = decode_observation(self.model, np.atleast_2d(observation), self.horizon)
+        x, mode, k = decode_observation(
+            self.model, np.atleast_2d(observation), self.horizon, observe=self.observe_setting
+        )
+        if mode is None:  # trained with the mode hidden: the agent never reads it
+            mode = np.zeros(len(x), dtype=np.int64)
         u = self.act_batch(x, mode, k)[0].astype(np.float32)
         return (u[0] if single else u), state
 
