@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.core.reference import ReferenceCurve, gap_reason
+from benchmarks.core.frontier import WORST_GAP, ReferenceCurve, gap_reason
 from benchmarks.core.stats import efficient_points, paired_curve_gap
 from benchmarks.rl.suite_report import point_gap
 
@@ -112,7 +112,7 @@ def test_range_and_reason_are_the_efficient_points():
     assert f"{v[2]:.3f}..{v[0]:.3f}" in gap_reason(0.35, 0, None, viols)
     curve = ReferenceCurve("SDJLS-Random-v0", (0.5, 0.9, 0.95), "individual", E, 0, 50, costs,
                            viols, np.zeros(3, dtype=int))  # fmt: skip
-    assert point_gap(4.0, 0.2, 0, curve) is None
+    assert point_gap(4.0, 0.2, 0, curve) == WORST_GAP  # riskier than the curve: the worst value
 
 
 def test_one_efficient_point_is_the_whole_curve():

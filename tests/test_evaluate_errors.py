@@ -39,10 +39,13 @@ def test_compare_rl_refuses_what_evaluate_refuses_at_parse_time(argv, shown, cap
 
 
 def test_compare_rl_limits_are_evaluates_limits():
-    """The parse-time checks are evaluate()'s own: its largest episode count passes both."""
-    assert (
-        compare_rl.parse_args(["--eval-episodes", str(MAX_EPISODES)]).eval_episodes == MAX_EPISODES
-    )
+    """The parse-time checks are evaluate()'s own: its largest episode count passes both (one
+    noise seed; with three, a third of it per seed)."""
+    one = ["--eval-episodes", str(MAX_EPISODES), "--eval-seeds", "1"]
+    assert compare_rl.parse_args(one).eval_episodes == MAX_EPISODES
+    assert compare_rl.parse_args(["--eval-episodes", str(MAX_EPISODES // 3)]).eval_seeds == 3
+    with pytest.raises(SystemExit):
+        compare_rl.parse_args(["--eval-episodes", str(MAX_EPISODES // 3 + 1)])
     assert compare_rl.parse_args(["--seed", "0"]).seed == 0
     feedback = LinearFeedbackController(macro(), PAPER_K, horizon=20)
     with raises_naming(ValueError, "episodes", MAX_EPISODES + 1):

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from benchmarks.core.aggregate import aggregate_gaps, iqm_interval
-from benchmarks.core.reference import ReferenceCurve
+from benchmarks.core.frontier import WORST_GAP, ReferenceCurve
 from benchmarks.core.stats import CurveGap, paired_curve_gap
 from benchmarks.rl.suite_report import across_tasks, gap_table, point_gap, sample_efficiency
 
@@ -60,8 +60,9 @@ def test_gap_table_leaves_out_tasks_without_a_gap_and_seeds_not_on_every_task():
 
 
 def _agent(task: str, config: str, seed: int, gap: float | None, tree: float | None,
-           curve: list[float | None]) -> SimpleNamespace:  # fmt: skip
-    """What across_tasks and sample_efficiency read of an AgentScore."""
+           curve: list[float]) -> SimpleNamespace:  # fmt: skip
+    """What across_tasks and sample_efficiency read of an AgentScore: a missing gap at equal
+    risk counts as the worst value in the bounded gaps."""
 
     def relative(g: float | None) -> CurveGap | None:
         return None if g is None else CurveGap(g, (g, g), 1.0, 0.1, None, g, (g, g))
@@ -70,44 +71,48 @@ def _agent(task: str, config: str, seed: int, gap: float | None, tree: float | N
     return SimpleNamespace(
         config=config, run=SimpleNamespace(seed=seed, task=task, learning_curve=points),
         gap=relative(gap), reason=None if gap is not None else "3 episode(s) diverged",
+        bounded=WORST_GAP if gap is None else gap,
         tree_gap=relative(tree), tree_reason=None if tree is not None else "violation frequency "
-        "0.5 is above the curve's range", curve_gaps=tuple(curve),
+        "0.5 is above the curve's range",
+        tree=SimpleNamespace(value=WORST_GAP if tree is None else tree),
+        curve_gaps=tuple(curve),
     )  # fmt: skip
 
 
 def test_across_tasks_and_sample_efficiency_against_a_hand_computation():
     """3 seeds x 4 tasks of one configuration, seeded: rliable's IQM and probability of
-    improvement are the hand ones on the tables the rule keeps (against the one-step RHC every
-    task; against the tree not the task where a run is riskier than the tree's curve); along
-    training the IQM is the hand one at every point where all cells have a gap."""
+    improvement are the hand ones on every run's bounded gap (the run riskier than the tree's
+    curve counts at the worst value); the equal-risk view leaves out the task where a run has no
+    gap; along training the IQM is the hand one at every point."""
     rng = np.random.default_rng(17)
     gaps = rng.normal(0.0, 10.0, size=(3, 4))
     tree = gaps + 5.0
     curves = rng.normal(20.0, 10.0, size=(3, 4, 3))
-    curves[1, 2, 0] = np.nan  # the untrained policy of one run diverges
+    curves[1, 2, 0] = WORST_GAP  # the untrained policy of one run diverges: the worst value
     tasks = ["T0", "T1", "T2", "T3"]
     reports = []
     for t, task in enumerate(tasks):
         agents = [
             _agent(task, "ppo_residual", s, gaps[s, t], None if (s, t) == (2, 3) else tree[s, t],
-                   [None if np.isnan(v) else float(v) for v in curves[s, t]])
+                   [float(v) for v in curves[s, t]])
             for s in range(3)
         ]  # fmt: skip
         reports.append(SimpleNamespace(env_id=task, agents=agents))
     (c,) = across_tasks(reports, ["ppo_residual"], RESAMPLES)
-    assert c.rhc_tasks == tuple(tasks) and c.rhc_seeds == (0, 1, 2) and c.rhc_left_out == ()
-    assert c.vs_rhc.iqm_gap == pytest.approx(_iqm(gaps), rel=1e-12)
+    assert c.bounded_tasks == tuple(tasks) and c.bounded_seeds == (0, 1, 2)
+    assert c.bounded_rhc.iqm_gap == pytest.approx(_iqm(gaps), rel=1e-12)
     poi = np.mean(np.mean(gaps < 0, axis=0))  # no ties with 0 in continuous draws
-    assert c.vs_rhc.probability_of_improvement == pytest.approx(poi)
+    assert c.bounded_rhc.probability_of_improvement == pytest.approx(poi)
+    counted = tree.copy()
+    counted[2, 3] = WORST_GAP
+    assert c.bounded_tree.iqm_gap == pytest.approx(_iqm(counted), rel=1e-12)
+    assert c.vs_rhc.iqm_gap == pytest.approx(_iqm(gaps), rel=1e-12)
     assert c.tree_tasks == ("T0", "T1", "T2")
     assert c.tree_left_out == ("T3: seed 2: riskier than the curve",)
     assert c.vs_tree.iqm_gap == pytest.approx(_iqm(tree[:, :3]), rel=1e-12)
-    assert c.vs_tree.probability_of_improvement == pytest.approx(np.mean(tree[:, :3] < 0))
     e = sample_efficiency(reports, [c], RESAMPLES)["ppo_residual"]
     assert e["steps"] == [0, 1000, 2000]
-    assert e["iqm"][0] is None and e["ci95"][0] is None  # a cell without a gap
-    assert e["share_with_gap"] == [pytest.approx(11 / 12), 1.0, 1.0]
-    for j in (1, 2):
+    for j in range(3):
         assert e["iqm"][j] == pytest.approx(_iqm(curves[:, :, j]), rel=1e-12)
         assert e["ci95"][j][0] <= e["iqm"][j] <= e["ci95"][j][1]
 
@@ -137,8 +142,9 @@ def test_sample_efficiency_meets_budgets_that_differ_by_task_at_common_steps():
 
 def test_point_gap_is_the_paired_gaps_point_estimate():
     """A learning-curve point holds only its mean cost and violation frequency; its gap is the
-    point estimate of paired_curve_gap on the same episodes (25 seeded episodes, 5 levels),
-    None outside the curve's range or with a diverged episode."""
+    point estimate of paired_curve_gap on the same episodes (25 seeded episodes, 5 levels);
+    the worst value with a diverged episode or above the curve's range, and against the
+    strictest level below it."""
     rng = np.random.default_rng(3)
     E, xis = 25, (0.5, 0.7, 0.85, 0.9, 0.95)
     viol = np.clip(np.array([[0.5 - 0.08 * i] for i in range(5)]) + rng.normal(0, 0.05, (5, E)),
@@ -150,6 +156,10 @@ def test_point_gap_is_the_paired_gaps_point_estimate():
     paired = paired_curve_gap(costs, viols, cost, viol, xis, resamples=50)
     assert point_gap(costs.mean(), viols.mean(), 0, curve) == pytest.approx(paired.relative,
                                                                              rel=1e-9)  # fmt: skip
-    assert point_gap(costs.mean(), viols.mean(), 1, curve) is None  # a diverged episode
-    assert point_gap(costs.mean(), viol.mean(axis=1).max() + 0.01, 0, curve) is None  # riskier
-    assert point_gap(costs.mean(), viol.mean(axis=1).min() - 0.01, 0, curve) is None  # safer
+    assert point_gap(costs.mean(), viols.mean(), 1, curve) == WORST_GAP  # a diverged episode
+    assert point_gap(costs.mean(), viol.mean(axis=1).max() + 0.01, 0, curve) == WORST_GAP
+    safest = int(np.argmin(viol.mean(axis=1)))  # safer than the curve: against that level
+    strict = cost[safest].mean()
+    assert point_gap(costs.mean(), viol.mean(axis=1).min() - 0.01, 0, curve) == pytest.approx(
+        100.0 * (costs.mean() - strict) / strict
+    )

@@ -18,15 +18,9 @@ import pytest
 from scipy import stats
 
 from benchmarks.core.aggregate import PROFILE_TAUS, aggregate_gaps
+from benchmarks.core.frontier import reference_curve
 from benchmarks.core.montecarlo import rollout
-from benchmarks.core.reference import (
-    REFERENCE_XIS,
-    SUITE_XIS,
-    curve_xis,
-    one_step_rhc,
-    paper_rhc,
-    reference_curve,
-)
+from benchmarks.core.reference import REFERENCE_XIS, SUITE_XIS, curve_xis, one_step_rhc, paper_rhc
 from benchmarks.evaluate import evaluate
 from benchmarks.suite import check_tasks, evaluate_suite, main, parse_args
 from controllers import LinearFeedbackController, MJLSLQRController
@@ -45,7 +39,9 @@ def test_macro_reference_curve_is_the_papers_curve_evaluate_used():
     task = TASKS["SDJLS-Macro-v0"]
     assert curve_xis(task) == REFERENCE_XIS == (0.3, 0.5, 0.7, 0.8, 0.85, 0.9, 0.95, 0.99)
     curve = reference_curve(task, E, 4, action_bound=200.0)
-    for i, xi in enumerate(REFERENCE_XIS):
+    assert set(REFERENCE_XIS) <= set(curve.xis)  # the base grid adds levels where it bends
+    for xi in REFERENCE_XIS:
+        i = curve.xis.index(xi)
         ro = rollout(macro(), paper_rhc(macro(), xi, "individual"), E, HORIZON, 4, 200.0)
         np.testing.assert_array_equal(curve.costs[i], ro.episode_cost)
         np.testing.assert_array_equal(curve.violations[i], ro.any_violation.mean(axis=1))
@@ -136,12 +132,13 @@ def test_evaluate_suite_with_runs_and_a_task_record():
             2 if t.env_id == "SDJLS-Solar-v0" else 1), TWO, episodes=5)  # fmt: skip
 
 
-def test_a_policy_outside_the_curve_has_no_gap_and_no_aggregate():
+def test_a_policy_outside_the_curve_counts_at_the_worst_value_and_has_no_equal_risk_view():
     suite = evaluate_suite(lambda t: MJLSLQRController(t.model, "average"), ("SDJLS-Solar-v0",),
                            episodes=E)  # fmt: skip
     (result,) = suite.results
     assert result.gaps == (None,) and "above the curve's range" in result.reasons[0]
-    assert suite.aggregate is None and suite.gap_table is None
+    assert suite.gap_table.tolist() == [[100.0]] and suite.aggregate.iqm_gap == 100.0
+    assert suite.equal_risk_aggregate is None and suite.equal_risk_table is None
     assert suite.missing[0].startswith("SDJLS-Solar-v0 run 0:")
     json.dumps(suite.to_dict())  # plain JSON
 

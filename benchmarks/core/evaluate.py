@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -61,15 +62,10 @@ from benchmarks.core.environment import (
     resolve_env,
     rollout_statistics,
 )
-from benchmarks.core.montecarlo import Rollouts, rollout
+from benchmarks.core.frontier import as_seeds, bounded_gap, gap_reason, reference_curve
+from benchmarks.core.montecarlo import Rollouts, rollout, rollouts
 from benchmarks.core.policies import RawEnvPolicy, as_controller, check_policy, unwrap_vec_env
-from benchmarks.core.reference import (
-    REFERENCE_CONSTRAINT,
-    REFERENCE_XIS,
-    curve_xis,
-    gap_reason,
-    reference_curve,
-)
+from benchmarks.core.reference import REFERENCE_CONSTRAINT, REFERENCE_XIS, curve_xis
 from benchmarks.core.score_table import TABLE_HEADER, table_row
 from benchmarks.core.stats import CurveGap
 from sdjls_gym.messages import a_type, describe
@@ -82,8 +78,10 @@ __all__ = [
     "RawEnvPolicy",
     "Score",
     "check_evaluation",
+    "check_seed",
     "evaluate",
     "evaluate_rollouts",
+    "score_policy",
 ]
 
 #: Visited states drawn from the rollouts to time the decisions on.
@@ -100,8 +98,10 @@ class Score:
     Attributes
     ----------
     env_id : str
-    episodes, steps, seed : int
-        Episodes of ``steps`` steps, noise seed.
+    episodes, steps : int
+        Episodes (all noise seeds together) of ``steps`` steps.
+    seed : int or tuple of int
+        The noise seed, or the seeds whose episodes are pooled.
     cost_mean, cost_ci95, cost_median
         Episode cost ``sum_k x_k'Q x_k + u_k'R u_k``: mean, 95% Student-t interval over the
         episodes (cut at 0), median.
@@ -120,9 +120,17 @@ class Score:
     curve_gap : CurveGap or None
         Mean cost minus the task's reference curve's at this violation frequency, paired over
         the episodes, with a 95% bootstrap interval, also in percent of the curve's cost
-        (:func:`benchmarks.core.stats.paired_curve_gap`, :mod:`benchmarks.core.reference`); None where
-        the frequency is outside the curve's range, an episode diverged, or the system is not
-        a task of the suite.
+        (:func:`benchmarks.core.stats.paired_curve_gap`; the curve refined at this frequency,
+        :mod:`benchmarks.core.frontier`); None where the frequency is outside the curve's
+        range, an episode diverged, or the system is not a task of the suite.
+    bounded_gap : float or None
+        The score every run has (:func:`benchmarks.core.frontier.bounded_gap`): the gap in
+        percent clipped to ``[-100, 100]``, ``+100`` for a run with a diverged episode or riskier
+        than the curve, the gap to the curve's strictest level for a run safer than it; None
+        only on a system that is no task of the suite (no curve).
+    bounded_gap_rule : str or None
+        Which of those rules gave :attr:`bounded_gap` (``"gap"``, ``"diverged"``, ``"riskier
+        than the curve"``, ``"safer than the curve"``).
     episode_costs, episode_violations : (episodes,) arrays
         Each episode's cost and share of violated steps (for paired comparisons).
     curve_gap_reason : str or None
@@ -140,7 +148,7 @@ class Score:
     env_id: str
     episodes: int
     steps: int
-    seed: int
+    seed: int | tuple[int, ...]
     cost_mean: float
     cost_ci95: tuple[float, float]
     cost_median: float
@@ -152,6 +160,8 @@ class Score:
     decision_time_batched_s: float
     decision_time_single_s: float
     curve_gap: CurveGap | None
+    bounded_gap: float | None
+    bounded_gap_rule: str | None
     episode_costs: np.ndarray = field(repr=False, compare=False)
     episode_violations: np.ndarray = field(repr=False, compare=False)
     curve_gap_reason: str | None = field(default=None, compare=False)
@@ -215,66 +225,94 @@ def hidden_decision_time(
 
 
 def evaluate_rollouts(
-    controller: Any, spec: TaskEnv, episodes: int, seed: int, env_id: str = "SDJLS-Macro-v0"
+    controller: Any,
+    spec: TaskEnv,
+    episodes: int,
+    seed: int | tuple[int, ...],
+    env_id: str = "SDJLS-Macro-v0",
 ) -> tuple[Score, Rollouts]:
-    """The protocol on a controller with ``act_batch``: its :class:`Score` and its rollouts."""
-    ro = rollout(
-        spec.model, controller, episodes, spec.horizon, seed, spec.action_bound, None,
-        spec.divergence_bound,
-    )  # fmt: skip
+    """The protocol on a controller with ``act_batch`` (or ``act_hidden``): its :class:`Score`
+    and its rollouts (``episodes`` from each noise seed of ``seed``, pooled), scored against
+    ``spec.task``'s reference curve on the same episodes."""
+    seeds = as_seeds(seed)
+    ro = rollouts(spec.model, controller, episodes, spec.horizon, seeds, spec.action_bound, None,
+                  spec.divergence_bound)  # fmt: skip
     stats = rollout_statistics(ro, spec.divergence_bound)
     if is_hidden_policy(controller):  # its decisions need its episodes' memory: timed in a run
-        batched, single = hidden_decision_time(controller, spec, min(episodes, 50), seed)
+        batched, single = hidden_decision_time(controller, spec, min(episodes, 50), seeds[0])
     else:
         states = decision_states(ro, min(TIMING_STATES, ro.runs * spec.horizon))
         batched, single = decision_time(controller, *states)
-    gap = None
+    gap = bounded = rule = None
     points: tuple[dict[str, Any], ...] = ()
     if spec.task is None:
         reason: str | None = f"{env_id} is not a task of the suite: it has no reference curve"
-    elif stats["diverged"]:
-        reason = gap_reason(stats["violation"], stats["diverged"], None, np.zeros((1, 1)))
     else:
         curve = reference_curve(
-            spec.task, episodes, seed, horizon=spec.horizon, action_bound=spec.action_bound,
+            spec.task, episodes, seeds, horizon=spec.horizon, action_bound=spec.action_bound,
             divergence_bound=spec.divergence_bound,
         )  # fmt: skip
-        gap = curve.gap(stats["episode_costs"], stats["episode_violations"])
-        reason = gap_reason(stats["violation"], 0, gap, curve.violations, curve.costs)
-        points = tuple(curve.point(i) for i in range(len(curve.xis)))
-    score = Score(
+        costs, viols = stats["episode_costs"], stats["episode_violations"]
+        score = bounded_gap(curve, costs, viols, stats["diverged"])
+        gap, bounded, rule = score.gap, score.value, score.rule
+        if rule != "gap":
+            gap = None
+        reason = gap_reason(stats["violation"], stats["diverged"], gap, curve.violations,
+                            curve.costs)  # fmt: skip
+        shown = curve.refine(stats["violation"]) if not stats["diverged"] else curve
+        points = tuple(shown.point(i) for i in range(len(shown.xis)))
+    score_ = Score(
         curve_gap_reason=reason,
         curve_points=points,
         env_id=env_id,
-        seed=seed,
+        seed=seed if isinstance(seed, int) else seeds,
         decision_time_batched_s=batched,
         decision_time_single_s=single,
         curve_gap=gap,
+        bounded_gap=bounded,
+        bounded_gap_rule=rule,
         **stats,
     )
-    return score, ro
+    return score_, ro
 
 
-def check_evaluation(episodes: Any, seed: Any) -> tuple[int, int]:
-    """``(episodes, seed)`` as :func:`evaluate` accepts them: ``2 <= episodes <=``
-    :data:`MAX_EPISODES`, ``seed >= 0``; the checks every script runs before its work."""
+def check_seed(seed: Any) -> int | tuple[int, ...]:
+    """``seed`` as :func:`evaluate` takes it: an int ``>= 0``, or a non-empty sequence of
+    distinct ones (their episodes pooled), returned as a tuple."""
+    if isinstance(seed, (str, bytes)) or not isinstance(seed, Sequence):
+        return check_int("seed", seed, low=0)
+    seeds = tuple(check_int(f"seed[{i}]", s, low=0) for i, s in enumerate(seed))
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise ValueError(f"seed = {describe(seed)}; expected a non-empty sequence of distinct "
+                         "noise seeds (or one int)")  # fmt: skip
+    return seeds
+
+
+def check_evaluation(episodes: Any, seed: Any) -> tuple[int, Any]:
+    """``(episodes, seed)`` as :func:`evaluate` accepts them: ``2 <= episodes``, at most
+    :data:`MAX_EPISODES` over all seeds, ``seed`` an int ``>= 0`` or a sequence of distinct
+    ones (:func:`check_seed`); the checks every script runs before its work."""
+    seed = check_seed(seed)
+    count = 1 if isinstance(seed, int) else len(seed)
     episodes = check_int(
-        "episodes", episodes, low=2, high=MAX_EPISODES,
-        what="the intervals are over episodes; the rollouts of all of them are held in memory",
+        "episodes", episodes, low=2, high=MAX_EPISODES // count,
+        what="the intervals are over episodes; the rollouts of all of them (every seed's) are "
+        "held in memory",
     )  # fmt: skip
-    return episodes, check_int("seed", seed, low=0)
+    return episodes, seed
 
 
 def evaluate(
     policy: Any,
     *,
     episodes: int = 1000,
-    seed: int = 0,
+    seed: int | Sequence[int] = 0,
     env_id: str | None = None,
     env_kwargs: dict[str, Any] | None = None,
     env: Any = None,
 ) -> Score:
-    """Score ``policy`` on ``episodes`` episodes of the raw ``env_id`` from noise seed ``seed``.
+    """Score ``policy`` on ``episodes`` episodes of the raw ``env_id`` from each noise seed of
+    ``seed``.
 
     Parameters
     ----------
@@ -285,8 +323,9 @@ def evaluate(
         or with ``env=train_env``.
     episodes : int
         At least 2 (the intervals are over episodes), at most :data:`MAX_EPISODES`.
-    seed : int
-        Noise seed, >= 0; the same seed gives every policy the same noise.
+    seed : int or sequence of int
+        Noise seed, >= 0, or several (their episodes pooled: ``episodes`` from each); the same
+        seeds give every policy the same noise.
     env_id : str, optional
         A registered SDJLS environment. Default: the policy's own task
         (:func:`benchmarks.core.environment.infer_env`): a ``RawEnvPolicy``'s training environment, a
@@ -312,7 +351,7 @@ def evaluate(
     sdjls_gym.errors.NotANumberError
         The policy returned what ``env.step`` refuses (``"1.0"``, ``True``, None).
     """
-    episodes, seed = check_evaluation(episodes, seed)
+    episodes, seeds = check_evaluation(episodes, seed)
     if env_id is not None and not isinstance(env_id, str):
         raise TypeError(f"env_id = {describe(env_id)} is {a_type(env_id)}; expected a str")
     env_kwargs = check_mapping("env_kwargs", env_kwargs)
@@ -322,7 +361,15 @@ def evaluate(
         if not callable(getattr(policy, "act_batch", None)) and env is not env.unwrapped:
             policy = RawEnvPolicy(policy, env)  # an agent on its (wrapped) training env
     env_id, env_kwargs, how = infer_env(policy, env_id, env_kwargs, env)
-    spec = resolve_env(env_id, env_kwargs)
+    return score_policy(policy, resolve_env(env_id, env_kwargs), episodes, seeds, how)
+
+
+def score_policy(policy: Any, spec: TaskEnv, episodes: int, seed: int | tuple[int, ...],
+                 how: str = "env_id") -> Score:  # fmt: skip
+    """The protocol on ``policy`` in the environment ``spec`` (checked arguments): the policy
+    checked against the environment (its sizes, the hidden mode, its spaces), then scored by
+    :func:`evaluate_rollouts`. ``how`` says how the environment was chosen, for the errors.
+    :func:`evaluate` and :func:`benchmarks.core.suite.evaluate_suite` both score through it."""
     check_fits(policy, spec, how)
     check_hidden(policy, spec)
     try:
@@ -330,9 +377,9 @@ def evaluate(
     except ValueError as exc:
         if how == "env_id":
             raise
-        raise ValueError(f"{exc} (scored on env_id = {env_id!r}: {how}; pass env_id or env= of "
-                         "the policy's task)") from None  # fmt: skip
-    return evaluate_rollouts(controller, spec, episodes, seed, env_id)[0]
+        raise ValueError(f"{exc} (scored on env_id = {spec.env_id!r}: {how}; pass env_id or env= "
+                         "of the policy's task)") from None  # fmt: skip
+    return evaluate_rollouts(controller, spec, episodes, seed, spec.env_id)[0]
 
 
 # ----------------------------------------------------------------------------- report lines

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from sdjls_gym import SDJLSModel, SDJLSVectorEnv
 
-__all__ = ["Rollouts", "decide_batch", "decide_hidden", "rollout"]
+__all__ = ["Rollouts", "decide_batch", "decide_hidden", "rollout", "rollouts"]
 
 
 @dataclass
@@ -60,6 +60,13 @@ class Rollouts:
         """(runs,) sum over the episode of the stage costs."""
         return self.stage_cost.sum(axis=1)
 
+    @classmethod
+    def pooled(cls, parts: list[Rollouts]) -> Rollouts:
+        """The episodes of ``parts`` (rollouts of the same horizon) as one set, in order."""
+        if len(parts) == 1:
+            return parts[0]
+        return cls(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(cls)))
+
 
 def decide_batch(controller: Any, x: np.ndarray, mode: np.ndarray, k: np.ndarray) -> tuple:
     """``controller.act_batch`` when the controller has one, else a loop over ``act``.
@@ -102,6 +109,24 @@ def _answer(out: Any, method: str) -> tuple[Any, Mapping[str, Any]]:
             "tuple (u, info) with info a dict (its keys 'rho', 'cost', 'ok' optional)"
         )
     return out[0], out[1]
+
+
+def rollouts(
+    model: SDJLSModel,
+    controller: Any,
+    runs: int,
+    horizon: int,
+    seeds: tuple[int, ...],
+    action_bound: float | np.ndarray = 200.0,
+    progress: Any = None,
+    divergence_bound: float = 1e6,
+) -> Rollouts:
+    """:func:`rollout` from each noise seed of ``seeds``, ``runs`` episodes each, pooled
+    (:meth:`Rollouts.pooled`): ``runs * len(seeds)`` episodes."""
+    return Rollouts.pooled([
+        rollout(model, controller, runs, horizon, seed, action_bound, progress, divergence_bound)
+        for seed in seeds
+    ])  # fmt: skip
 
 
 def rollout(

@@ -55,7 +55,7 @@ from benchmarks.core.stats import curve_status, interval_check
 from benchmarks.core.versions import package_versions
 from benchmarks.rl import hyperparams as HP
 from benchmarks.rl.backends import BACKENDS, train_all
-from benchmarks.rl.envs import MACRO
+from benchmarks.rl.envs import MACRO, comparison_env_kwargs
 from benchmarks.rl.figures import make_figures
 from benchmarks.rl.report import (
     ControllerResult,
@@ -241,9 +241,14 @@ class Options:
     )
     eval_episodes: int = field(
         default=1000,
-        metadata={"help": "evaluation episodes per controller and trained agent (one noise seed)"},
+        metadata={"help": "evaluation episodes per controller and trained agent, per noise seed"},
     )
-    seed: int = field(default=0, metadata={"help": "noise seed of the evaluation episodes"})
+    seed: int = field(default=0, metadata={"help": "first noise seed of the evaluation episodes"})
+    eval_seeds: int = field(
+        default=3,
+        metadata={"help": "evaluation noise seeds, --seed, --seed + 1, ... (their episodes "
+                  "pooled; 1 with --quick)"},
+    )  # fmt: skip
     out: Path | None = field(
         default=None,
         metadata={
@@ -323,6 +328,8 @@ def parse_args(argv: list[str] | None = None) -> Options:
     preset = PRESETS[opts.preset]
     if opts.quick and "--eval-episodes" not in given:
         opts.eval_episodes = 200
+    if opts.quick and "--eval-seeds" not in given:
+        opts.eval_seeds = 1
     if opts.configs is not None and (opts.algos is not None or opts.variants is not None):
         parser.error("--configs with --algos/--variants: give the configurations one way")
     if opts.algos is not None or opts.variants is not None:
@@ -338,8 +345,11 @@ def parse_args(argv: list[str] | None = None) -> Options:
     for name in ("seeds", "workers"):
         if getattr(opts, name) < 1:
             parser.error(f"--{name} = {getattr(opts, name)}; expected a positive integer")
+    if opts.eval_seeds < 1:
+        parser.error(f"--eval-seeds = {opts.eval_seeds}; expected a positive integer")
     try:  # evaluate()'s own limits, before hours of training
-        check_evaluation(opts.eval_episodes, opts.seed)
+        check_evaluation(opts.eval_episodes, opts.seed)  # --seed itself, then every seed's
+        check_evaluation(opts.eval_episodes, evaluation_seeds(opts))
     except ValueError as exc:
         text = str(exc).replace("episodes = ", "--eval-episodes = ", 1)
         parser.error(text.replace("seed = ", "--seed = ", 1))
@@ -423,6 +433,11 @@ def specs_of(opts: Options) -> list[Any]:
 
 
 # ----------------------------------------------------------------------------- scoring
+def evaluation_seeds(opts: Options) -> tuple[int, ...]:
+    """The evaluation's noise seeds: ``--seed``, ``--seed + 1``, ... (``--eval-seeds`` of them)."""
+    return tuple(range(opts.seed, opts.seed + opts.eval_seeds))
+
+
 def empty_band_share(model: Any, xi: float, constraint: str) -> float:
     """Share of the (mode, next time) pairs of an episode at which the tightened band
     ``{y : G y <= H_{k+1} - t}`` is empty (:func:`controllers.tightened_set_empty`): there the
@@ -436,21 +451,25 @@ def score_model_based(model: Any, opts: Options) -> list[ControllerResult]:
     out = []
     for curve in MODEL_BASED_CURVES:
         for xi in curve.levels(opts.quick):
-            score = evaluate(curve.build(model, xi), episodes=opts.eval_episodes, seed=opts.seed)
+            score = evaluate(curve.build(model, xi), episodes=opts.eval_episodes,
+                             seed=evaluation_seeds(opts), env_id=MACRO,
+                             env_kwargs=comparison_env_kwargs(MACRO))  # fmt: skip
             empty = (
                 None if curve.constraint is None else empty_band_share(model, xi, curve.constraint)
             )
             out.append(ControllerResult(f"{curve.family} xi={xi:g}", curve.family, score, xi,
                                         curve.constraint, empty))  # fmt: skip
     for name, family, build in SINGLE_CONTROLLERS:
-        score = evaluate(build(model), episodes=opts.eval_episodes, seed=opts.seed)
+        score = evaluate(build(model), episodes=opts.eval_episodes, seed=evaluation_seeds(opts),
+                         env_id=MACRO, env_kwargs=comparison_env_kwargs(MACRO))  # fmt: skip
         out.append(ControllerResult(name, family, score))
     return out
 
 
 def incomes(controller: Any, opts: Options) -> Any:
     """The first income trajectories ``x_k(2)`` (R, T + 1) on the evaluation episodes."""
-    ro = rollout(macro(), controller, opts.eval_episodes, HORIZON, opts.seed)
+    bound = comparison_env_kwargs(MACRO)["action_bound"]
+    ro = rollout(macro(), controller, opts.eval_episodes, HORIZON, opts.seed, bound)
     return ro.x[:INCOME_TRAJECTORIES, :, 1]
 
 
@@ -515,7 +534,16 @@ def report_macro(specs: list[Any], trained: list[Any], run_dir: Path, opts: Opti
         for s in specs
     }
     runs = [
-        RunResult(run, evaluate(policies[s.name], episodes=opts.eval_episodes, seed=opts.seed))
+        RunResult(
+            run,
+            evaluate(
+                policies[s.name],
+                episodes=opts.eval_episodes,
+                seed=evaluation_seeds(opts),
+                env_id=MACRO,
+                env_kwargs=comparison_env_kwargs(MACRO),
+            ),
+        )  # fmt: skip
         for s, run in zip(specs, trained, strict=True)
     ]
     aggs = aggregate(runs)

@@ -37,6 +37,7 @@ __all__ = [
     "MACRO",
     "TaskSettings",
     "VARIANTS",
+    "comparison_env_kwargs",
     "derive_scales",
     "env_from_config",
     "raw_scales",
@@ -232,6 +233,15 @@ def task_settings(task: str | Task, env_kwargs: Mapping[str, Any] | None = None)
 
 
 # ----------------------------------------------------------------------------- variants
+def comparison_env_kwargs(task: str | Task) -> dict[str, Any]:
+    """The environment every controller and agent of the comparison is scored on: the task's own
+    keyword arguments with the action bound the agents acting on ``u`` are trained with
+    (``TaskSettings.u_bound``, 1.25 times the largest input of the task's RHC): equal action
+    limits for everyone, the controllers' inputs clipped there as the agents' are."""
+    t = get_task(task)
+    return {**dict(t.env_kwargs), "action_bound": task_settings(t).u_bound}
+
+
 def variant_setup(
     variant: str, settings: TaskSettings | None = None
 ) -> tuple[str, float | None, bool]:

@@ -17,6 +17,7 @@ import numpy as np
 
 from benchmarks.core.evaluate import Score
 from benchmarks.core.files import jsonable, write_atomic
+from benchmarks.core.frontier import WORST_GAP
 from benchmarks.core.score_table import fmt_steps, row_fields, table
 from benchmarks.core.stats import (
     FLAT_TOL,
@@ -28,6 +29,7 @@ from benchmarks.core.stats import (
     wilson,
 )
 from benchmarks.rl import hyperparams as HP
+from benchmarks.rl.claims import run_counts, task_sentence
 from benchmarks.rl.records import RunRecord
 
 #: Margin over the target 1 - xi within which a trained agent counts as comparable with the RHC.
@@ -408,6 +410,20 @@ CAPTIONS = {
 }
 
 
+def macro_conclusions(summary: Summary, reference: str) -> list[str]:
+    """The macro comparison's conclusion: per configuration, its seeds against the ``reference``
+    curve at equal risk (:func:`benchmarks.rl.claims.run_counts`)."""
+    groups: dict[str, list[RunResult]] = {}
+    for r in sorted(summary.rl_runs, key=lambda r: r.name):
+        groups.setdefault(f"{r.run.algo}_{r.run.variant}", []).append(r)
+    counts = []
+    for config, runs in groups.items():
+        bounded = [r.score.bounded_gap for r in runs]
+        counts.append(run_counts(config, [r.score.curve_gap for r in runs],
+                                 [WORST_GAP if b is None else b for b in bounded]))  # fmt: skip
+    return [task_sentence("SDJLS-Macro-v0", f"{reference} RHC", counts)]
+
+
 def write_report(summary: Summary, xi: float, reference: str) -> str:
     """REPORT.md: the fixed text of the protocol, then tables; ``reference`` is the family of
     the curve the gaps are measured against (its own points are left out: 0 by construction)."""
@@ -424,8 +440,10 @@ def write_report(summary: Summary, xi: float, reference: str) -> str:
         + ".",
         "",
         f"Every controller is scored by `benchmarks.evaluate.evaluate` on the same "
-        f"{o['eval_episodes']} episodes of 20 steps (noise seed {o['seed']}, common random "
-        "numbers). Episode cost: the sum of x'Qx + u'Ru; mean with a 95% Student-t interval over "
+        f"{o['eval_episodes']} episodes of 20 steps from each of {o.get('eval_seeds', 1)} noise "
+        f"seed(s) from {o['seed']} (pooled; common random numbers), every controller and agent "
+        "within the agents' action bound |u| <= 60 (the RHC is clipped there as the agents "
+        "are). Episode cost: the sum of x'Qx + u'Ru; mean with a 95% Student-t interval over "
         "episodes (aggregates of trained seeds: over the seeds' means; cut at 0) and median "
         "(aggregates: median of the seeds' medians). Violation frequency: share of steps whose "
         "state leaves the band G x <= H_k, with a 95% Wilson interval (aggregates: pooled over "
@@ -435,6 +453,12 @@ def write_report(summary: Summary, xi: float, reference: str) -> str:
         "evaluations made during training. Agents learn from -log(1 + c / 100) of the penalized "
         "per-step cost c; every number here is the true cost. Hyperparameters and budgets: "
         "`benchmarks/rl_hyperparams.py`; how they were chosen: `HISTORY.md`.",
+        "",
+        "## Conclusions",
+        "",
+        "Written by the report's code from the tables below (`benchmarks/rl/claims.py`).",
+        "",
+        *[f"- {line}" for line in macro_conclusions(summary, reference)],
         "",
         "## Results",
         "",

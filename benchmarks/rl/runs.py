@@ -21,7 +21,7 @@ from typing import Any
 
 from benchmarks.core.evaluate import Score, check_evaluation, evaluate
 from benchmarks.core.policies import RawEnvPolicy
-from benchmarks.rl.envs import MACRO
+from benchmarks.rl.envs import MACRO, task_settings
 from benchmarks.rl.train import (
     ALGOS,
     VARIANTS,
@@ -140,10 +140,14 @@ def read_run(run_path: str | Path) -> RunRecord:
 
 
 def run_env(run_path: str | Path) -> tuple[str, dict[str, Any]]:
-    """``(env_id, env_kwargs)`` of the raw environment the run at ``run_path`` acts on (a run
-    kept before the suite: the macro task)."""
+    """``(env_id, env_kwargs)`` of the raw environment the run at ``run_path`` is scored on: its
+    task (a run kept before the suite: the macro task) with the comparison's action bound, the
+    one every controller and agent of the comparison acts within
+    (:func:`benchmarks.rl.envs.comparison_env_kwargs`)."""
     record = read_run(run_path)
-    return record.config.get("task", MACRO), dict(record.config.get("env_kwargs", {}))
+    env_id = record.config.get("task", MACRO)
+    kwargs = dict(record.config.get("env_kwargs", {}))
+    return env_id, {**kwargs, "action_bound": task_settings(env_id, kwargs).u_bound}
 
 
 def load_agent(run_path: str | Path) -> RawEnvPolicy:
@@ -212,9 +216,10 @@ def check_kept_runs(specs: list[RunSpec], run_dir: Path) -> list[Path | None]:
     return paths
 
 
-def score_run(run_path: Any, *, episodes: int = 1000, seed: int = 0) -> Score:
+def score_run(run_path: Any, *, episodes: int = 1000, seed: int | tuple[int, ...] = 0) -> Score:
     """The :class:`Score` of the kept run at ``run_path`` (``runs/NAME.json``, ``.pt`` or the
-    name without a suffix) on its own task: its agent rebuilt by
+    name without a suffix) on its own task, within the comparison's action bound
+    (:func:`run_env`): its agent rebuilt by
     :func:`load_agent`, scored by :func:`benchmarks.core.evaluate.evaluate` on ``episodes`` episodes from
     noise seed ``seed`` (``python -m benchmarks.evaluate --run PATH``)."""
     episodes, seed = check_evaluation(episodes, seed)

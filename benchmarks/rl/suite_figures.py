@@ -118,10 +118,12 @@ def across_figures(out: Path, across: list[Any], efficiency: dict[str, dict[str,
     fig, axes = plt.subplots(1, 2, figsize=(13, 0.6 * len(across) + 2.5))
     y = np.arange(len(across))
     for i, c in enumerate(across):
-        for ax, a, dy, color, what in ((axes[0], c.vs_rhc, -0.12, RHC_COLOR, "one-step RHC"),
-                                       (axes[0], c.vs_tree, 0.12, TREE_COLOR, "3-step tree"),
-                                       (axes[1], c.vs_rhc, -0.12, RHC_COLOR, "one-step RHC"),
-                                       (axes[1], c.vs_tree, 0.12, TREE_COLOR, "3-step tree")):  # fmt: skip
+        for ax, a, dy, color, what in (
+            (axes[0], c.bounded_rhc, -0.12, RHC_COLOR, "one-step RHC"),
+            (axes[0], c.bounded_tree, 0.12, TREE_COLOR, "3-step tree"),
+            (axes[1], c.bounded_rhc, -0.12, RHC_COLOR, "one-step RHC"),
+            (axes[1], c.bounded_tree, 0.12, TREE_COLOR, "3-step tree"),
+        ):
             if a is None:
                 continue
             if ax is axes[0]:
@@ -131,8 +133,8 @@ def across_figures(out: Path, across: list[Any], efficiency: dict[str, dict[str,
             ax.errorbar(p, y[i] + dy, xerr=[[max(p - lo, 0)], [max(hi - p, 0)]], fmt="o",
                         color=color, capsize=3, label=f"against the {what}" if i == 0 else None)  # fmt: skip
     for ax in axes:
-        ax.set_yticks(y, [f"{c.config}\n({c.vs_rhc.runs if c.vs_rhc else 0} x "
-                          f"{c.vs_rhc.tasks if c.vs_rhc else 0})" for c in across], fontsize=8)  # fmt: skip
+        ax.set_yticks(y, [f"{c.config}\n({len(c.bounded_seeds)} x {len(c.bounded_tasks)})"
+                          for c in across], fontsize=8)  # fmt: skip
         ax.invert_yaxis()
         ax.grid(alpha=0.3)
         handles, labels = ax.get_legend_handles_labels()
@@ -140,8 +142,8 @@ def across_figures(out: Path, across: list[Any], efficiency: dict[str, dict[str,
             ax.legend(fontsize=8)
     axes[0].axvline(0, color="k", lw=1)
     axes[0].set_xscale("symlog", linthresh=10.0)
-    axes[0].set_xlabel("IQM of the normalized gaps, % of the curve's cost (95% CI)")
-    axes[0].set_title("IQM across tasks (seeds x tasks per configuration)")
+    axes[0].set_xlabel("IQM of the bounded gaps, % of the curve's cost (95% CI)")
+    axes[0].set_title("IQM across tasks, every run (seeds x tasks per configuration)")
     axes[1].axvline(0.5, color="0.5", ls=":", lw=1)
     axes[1].set_xlim(-0.02, 1.02)
     axes[1].set_xlabel("probability of improvement (95% CI)")
@@ -149,7 +151,8 @@ def across_figures(out: Path, across: list[Any], efficiency: dict[str, dict[str,
     save_figure(fig, out, "fig_aggregate.png", names)
 
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.8))
-    for ax, key, what in ((axes[0], "vs_rhc", "one-step RHC"), (axes[1], "vs_tree", "3-step tree")):
+    for ax, key, what in ((axes[0], "bounded_rhc", "one-step RHC"),
+                          (axes[1], "bounded_tree", "3-step tree")):  # fmt: skip
         profiles = {c.config: getattr(c, key) for c in across if getattr(c, key) is not None}
         if not profiles:
             ax.set_axis_off()
@@ -168,31 +171,22 @@ def across_figures(out: Path, across: list[Any], efficiency: dict[str, dict[str,
         ax.set_title(f"Performance profiles against the {what} (rliable)")
     save_figure(fig, out, "fig_profiles.png", names)
 
-    fig, axes = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    fig, ax = plt.subplots(figsize=(8, 4.5))
     for config, e in efficiency.items():
         steps = np.array(e["steps"], dtype=np.float64)
-        ok = np.array([v is not None for v in e["iqm"]])
-        if ok.any():
-            iqm = np.array([v for v in e["iqm"] if v is not None])
-            lo = np.array([c[0] for c in e["ci95"] if c is not None])
-            hi = np.array([c[1] for c in e["ci95"] if c is not None])
-            axes[0].plot(steps[ok], iqm, "-o", ms=3, color=_color(config), label=config)
-            axes[0].fill_between(steps[ok], lo, hi, color=_color(config), alpha=0.15)
-        axes[1].plot(steps, e["share_with_gap"], "-o", ms=3, color=_color(config), label=config)
-    axes[0].axhline(0, color="k", lw=1, label="one-step RHC")
-    axes[0].set_yscale("symlog", linthresh=10.0)
-    axes[0].set_ylabel("IQM of the normalized gap, %\n(where every run x task has one)")
-    axes[1].set_ylabel("share of runs x tasks with a gap\n(no divergence, inside the curve)")
-    axes[1].set_ylim(-0.02, 1.02)
-    axes[1].set_xlabel(
-        "training env steps (learning-curve points that every run of the configuration has)"
-    )
+        lo = np.array([c[0] for c in e["ci95"]])
+        hi = np.array([c[1] for c in e["ci95"]])
+        ax.plot(steps, e["iqm"], "-o", ms=3, color=_color(config), label=config)
+        ax.fill_between(steps, lo, hi, color=_color(config), alpha=0.15)
+    ax.axhline(0, color="k", lw=1, label="one-step RHC")
+    ax.set_yscale("symlog", linthresh=10.0)
+    ax.set_ylabel("IQM of the bounded gap, % (95% CI)")
+    ax.set_xlabel("training env steps (points that every run of the configuration has)")
     first = [s for e in efficiency.values() for s in e["steps"] if s > 0]
-    _steps_axis(axes[1], min(first, default=1000))
-    for ax in axes:
-        ax.grid(alpha=0.3, which="both")
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=7)
-    axes[0].set_title(f"Sample efficiency across {len(reports)} task(s): IQM along training")
+    _steps_axis(ax, min(first, default=1000))
+    ax.grid(alpha=0.3, which="both")
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7)
+    ax.set_title(f"Sample efficiency across {len(reports)} task(s): IQM along training, every run")
     save_figure(fig, out, "fig_sample_efficiency.png", names)
     return names

@@ -1,56 +1,32 @@
-"""The suite comparison's report (issue 31): every kept agent on its task against both
-model-based curves, and rliable's statistics across the tasks.
+"""The suite comparison's report: every kept agent on its task against both model-based curves,
+and rliable's statistics across the tasks.
 
 ``python -m benchmarks.compare_rl`` (any ``--tasks`` but the macro task alone) scores the runs
 after training them; ``--score-only`` scores the runs kept so far and trains nothing. Either way
 :func:`report_suite` scores what is kept and names what is missing: the report states, per task
 and configuration, the seeds it has and the seeds it lacks, and never pools fewer seeds silently.
 
-Per task (:func:`score_task`), on common random numbers:
+Per task (:func:`score_task`), on common random numbers (``--eval-episodes`` episodes from each
+of ``--eval-seeds`` noise seeds, pooled) and with equal action limits (every controller and agent
+on the comparison's environment, :func:`benchmarks.rl.envs.comparison_env_kwargs`):
 
-* each kept run's agent (:func:`benchmarks.rl.train.load_policy`) is scored by
-  :func:`benchmarks.evaluate.evaluate` on ``--eval-episodes`` episodes from noise seed ``--seed``;
-  its *normalized gap* is the suite's (:mod:`benchmarks.suite`): its cost minus the task's
-  one-step RHC curve (:func:`benchmarks.core.reference.reference_curve`) at its own violation
-  frequency, paired over the episodes, in % of the curve's cost, with a 95% bootstrap interval;
-* the 3-step scenario tree (:func:`benchmarks.core.reference.tree_rhc`) is swept over the levels and
-  episodes of ``results/suite`` and xi = 0.96 to 0.99 (:func:`tree_plan`: its decisions cost 100
-  to 1000 times the one-step controller's); each agent is rolled out again on those episodes
-  (same noise seed), and its paired gap to the tree's curve is measured there, in % of the
-  tree's cost;
-* both gaps are measured against the curve's efficient points only
-  (:func:`benchmarks.core.stats.efficient_points`: a level that another level beats on both cost and
-  violation frequency is left out);
-* the table of ``results/rl/REPORT.md`` (:func:`benchmarks.rl.report.table`: mean and median
-  cost, violation frequency with its Wilson interval, divergences), each run's two paired gaps,
-  the flatness test of the learning curves (:mod:`benchmarks.rl.suite_tables`), and the figures
-  of :mod:`benchmarks.rl.suite_figures`.
+* each kept run's agent (:func:`benchmarks.rl.train.load_policy`) is scored by the core's
+  protocol (:func:`benchmarks.core.evaluate.score_policy`): its gap at equal risk to the task's
+  one-step RHC curve (refined at the agent's violation frequency, :mod:`benchmarks.core.frontier`)
+  and its bounded gap, which every run has;
+* the 3-step scenario tree (:func:`benchmarks.core.frontier.tree_curve`) on the same episodes
+  (:func:`tree_plan`), and each agent's bounded gap to it;
+* the learning curves' points against the one-step curve on their own episodes
+  (:func:`point_gap`), the flatness test (:mod:`benchmarks.rl.suite_tables`), the figures of
+  :mod:`benchmarks.rl.suite_figures`.
 
 Across tasks (:func:`across_tasks`), per configuration, with rliable
-(:func:`benchmarks.core.aggregate.aggregate_gaps`): the IQM of the normalized gaps with its
-stratified-bootstrap 95% interval, the probability of improvement over the one-step RHC, and a
-performance profile; the same statistics of the gaps to the 3-step tree give the probability of
-improvement over the tree. rliable needs a gap on every (run, task) cell of a table. The rule
-for partial or undefined cells (:func:`gap_table`): a task where a kept run has no gap (an
-episode diverged, or its violation frequency lies outside the curve's range) is left out of that
-configuration's table, not the run (which would keep the lucky seeds); of the remaining tasks the
-seeds kept on all of them are used. What is left out is listed with its reason, and the table
-states how many tasks and seeds each aggregate covers. The sample-efficiency figure is the IQM
-of the normalized gap along training, from the learning curves, at the steps where every run of
-the configuration has a point (:func:`sample_efficiency`; budgets may differ by task).
-
-Scoring cost (CPU seconds, measured on the shared 2-core machine at load average 9-10, one
-torch thread): one agent on one task, 1000 episodes, 2.1 s (the rollout itself 0.1 s; the rest
-is the bootstrap of its gap and the decision-time measurement), 2.1-3.0 s with its rollout on
-the tree's episodes (10.6 s for the first agent on VTOL, which also paid for the one-step curve
-on its learning curve's 100 episodes, computed once per task); a task's references (the one-step
-curve on 1000 episodes, 1.3-2.7 s; the tree's curve, 0.04-0.2 s per episode and level, and the
-one-step curve on the tree's and on the learning curves' episodes) about 55 s (110 s on the
-three-state task with the tree's 6 levels). The report on the
-4 runs kept then and all 6 tasks took 340 CPU-s (34 min of wall time at that load). The suite's
-150 runs: about 6 x 80 s + 150 x 2.5 s + the aggregates' bootstrap (with 5 seeds, 2000
-resamples of a Mann-Whitney test per task, about 1 ms each: some 2 min), about 16 CPU-minutes
-in one process (``results/rl_suite/HISTORY.md``).
+(:func:`benchmarks.core.aggregate.aggregate_gaps`): the IQM of every run's bounded gaps with its
+stratified-bootstrap 95% interval, the probability of improvement and a performance profile,
+against the one-step RHC and against the tree; as a second view the same on the gaps at equal
+risk, where a task whose kept run has none is left out whole (:func:`gap_table`). The
+conclusions are sentences written from these numbers (:mod:`benchmarks.rl.claims`). What a
+scoring costs is in ``results/rl_suite/HISTORY.md``.
 """
 
 from __future__ import annotations
@@ -58,7 +34,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -70,21 +46,22 @@ from benchmarks.core.aggregate import (
     aggregate_gaps,
     iqm_interval,
 )
-from benchmarks.core.evaluate import evaluate, resolve_env
-from benchmarks.core.files import stable_floats, write_atomic
-from benchmarks.core.montecarlo import rollout
-from benchmarks.core.reference import (
-    QUICK_TREE,
-    TREE_BY_TASK,
-    TREE_EPISODES,
-    TREE_STEPS,
-    TREE_XIS,
+from benchmarks.core.evaluate import resolve_env, score_policy
+from benchmarks.core.files import jsonable, stable_floats, write_atomic
+from benchmarks.core.frontier import (
+    WORST_GAP,
+    BoundedGap,
     ReferenceCurve,
+    as_seeds,
+    bounded_gap,
     reference_curve,
-    tree_rhc,
+    tree_curve,
 )
+from benchmarks.core.montecarlo import rollouts
+from benchmarks.core.reference import QUICK_TREE, TREE_BY_TASK, TREE_STEPS, TREE_XIS
 from benchmarks.core.stats import CurveGap, CurveStatus, curve_status, efficient_points
-from benchmarks.core.suite import gap_reason
+from benchmarks.rl.claims import across_sentence, run_counts, task_sentence
+from benchmarks.rl.envs import comparison_env_kwargs
 from benchmarks.rl.report import RunResult, aggregate, result_json
 from benchmarks.rl.suite_tables import (
     across_section,
@@ -109,6 +86,7 @@ __all__ = [
     "ConfigAcross",
     "TaskReport",
     "across_tasks",
+    "conclusion_lines",
     "gap_table",
     "kept_runs",
     "point_gap",
@@ -133,14 +111,13 @@ QUICK_RESAMPLES = 200
 @dataclass(frozen=True)
 class AgentScore:
     """One kept run scored on its task: its :class:`~benchmarks.rl.report.RunResult` on the
-    evaluation episodes, its gaps to both curves (None where undefined, with the reason), the
+    evaluation episodes (its score holds the gap at equal risk to the one-step curve and the
+    bounded gap), its bounded gap to the 3-step tree's curve (on the same episodes), the
     normalized gap at each learning-curve point, and the CPU time its scoring took."""
 
     result: RunResult
-    reason: str | None  # why no gap to the one-step RHC curve (None: result.score.curve_gap)
-    tree_gap: CurveGap | None
-    tree_reason: str | None
-    curve_gaps: tuple[float | None, ...]  # along the learning curve (% of the one-step curve)
+    tree: BoundedGap
+    curve_gaps: tuple[float, ...]  # along the learning curve: bounded gaps, % (point_gap)
     scoring_cpu_s: float
 
     @property
@@ -153,13 +130,33 @@ class AgentScore:
 
     @property
     def gap(self) -> CurveGap | None:
-        return None if self.reason is not None else self.result.score.curve_gap
+        return self.result.score.curve_gap
+
+    @property
+    def reason(self) -> str | None:
+        return self.result.score.curve_gap_reason
+
+    @property
+    def bounded(self) -> float:
+        value = self.result.score.bounded_gap
+        if value is None:  # a task of the suite always has its curve
+            raise ValueError(f"{self.run.name}: no bounded gap")
+        return value
+
+    @property
+    def tree_gap(self) -> CurveGap | None:
+        return self.tree.gap if self.tree.rule == "gap" else None
+
+    @property
+    def tree_reason(self) -> str | None:
+        return None if self.tree.rule == "gap" else self.tree.rule
 
     def to_json(self) -> dict[str, Any]:
         data = result_json(self.result)
         data["curve_gap_reason"] = self.reason
         data["tree_gap"] = None if self.tree_gap is None else asdict(self.tree_gap)
         data["tree_gap_reason"] = self.tree_reason
+        data["tree_bounded_gap"] = self.tree.value
         data["learning_curve_gaps"] = list(self.curve_gaps)
         data["scoring_cpu_s"] = self.scoring_cpu_s
         return data
@@ -171,14 +168,22 @@ class TaskReport:
 
     env_id: str
     xi: float
-    rhc: ReferenceCurve  # the one-step curve on the evaluation episodes
-    tree: ReferenceCurve  # the 3-step tree's curve on its own episodes
-    tree_gap: CurveGap | None  # the tree at the task's xi against the one-step curve
-    tree_reason: str | None
+    env_kwargs: dict[str, Any]  # the comparison's environment (equal action limits)
+    rhc: ReferenceCurve  # the one-step curve on the evaluation episodes (its base grid)
+    tree: ReferenceCurve  # the 3-step tree's curve on the same episodes
+    tree_score: BoundedGap  # the tree at the task's xi against the one-step curve
     agents: list[AgentScore]
     missing: dict[str, list[int]]  # configuration -> seeds without a kept run
     expected: dict[str, list[int]]  # configuration -> seeds asked for
     status: list[CurveStatus] = field(default_factory=list)
+
+    @property
+    def tree_gap(self) -> CurveGap | None:
+        return self.tree_score.gap if self.tree_score.rule == "gap" else None
+
+    @property
+    def tree_reason(self) -> str | None:
+        return None if self.tree_score.rule == "gap" else self.tree_score.rule
 
     @property
     def aggregates(self) -> list[Any]:
@@ -192,24 +197,30 @@ class TaskReport:
 
 @dataclass(frozen=True)
 class ConfigAcross:
-    """One configuration across tasks: the tables rliable was given and what they left out."""
+    """One configuration across tasks: rliable's statistics of every run's bounded gaps (to the
+    one-step RHC and to the 3-step tree), and of the gaps at equal risk where every cell has one
+    (the second view), with what that view left out."""
 
     config: str
-    vs_rhc: SuiteAggregate | None  # gaps to the one-step RHC (the suite's normalization)
+    bounded_rhc: SuiteAggregate | None  # every kept run, every task: the headline
+    bounded_tree: SuiteAggregate | None
+    bounded_tasks: tuple[str, ...]
+    bounded_seeds: tuple[int, ...]
+    vs_rhc: SuiteAggregate | None  # gaps at equal risk to the one-step RHC
     rhc_tasks: tuple[str, ...]
     rhc_seeds: tuple[int, ...]
     rhc_left_out: tuple[str, ...]
-    vs_tree: SuiteAggregate | None  # gaps to the 3-step tree's curve
+    vs_tree: SuiteAggregate | None  # gaps at equal risk to the 3-step tree's curve
     tree_tasks: tuple[str, ...]
     tree_seeds: tuple[int, ...]
     tree_left_out: tuple[str, ...]
 
     def to_json(self) -> dict[str, Any]:
         out = asdict(self)
-        for key in ("vs_rhc", "vs_tree"):
+        for key in ("bounded_rhc", "bounded_tree", "vs_rhc", "vs_tree"):
             value = getattr(self, key)
             out[key] = None if value is None else value.to_dict()
-        return json.loads(json.dumps(out))
+        return jsonable(out)
 
 
 # ----------------------------------------------------------------------------- kept runs
@@ -218,77 +229,65 @@ def kept_runs(specs: list[RunSpec], run_dir: Path) -> list[RunRecord | None]:
     return [load_run(run_dir, s) for s in specs]
 
 
-def tree_plan(env_id: str, quick: bool) -> tuple[int, tuple[float, ...]]:
-    """Episodes and levels of a task's 3-step tree curve: ``results/suite``'s
-    (:data:`benchmarks.core.reference.TREE_EPISODES` at :data:`~benchmarks.core.reference.TREE_XIS`,
-    fewer on the slow tasks) with :data:`TREE_EXTRA_XIS` and the task's own ``xi``; ``quick``:
-    ``results/suite``'s smoke-test plan."""
+def tree_plan(env_id: str, quick: bool) -> tuple[int | None, tuple[float, ...]]:
+    """Episodes and levels of a task's 3-step tree curve: ``(None, levels)`` for the evaluation
+    episodes themselves (every task but those of :data:`~benchmarks.core.reference.TREE_BY_TASK`),
+    at :data:`~benchmarks.core.reference.TREE_XIS` with :data:`TREE_EXTRA_XIS` and the task's own
+    ``xi``; ``quick``: the smoke test's plan."""
+    xi = float(TASKS[env_id].rhc["xi"])
     if quick:
-        episodes, xis = QUICK_TREE
-    else:
-        episodes, xis = TREE_BY_TASK.get(env_id, (TREE_EPISODES, TREE_XIS))
-        xis = (*xis, *TREE_EXTRA_XIS)
-    return episodes, tuple(sorted({*xis, float(TASKS[env_id].rhc["xi"])}))
-
-
-def _arrays(model: Any, policy: Any, episodes: int, seed: int, spec: Any) -> tuple:
-    """Episode costs, shares of violated steps and the diverged count of ``policy``'s rollouts
-    (the rule of :func:`benchmarks.core.reference.reference_curve`)."""
-    ro = rollout(model, policy, episodes, spec.horizon, seed, spec.action_bound, None,
-                 spec.divergence_bound)  # fmt: skip
-    diverged = int(np.any(np.abs(ro.x) > spec.divergence_bound, axis=(1, 2)).sum())
-    return ro.episode_cost, ro.any_violation.mean(axis=1), diverged
-
-
-def _curve_gap(curve: ReferenceCurve, costs: np.ndarray, viols: np.ndarray,
-               diverged: int) -> tuple[CurveGap | None, str | None]:  # fmt: skip
-    gap = None if diverged else curve.gap(costs, viols)
-    reason = gap_reason(float(viols.mean()), diverged, gap, curve.violations, curve.costs)
-    return (gap if reason is None else None), reason
+        return QUICK_TREE[0], tuple(sorted({*QUICK_TREE[1], xi}))
+    if env_id in TREE_BY_TASK:
+        count, xis = TREE_BY_TASK[env_id]
+        return count, tuple(sorted({*xis, xi}))
+    return None, tuple(sorted({*TREE_XIS, *TREE_EXTRA_XIS, xi}))
 
 
 def point_gap(cost_mean: float, violation: float, diverged: int,
-              curve: ReferenceCurve) -> float | None:  # fmt: skip
-    """A learning-curve point's normalized gap (%): its mean cost minus ``curve``'s mean cost
-    at its violation frequency (linear between the bracketing points, as
-    :func:`benchmarks.core.stats.paired_curve_gap`'s point estimate), in % of the latter; None with
-    a diverged episode, outside the range of the curve's efficient points (the only points
-    it is measured against, :func:`benchmarks.core.stats.efficient_points`), or where the curve's
-    cost is not positive. The point holds statistics only, so the gap has no interval."""
+              curve: ReferenceCurve) -> float:  # fmt: skip
+    """A learning-curve point's bounded gap (%; the rule of
+    :func:`benchmarks.core.frontier.bounded_gap` on its statistics): its mean cost minus
+    ``curve``'s mean cost at its violation frequency (linear between the bracketing efficient
+    levels of the curve's base grid, as :func:`benchmarks.core.stats.paired_curve_gap`'s point
+    estimate), in % of the latter, clipped to ``[-WORST_GAP, WORST_GAP]``; ``+WORST_GAP`` with a
+    diverged episode or above the curve's range; against the strictest level below it. The
+    point holds statistics only, so the gap has no interval and no refinement."""
     if diverged:
-        return None
+        return WORST_GAP
     v, c = curve.violations.mean(axis=1), curve.costs.mean(axis=1)
     keep = efficient_points(v, c)
     v, c = v[keep], c[keep]
-    if not v[0] <= violation <= v[-1]:
-        return None
-    ref = float(np.interp(violation, v, c))
-    return None if ref <= 0 else 100.0 * (cost_mean - ref) / ref
+    if violation > v[-1]:
+        return WORST_GAP
+    ref = float(np.interp(violation, v, c))  # the strictest level's cost below the range
+    if ref <= 0:
+        return WORST_GAP
+    return float(np.clip(100.0 * (cost_mean - ref) / ref, -WORST_GAP, WORST_GAP))
 
 
-# ----------------------------------------------------------------------------- per task
 def score_task(env_id: str, runs: list[tuple[RunSpec, RunRecord | None]], run_dir: Path,
-               episodes: int, seed: int, quick: bool = False, log: Any = None) -> TaskReport:  # fmt: skip
+               episodes: int, seed: int | tuple[int, ...], quick: bool = False,
+               log: Any = None) -> TaskReport:  # fmt: skip
     """Score the kept runs of ``runs`` (``(spec, record or None)`` of one task) and the task's
-    two model-based curves (see the module docstring)."""
+    two model-based curves on the comparison's environment
+    (:func:`benchmarks.rl.envs.comparison_env_kwargs`; see the module docstring)."""
     task = TASKS[env_id]
-    spec = resolve_env(env_id, dict(task.env_kwargs))
+    env_kwargs = comparison_env_kwargs(task)
+    spec = replace(resolve_env(env_id, env_kwargs), task=task)
     kw: dict[str, Any] = {"horizon": spec.horizon, "action_bound": spec.action_bound,
                           "divergence_bound": spec.divergence_bound}  # fmt: skip
     xi = float(task.rhc["xi"])
     rhc = reference_curve(task, episodes, seed, **kw)
     t_eps, t_xis = tree_plan(env_id, quick)
+    same = t_eps is None
+    t_eps = episodes if t_eps is None else t_eps
     if log is not None:
-        log(f"{env_id}: the 3-step tree on {t_eps} episodes at xi {', '.join(map(str, t_xis))}")
-    arrays = [_arrays(task.model, tree_rhc(task, x, TREE_STEPS, horizon=spec.horizon), t_eps,
-                      seed, spec) for x in t_xis]  # fmt: skip
-    tree = ReferenceCurve(env_id, t_xis, "individual", t_eps, seed, spec.horizon,
-                          np.stack([a[0] for a in arrays]), np.stack([a[1] for a in arrays]),
-                          np.array([a[2] for a in arrays]))  # fmt: skip
-    rhc_on_tree = reference_curve(task, t_eps, seed, **kw)
+        log(f"{env_id}: the 3-step tree on {t_eps} episodes x {len(as_seeds(seed))} seed(s) at "
+            f"xi {', '.join(f'{x:g}' for x in t_xis)}")  # fmt: skip
+    tree = tree_curve(task, t_eps, seed, t_xis, steps=TREE_STEPS, **kw)
+    rhc_on_tree = rhc if same else reference_curve(task, t_eps, seed, **kw)
     i = t_xis.index(xi)
-    tree_gap, tree_reason = _curve_gap(rhc_on_tree, tree.costs[i], tree.violations[i],
-                                       int(tree.diverged[i]))  # fmt: skip
+    tree_score = bounded_gap(rhc_on_tree, tree.costs[i], tree.violations[i], int(tree.diverged[i]))
     expected: dict[str, list[int]] = {}
     missing: dict[str, list[int]] = {}
     agents = []
@@ -303,20 +302,29 @@ def score_task(env_id: str, runs: list[tuple[RunSpec, RunRecord | None]], run_di
         if kept is None:  # the record was read from this path a moment ago
             raise FileNotFoundError(f"the kept run of {s.name} left {run_dir} while scoring")
         policy = load_policy(s, policy_path(kept))
-        score = evaluate(policy, episodes=episodes, seed=seed, env_id=env_id,
-                         env_kwargs=dict(task.env_kwargs))  # fmt: skip
-        reason = gap_reason(
-            score.violation, score.diverged, score.curve_gap, rhc.violations, rhc.costs
-        )
-        t_gap, t_reason = _curve_gap(tree, *_arrays(task.model, policy, t_eps, seed, spec))
+        score = score_policy(policy, spec, episodes, seed)
+        if same:  # the tree on the evaluation episodes: the agent's own rollouts
+            arrays = (score.episode_costs, score.episode_violations, score.diverged)
+        else:
+            arrays = _arrays(task.model, policy, t_eps, seed, spec)
         lc = reference_curve(task, record.curve_episodes, int(record.config["curve_seed"]), **kw)
         gaps = tuple(point_gap(p.episode_cost_mean, p.violation, p.diverged, lc)
                      for p in record.learning_curve)  # fmt: skip
-        agents.append(AgentScore(RunResult(record, score), reason, t_gap, t_reason, gaps,
+        agents.append(AgentScore(RunResult(record, score), bounded_gap(tree, *arrays), gaps,
                                  time.process_time() - c0))  # fmt: skip
-    report = TaskReport(env_id, xi, rhc, tree, tree_gap, tree_reason, agents, missing, expected)
+    report = TaskReport(env_id, xi, env_kwargs, rhc, tree, tree_score, agents, missing, expected)
     report.status = curve_status([a.run for a in agents])
     return report
+
+
+def _arrays(model: Any, policy: Any, episodes: int, seed: int | tuple[int, ...],
+            spec: Any) -> tuple[np.ndarray, np.ndarray, int]:  # fmt: skip
+    """Episode costs, shares of violated steps and the diverged count of ``policy``'s rollouts
+    (the rule of :class:`benchmarks.core.frontier.LevelRunner`)."""
+    ro = rollouts(model, policy, episodes, spec.horizon, as_seeds(seed), spec.action_bound, None,
+                  spec.divergence_bound)  # fmt: skip
+    diverged = int(np.any(np.abs(ro.x) > spec.divergence_bound, axis=(1, 2)).sum())
+    return ro.episode_cost, ro.any_violation.mean(axis=1), diverged
 
 
 # ----------------------------------------------------------------------------- across tasks
@@ -381,13 +389,35 @@ def _cells(reports: list[TaskReport], config: str, which: str) -> dict[str, dict
     return out
 
 
+def bounded_table(
+    reports: list[TaskReport], config: str, which: str
+) -> tuple[np.ndarray | None, tuple[str, ...], tuple[int, ...]]:
+    """The (seeds, tasks) table of ``config``'s bounded gaps to the one-step RHC (``which =
+    "rhc"``) or to the tree (``"tree"``): every kept run counts; the seeds kept on every task
+    with a kept run (a run not kept is missing, named in the report's runs section)."""
+    cells = {r.env_id: {a.run.seed: (a.bounded if which == "rhc" else a.tree.value)
+                        for a in r.agents if a.config == config} for r in reports}  # fmt: skip
+    tasks = tuple(t for t, c in cells.items() if c)
+    if not tasks:
+        return None, (), ()
+    seeds = tuple(sorted(set.intersection(*(set(cells[t]) for t in tasks))))
+    if not seeds:
+        return None, tasks, ()
+    return np.array([[cells[t][s] for t in tasks] for s in seeds]), tasks, seeds
+
+
 def across_tasks(reports: list[TaskReport], configs: list[str],
                  resamples: int = AGGREGATE_RESAMPLES) -> list[ConfigAcross]:  # fmt: skip
-    """Per configuration, rliable's statistics of its gaps to the one-step RHC and to the
-    3-step tree across ``reports``' tasks (:func:`gap_table`'s rule for missing cells)."""
+    """Per configuration, rliable's statistics across ``reports``' tasks: of every run's bounded
+    gaps (to the one-step RHC and to the 3-step tree: every run counts), and of the gaps at
+    equal risk (:func:`gap_table`'s rule for cells without one)."""
     out = []
     for config in configs:
         parts: list[Any] = []
+        for which in ("rhc", "tree"):
+            table_, tasks, seeds = bounded_table(reports, config, which)
+            parts.append(None if table_ is None else aggregate_gaps(table_, resamples))
+        parts += [tasks, seeds]
         for which in ("rhc", "tree"):
             table_, tasks, seeds, left = gap_table(_cells(reports, config, which))
             agg = None if table_ is None else aggregate_gaps(table_, resamples)
@@ -400,13 +430,13 @@ def sample_efficiency(reports: list[TaskReport], across: list[ConfigAcross],
                       resamples: int = AGGREGATE_RESAMPLES) -> dict[str, dict[str, list]]:  # fmt: skip
     """Per configuration, along its learning curves: at each training step that every kept run
     of the configuration has a learning-curve point at (budgets may differ by task: a task
-    trained twice as long contributes every other point), the IQM of the normalized gaps over
-    the runs and tasks of its aggregate (:attr:`ConfigAcross.rhc_tasks`,
-    :attr:`~ConfigAcross.rhc_seeds`) with its 95% interval, None at a step where one of those
-    cells has no gap, and the share of all its kept runs x tasks with a gap there."""
+    trained twice as long contributes every other point), the IQM of the bounded gaps
+    (:func:`point_gap`) over the runs and tasks of its aggregate (:attr:`ConfigAcross.bounded_tasks`,
+    :attr:`~ConfigAcross.bounded_seeds`) with its 95% interval."""
     out: dict[str, dict[str, list]] = {}
     for c in across:
-        agents = [a for r in reports for a in r.agents if a.config == c.config]
+        agents = [a for r in reports for a in r.agents if a.config == c.config
+                  and a.run.task in c.bounded_tasks and a.run.seed in c.bounded_seeds]  # fmt: skip
         if not agents:
             continue
         gap_at = [
@@ -414,21 +444,32 @@ def sample_efficiency(reports: list[TaskReport], across: list[ConfigAcross],
             for a in agents
         ]
         steps = sorted(set.intersection(*(set(g) for g in gap_at)))
-        used = [(a, g) for a, g in zip(agents, gap_at, strict=True)
-                if a.run.task in c.rhc_tasks and a.run.seed in c.rhc_seeds]  # fmt: skip
-        entry: dict[str, list] = {"steps": [], "iqm": [], "ci95": [], "share_with_gap": []}
+        entry: dict[str, list] = {"steps": [], "iqm": [], "ci95": []}
         for step in steps:
+            cells = {(a.run.seed, a.run.task): g[step] for a, g in zip(agents, gap_at, strict=True)}
+            grid = np.array([[cells[(s, t)] for t in c.bounded_tasks] for s in c.bounded_seeds])
+            point, ci = iqm_interval(grid, resamples)
             entry["steps"].append(int(step))
-            entry["share_with_gap"].append(float(np.mean([g[step] is not None for g in gap_at])))
-            cells = {(a.run.seed, a.run.task): g[step] for a, g in used}
-            point = ci = None
-            if used and all(v is not None for v in cells.values()):
-                grid = np.array([[cells[(s, t)] for t in c.rhc_tasks] for s in c.rhc_seeds])
-                point, ci = iqm_interval(grid, resamples)
             entry["iqm"].append(point)
             entry["ci95"].append(ci)
         out[c.config] = entry
     return out
+
+
+def conclusion_lines(reports: list[TaskReport], across: list[ConfigAcross]) -> list[str]:
+    """The report's conclusions (:mod:`benchmarks.rl.claims`): across tasks against both
+    curves, then per task against the one-step RHC."""
+    lines = [
+        across_sentence("one-step RHC", [(c.config, c.bounded_rhc) for c in across]),
+        across_sentence("3-step tree", [(c.config, c.bounded_tree) for c in across]),
+    ]
+    for r in reports:
+        counts = []
+        for config in dict.fromkeys(a.config for a in r.agents):
+            mine = [a for a in r.agents if a.config == config]
+            counts.append(run_counts(config, [a.gap for a in mine], [a.bounded for a in mine]))
+        lines.append(task_sentence(r.env_id, "one-step RHC", counts))
+    return lines
 
 
 # ----------------------------------------------------------------------------- outputs
@@ -445,20 +486,21 @@ def report_suite(specs: list[RunSpec], records: Sequence[RunRecord | None], run_
     torch.set_num_threads(1)  # as in training, and for the agents' decision times
     start, cpu0 = time.perf_counter(), time.process_time()
     resamples = QUICK_RESAMPLES if opts.quick else AGGREGATE_RESAMPLES
+    seeds = tuple(range(opts.seed, opts.seed + opts.eval_seeds))
     reports = []
     for task in opts.tasks:
         pairs = [(s, r) for s, r in zip(specs, records, strict=True) if s.task == task]
         kept = sum(r is not None for _, r in pairs)
-        log(f"scoring {task}: {kept} of {len(pairs)} run(s) kept, {opts.eval_episodes} episodes")
-        reports.append(score_task(task, pairs, run_dir, opts.eval_episodes, opts.seed,
-                                  opts.quick, log))  # fmt: skip
+        log(f"scoring {task}: {kept} of {len(pairs)} run(s) kept, {opts.eval_episodes} episodes "
+            f"x {len(seeds)} noise seed(s)")  # fmt: skip
+        reports.append(score_task(task, pairs, run_dir, opts.eval_episodes, seeds, opts.quick,
+                                  log))  # fmt: skip
     log("rliable's aggregates across the tasks")
     across = across_tasks(reports, list(opts.configs), resamples)
     efficiency = sample_efficiency(reports, across, resamples)
     per_task = {r.env_id: gap_text(r.tree_gap, r.tree_reason) for r in reports}
-    tree_gaps = [r.tree_gap.relative for r in reports if r.tree_gap is not None]
-    tree_agg = (aggregate_gaps(np.array([tree_gaps]), resamples)
-                if len(tree_gaps) == len(reports) else None)  # fmt: skip
+    conclusions = conclusion_lines(reports, across)
+    tree_agg = aggregate_gaps(np.array([[r.tree_score.value for r in reports]]), resamples)
     tree_refs = {"aggregate": tree_agg, "per_task": per_task}
     command = "python -m benchmarks.compare_rl" + ("" if not argv else " " + " ".join(argv))
     summary: dict[str, Any] = {
@@ -474,9 +516,13 @@ def report_suite(specs: list[RunSpec], records: Sequence[RunRecord | None], run_
             r.env_id: {
                 "xi": r.xi,
                 "episodes": r.rhc.episodes,
+                "seeds": list(r.rhc.seeds),
                 "references": {name: p for name, p in r.reference_rows()},
+                "env_kwargs": jsonable(r.env_kwargs),
+                "curve": {"xis": list(r.rhc.xis), "seeds": list(r.rhc.seeds)},
                 "tree": {
                     "episodes": r.tree.episodes,
+                    "bounded_gap_at_xi": r.tree_score.value,
                     "xis": list(r.tree.xis),
                     "gap_at_xi": None if r.tree_gap is None else asdict(r.tree_gap),
                     "gap_reason": r.tree_reason,
@@ -488,8 +534,9 @@ def report_suite(specs: list[RunSpec], records: Sequence[RunRecord | None], run_
             }
             for r in reports
         },
+        "conclusions": conclusions,
         "across_tasks": {c.config: c.to_json() for c in across},
-        "tree_across_tasks": None if tree_agg is None else tree_agg.to_dict(),
+        "tree_across_tasks": tree_agg.to_dict(),
         "sample_efficiency": efficiency,
         "scoring": {
             "wall_s": time.perf_counter() - start,
@@ -513,13 +560,21 @@ def report_suite(specs: list[RunSpec], records: Sequence[RunRecord | None], run_
         "# RL agents on the tasks of the suite",
         "",
         f"Generated by `{command}`; numbers in `summary.json` and `summary.csv`. Every agent "
-        f"is scored by `benchmarks.evaluate.evaluate` on the same {opts.eval_episodes} episodes "
-        f"of its task as the task's one-step RHC curve (noise seed {opts.seed}, common random "
-        "numbers), and again on the 3-step tree's episodes for the gap to the tree. Cost, "
+        f"is scored by the protocol of `benchmarks.evaluate.evaluate` on the same "
+        f"{opts.eval_episodes} episodes x {len(seeds)} noise seeds ({', '.join(map(str, seeds))}) "
+        "of its task as the task's one-step RHC curve and the 3-step tree's (common random "
+        "numbers), every controller and agent within the same action bound (the agents' "
+        "`u_bound`: each task's section names it). Cost, "
         "violation and divergence as in results/rl/REPORT.md; the model-based references of "
         "every task are also in results/suite. Scoring took "
         f"{summary['scoring']['wall_s'] / 60:.1f} min ({summary['scoring']['cpu_s'] / 60:.1f} "
         "CPU-min).",
+        "",
+        "## Conclusions",
+        "",
+        "Written by the report's code from the tables below (`benchmarks/rl/claims.py`).",
+        "",
+        *[f"- {line}" for line in conclusions],
         "",
         *runs_section(reports),
         *across_section(across, tree_refs),

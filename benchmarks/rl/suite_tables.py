@@ -74,15 +74,30 @@ def across_section(across: list[Any], tree_refs: dict[str, Any]) -> list[str]:
     lines = [
         "## Across tasks (rliable)",
         "",
-        "Normalized gap: cost minus the one-step RHC curve at the agent's own violation "
-        "frequency, paired over the episodes, in % of the curve's cost (the suite's). Per "
-        "configuration, rliable on the (seeds x tasks) table of its gaps: the interquartile mean "
-        "(IQM) with a 95% stratified-bootstrap interval (seeds resampled within each task; one "
-        "seed: the interval is the point), and the probability of improvement P(gap < 0) "
-        "averaged over the tasks. Against the 3-step tree: the same on the gaps to the tree's "
-        "curve (% of its cost; on the tree's own episodes). A task where a kept run has no gap "
-        "is left out whole, and of the other tasks the seeds kept on all of them are used "
-        "(column 'left out'; each run's reason is in its task's section).",
+        "Every run counts: a run's *bounded gap* is its cost minus the one-step RHC curve at its "
+        "own violation frequency, paired over the episodes, in % of the curve's cost, clipped "
+        "to [-100, +100]; a run with a diverged episode, or riskier than the curve's loosest "
+        "efficient level, takes the worst value +100; a run safer than the curve's strictest "
+        "level is measured against that level. Per configuration, rliable on the (seeds x "
+        "tasks) table of its bounded gaps: the interquartile mean (IQM) with a 95% "
+        "stratified-bootstrap interval (seeds resampled within each task), and the probability "
+        "of improvement P(gap < 0) averaged over the tasks. Against the 3-step tree: the same "
+        "with the tree's curve on the same episodes.",
+        "",
+        "| configuration | seeds x tasks | IQM of the bounded gaps to the one-step RHC, % "
+        "(95% CI) | P(improvement over the one-step RHC) (95% CI) | IQM of the bounded gaps to "
+        "the 3-step tree, % (95% CI) | P(improvement over the 3-step tree) (95% CI) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for c in across:
+        rhc = _agg_cells(c.bounded_rhc, c.bounded_tasks, c.bounded_seeds)
+        tree = _agg_cells(c.bounded_tree, c.bounded_tasks, c.bounded_seeds)[1:]
+        lines.append("| " + " | ".join([c.config, *rhc, *tree]) + " |")
+    lines += [
+        "",
+        "The second view, the gaps at equal risk (undefined for a run with a diverged episode or "
+        "outside the curve's range): a task where a kept run has none is left out whole, and of "
+        "the other tasks the seeds kept on all of them are used (column 'left out').",
         "",
         "| configuration | seeds x tasks | IQM of the gaps to the one-step RHC, % (95% CI) | "
         "P(improvement over the one-step RHC) (95% CI) | seeds x tasks | IQM of the gaps to the "
@@ -96,9 +111,10 @@ def across_section(across: list[Any], tree_refs: dict[str, Any]) -> list[str]:
                  *_agg_cells(c.vs_tree, c.tree_tasks, c.tree_seeds), "<br>".join(left) or "-"]  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")
     ref = tree_refs.get("aggregate")
-    lines += ["", "The 3-step tree itself at each task's xi, against the one-step curve on its "
-              "own episodes: " + (f"IQM {ref.iqm_gap:+.1f}% over {ref.tasks} task(s)"
-                                  if isinstance(ref, SuiteAggregate) else "no aggregate")
+    lines += ["", "The 3-step tree itself at each task's xi, against the one-step curve on the "
+              "same episodes: " + (f"IQM of its bounded gaps {ref.iqm_gap:+.1f}% over "
+                                   f"{ref.tasks} task(s)"
+                                   if isinstance(ref, SuiteAggregate) else "no aggregate")
               + "; " + "; ".join(f"{t} {v}" for t, v in tree_refs["per_task"].items()) + ".", ""]  # fmt: skip
     return lines
 
@@ -110,8 +126,11 @@ def task_section(r: Any, figures: list[str]) -> list[str]:
         f"## {r.env_id}",
         "",
         f"Level xi = {r.xi:g} (target violation frequency {1 - r.xi:.2f}); "
-        f"{r.rhc.episodes} evaluation episodes (noise seed {r.rhc.seed}); the 3-step tree on "
-        f"{r.tree.episodes} episodes at xi {', '.join(f'{x:g}' for x in r.tree.xis)}.",
+        f"{r.rhc.episodes} evaluation episodes x noise seeds {_seeds(list(r.rhc.seeds))}; the "
+        f"action bound of every controller and agent |u_i| <= {r.env_kwargs['action_bound']:g}; "
+        f"the one-step curve's base grid {len(r.rhc.xis)} levels, refined at each agent's "
+        f"violation frequency; the 3-step tree on {r.tree.episodes} episodes x "
+        f"{len(r.tree.seeds)} seed(s) at xi {', '.join(f'{x:g}' for x in r.tree.xis)}.",
         "",
         "| reference | episodes | mean episode cost (95% CI) | median cost | violation frequency "
         "(95% Wilson) | diverged |",
@@ -119,7 +138,8 @@ def task_section(r: Any, figures: list[str]) -> list[str]:
     ]
     for name, p in r.reference_rows():
         (lo, hi), (vlo, vhi) = p["cost_ci95"], p["violation_wilson95"]
-        eps = r.rhc.episodes if "one-step" in name else r.tree.episodes
+        eps = (r.rhc.episodes * len(r.rhc.seeds) if "one-step" in name
+               else r.tree.episodes * len(r.tree.seeds))  # fmt: skip
         lines.append(f"| {name} | {eps} | {p['cost_mean']:.4g} ({lo:.4g} to {hi:.4g}) | "
                      f"{p['cost_median']:.4g} | {p['violation']:.3f} ({vlo:.3f}-{vhi:.3f}) | "
                      f"{p['diverged']} |")  # fmt: skip
@@ -133,11 +153,13 @@ def task_section(r: Any, figures: list[str]) -> list[str]:
                   "Paired gaps of each run, in % of the curve's cost (95% bootstrap interval; "
                   "the xi of the curve at the run's violation frequency):", "",
                   "| run | violation frequency | mean episode cost | gap to the one-step RHC, % "
-                  "| gap to the 3-step tree, % |", "|---|---|---|---|---|"]  # fmt: skip
+                  "| gap to the 3-step tree, % | bounded gaps, % (RHC / tree) |",
+                  "|---|---|---|---|---|---|"]  # fmt: skip
         for a in sorted(r.agents, key=lambda a: a.run.name):
             s = a.result.score
             lines.append(f"| {a.run.name} | {s.violation:.3f} | {s.cost_mean:.4g} | "
-                         f"{gap_text(a.gap, a.reason)} | {gap_text(a.tree_gap, a.tree_reason)} |")  # fmt: skip
+                         f"{gap_text(a.gap, a.reason)} | {gap_text(a.tree_gap, a.tree_reason)} | "
+                         f"{a.bounded:+.1f} / {a.tree.value:+.1f} |")  # fmt: skip
         lines += ["", "Learning curves (the flatness test of results/rl):", "",
                   *curve_table(r.status), ""]  # fmt: skip
     for name in figures:
@@ -149,7 +171,8 @@ CSV_HEADER = ["task", "name", "kind", "algo", "variant", "seed", "xi", "episodes
               "cost_ci95_low", "cost_ci95_high", "cost_median", "violation",
               "violation_wilson95_low", "violation_wilson95_high", "diverged", "timesteps",
               "gap_rhc_pct", "gap_rhc_pct_low", "gap_rhc_pct_high", "gap_tree_pct",
-              "gap_tree_pct_low", "gap_tree_pct_high", "reason"]  # fmt: skip
+              "gap_tree_pct_low", "gap_tree_pct_high", "bounded_gap_rhc_pct",
+              "bounded_gap_tree_pct", "reason"]  # fmt: skip
 
 
 def _gap_cells(g: CurveGap | None) -> list[Any]:
@@ -170,13 +193,16 @@ def write_csv(path: Path, reports: list[Any]) -> None:
             w.writerow(stable_floats([r.env_id, name, "model-based", "", "", "", r.xi, eps,
                                       p["cost_mean"], *p["cost_ci95"], p["cost_median"],
                                       p["violation"], *p["violation_wilson95"], p["diverged"],
-                                      "", *_gap_cells(None), *_gap_cells(gap), reason or ""]))  # fmt: skip
+                                      "", *_gap_cells(None), *_gap_cells(gap), "",
+                                      r.tree_score.value if name.startswith("RHC 3") else "",
+                                      reason or ""]))  # fmt: skip
         for a in r.agents:
             s = a.result.score
             w.writerow(stable_floats([r.env_id, a.run.name, "rl-seed", a.run.algo,
                                       a.run.variant, a.run.seed, "", s.episodes, s.cost_mean,
                                       *s.cost_ci95, s.cost_median, s.violation,
                                       *s.violation_wilson95, s.diverged, a.run.timesteps,
-                                      *_gap_cells(a.gap), *_gap_cells(a.tree_gap),
+                                      *_gap_cells(a.gap), *_gap_cells(a.tree_gap), a.bounded,
+                                      a.tree.value,
                                       "; ".join(x for x in (a.reason, a.tree_reason) if x)]))  # fmt: skip
     write_atomic(path, buf.getvalue())

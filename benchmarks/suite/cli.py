@@ -29,10 +29,15 @@ class Options:
     )
     episodes: int | None = field(
         default=None,
-        metadata={"help": "episodes per task and controller (one noise seed); default 1000, "
+        metadata={"help": "episodes per task and controller, per noise seed; default 1000, "
                   "50 with --quick"},
     )  # fmt: skip
-    seed: int = field(default=0, metadata={"help": "noise seed"})
+    seed: int = field(default=0, metadata={"help": "(first) noise seed"})
+    seeds: int | None = field(
+        default=None,
+        metadata={"help": "noise seeds --seed, --seed + 1, ... whose episodes are pooled; "
+                  "default 3 for the references, 1 with --quick or --policy"},
+    )  # fmt: skip
     json: str | None = field(
         default=None, metadata={"help": "with --policy: write the suite's score here"}
     )
@@ -43,8 +48,8 @@ class Options:
     )  # fmt: skip
     tree_episodes: int | None = field(
         default=None,
-        metadata={"help": "references: episodes of the 3-step tree curve on every task "
-                  "(default: per task, see benchmarks/suite_report.py)"},
+        metadata={"help": "references: episodes per seed of the 3-step tree curve on every task "
+                  "(default: as --episodes, but benchmarks.core.reference.TREE_BY_TASK)"},
     )  # fmt: skip
     quick: bool = field(
         default=False,
@@ -78,8 +83,13 @@ def parse_args(argv: list[str] | None = None) -> tuple[Options, Any]:
     opts.tasks = list(dict.fromkeys(opts.tasks))
     if opts.episodes is None:
         opts.episodes = 50 if opts.quick else 1000
+    if opts.seeds is None:
+        opts.seeds = 1 if opts.quick or opts.policy is not None else 3
+    if opts.seeds < 1:
+        parser.error(f"--seeds = {opts.seeds}; expected a positive integer")
     try:
-        check_evaluation(opts.episodes, opts.seed)
+        check_evaluation(opts.episodes, opts.seed)  # --seed itself, then every seed's
+        check_evaluation(opts.episodes, tuple(range(opts.seed, opts.seed + opts.seeds)))
     except ValueError as exc:
         parser.error(
             str(exc).replace("episodes = ", "--episodes = ").replace("seed = ", "--seed = ")
@@ -132,7 +142,9 @@ def main(argv: list[str] | None = None) -> Any:
 
     if opts.episodes is None:
         raise ValueError("opts.episodes = None; expected the value parse_args fills in")
-    suite = evaluate_suite(factory, tuple(opts.tasks), opts.episodes, opts.seed,
+    count = opts.seeds or 1
+    seeds = opts.seed if count == 1 else tuple(range(opts.seed, opts.seed + count))
+    suite = evaluate_suite(factory, tuple(opts.tasks), opts.episodes, seeds,
                            progress=not opts.no_progress)  # fmt: skip
     print("\n".join(describe_suite(suite)))
     if opts.json is not None:

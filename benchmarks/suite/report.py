@@ -37,19 +37,15 @@ from typing import Any
 import numpy as np
 
 from benchmarks.core.aggregate import SuiteAggregate, aggregate_gaps, rliable_modules
-from benchmarks.core.evaluate import evaluate, resolve_env, rollout_statistics
+from benchmarks.core.evaluate import evaluate, resolve_env
 from benchmarks.core.files import stable_floats, write_atomic
-from benchmarks.core.montecarlo import rollout
+from benchmarks.core.frontier import as_seeds, gap_reason, reference_curve, tree_curve
 from benchmarks.core.reference import (
     QUICK_TREE,
     TREE_BY_TASK,
-    TREE_EPISODES,
     TREE_STEPS,
     TREE_XIS,
     curve_xis,
-    gap_reason,
-    reference_curve,
-    tree_rhc,
 )
 from benchmarks.core.stats import CurveGap
 from sdjls_gym.systems import TASKS, Task
@@ -125,35 +121,38 @@ def _against(curve: Any, costs: np.ndarray, violations: np.ndarray, violation: f
 def task_references(
     task: Task,
     episodes: int,
-    seed: int,
+    seed: int | tuple[int, ...],
     xis: tuple[float, ...],
-    tree_episodes: int,
+    tree_episodes: int | None,
     tree_xis: tuple[float, ...],
     bar: Any = None,
 ) -> TaskReferences:
-    """Score every model-based controller on ``task`` (see the module docstring)."""
+    """Score every model-based controller on ``task`` (see the module docstring): ``episodes``
+    episodes from each noise seed of ``seed``; the tree on as many (``tree_episodes`` None) or
+    on ``tree_episodes`` per seed."""
     from controllers import LinearFeedbackController, MJLSLQRController
 
     spec = resolve_env(task.env_id, dict(task.env_kwargs))
     kw = {"horizon": spec.horizon, "action_bound": spec.action_bound,
           "divergence_bound": spec.divergence_bound, "progress": bar}  # fmt: skip
+    pooled = episodes * len(as_seeds(seed))
     ind = reference_curve(task, episodes, seed, xis=xis, **kw)
-    joint = reference_curve(task, episodes, seed, xis=xis, constraint="joint", **kw)
-    points = [_point("RHC individual", xi, episodes, ind.point(i)) for i, xi in enumerate(xis)]
-    for i, xi in enumerate(xis):
+    joint = reference_curve(task, episodes, seed, xis=xis, constraint="joint", adaptive=False,
+                            **kw)  # fmt: skip
+    points = [_point("RHC individual", xi, pooled, ind.point(ind.xis.index(xi))) for xi in xis]
+    for i, xi in enumerate(joint.xis):
         stats = joint.point(i)
         gap = _against(ind, joint.costs[i], joint.violations[i], stats["violation"],
                        stats["diverged"])  # fmt: skip
-        points.append(_point("RHC joint", xi, episodes, stats, *gap))
-    ind_tree = reference_curve(task, tree_episodes, seed, xis=xis, **kw)
-    for xi in tree_xis:
-        ctrl = tree_rhc(task, xi, TREE_STEPS, horizon=spec.horizon)
-        ro = rollout(task.model, ctrl, tree_episodes, spec.horizon, seed, spec.action_bound, bar,
-                     spec.divergence_bound)  # fmt: skip
-        stats = rollout_statistics(ro, spec.divergence_bound)
-        gap = _against(ind_tree, stats["episode_costs"], stats["episode_violations"],
-                       stats["violation"], stats["diverged"])  # fmt: skip
-        points.append(_point("RHC 3-step", xi, tree_episodes, stats, *gap))
+        points.append(_point("RHC joint", xi, pooled, stats, *gap))
+    t_eps = episodes if tree_episodes is None else tree_episodes
+    ind_tree = ind if tree_episodes is None else reference_curve(task, t_eps, seed, xis=xis, **kw)
+    tree = tree_curve(task, t_eps, seed, tree_xis, steps=TREE_STEPS, **kw)
+    for i, xi in enumerate(tree.xis):
+        stats = tree.point(i)
+        gap = _against(ind_tree, tree.costs[i], tree.violations[i], stats["violation"],
+                       stats["diverged"])  # fmt: skip
+        points.append(_point("RHC 3-step", xi, t_eps * len(as_seeds(seed)), stats, *gap))
     for family, ctrl in (
         ("Linear feedback", LinearFeedbackController(task.model, task.K, horizon=spec.horizon)),
         ("MJLS LQ", MJLSLQRController(task.model, "average", horizon=spec.horizon)),
@@ -163,9 +162,10 @@ def task_references(
         if bar is not None:
             bar.update(spec.horizon)
         gap = _against(ind, s.episode_costs, s.episode_violations, s.violation, s.diverged)
-        points.append(_point(family, None, episodes, asdict(s), *gap))
+        points.append(_point(family, None, pooled, asdict(s), *gap))
     return TaskReferences(task.env_id, task.n, task.m, task.N, task.r, spec.horizon,
-                          float(task.rhc["xi"]), episodes, tree_episodes, tuple(points))  # fmt: skip
+                          float(task.rhc["xi"]), pooled, t_eps * len(as_seeds(seed)),
+                          tuple(points))  # fmt: skip
 
 
 def aggregates(refs: list[TaskReferences]) -> dict[str, SuiteAggregate | list[str]]:
@@ -303,6 +303,7 @@ def run_references(opts: Any, argv: list[str]) -> dict[str, Any]:
 
     rliable_modules()  # the aggregate's dependency, before the long computation
     start = time.perf_counter()
+    seeds = tuple(range(opts.seed, opts.seed + opts.seeds))
     out = Path(opts.out)
     out.mkdir(parents=True, exist_ok=True)
     plan = []
@@ -310,17 +311,18 @@ def run_references(opts: Any, argv: list[str]) -> dict[str, Any]:
         task = TASKS[env_id]
         xi = float(task.rhc["xi"])
         xis = tuple(sorted({*QUICK_XIS, xi})) if opts.quick else curve_xis(task)
-        t_eps, t_xis = QUICK_TREE if opts.quick else TREE_BY_TASK.get(env_id, (TREE_EPISODES,
-                                                                               TREE_XIS))  # fmt: skip
+        t_eps: int | None
+        t_eps, t_xis = QUICK_TREE if opts.quick else TREE_BY_TASK.get(env_id, (None, TREE_XIS))
         t_eps = opts.tree_episodes or t_eps
         plan.append((task, xis, t_eps, tuple(sorted({*t_xis, xi}))))
-    steps = sum(t.horizon * (3 * len(xis) + len(t_xis) + 2) for t, xis, _, t_xis in plan)
+    steps = len(seeds) * sum(t.horizon * (3 * len(xis) + len(t_xis) + 2)
+                             for t, xis, _, t_xis in plan)  # fmt: skip
     refs = []
     with tqdm(total=steps, desc="suite references", unit="step",
               disable=opts.no_progress) as bar:  # fmt: skip
         for task, xis, t_eps, t_xis in plan:
             bar.set_postfix_str(task.env_id)
-            refs.append(task_references(task, opts.episodes, opts.seed, xis, t_eps, t_xis, bar))
+            refs.append(task_references(task, opts.episodes, seeds, xis, t_eps, t_xis, bar))
     aggs = aggregates(refs)
     wall = time.perf_counter() - start
     meta = {
@@ -328,12 +330,13 @@ def run_references(opts: Any, argv: list[str]) -> dict[str, Any]:
         "wall_time_s": wall,
         "machine": "a 2-core machine shared with other jobs",
         "episodes": opts.episodes,
-        "seed": opts.seed,
+        "seed": ", ".join(map(str, seeds)),
         "xis": "{"
         + "; ".join(f"{t.env_id}: {', '.join(f'{x:g}' for x in xis)}" for t, xis, _, _ in plan)
         + "}",  # fmt: skip
         "tree": "; ".join(
-            f"{t.env_id}: {e} episodes at xi {', '.join(f'{x:g}' for x in txs)}"
+            f"{t.env_id}: {e or opts.episodes} episodes x {len(seeds)} seed(s) at xi "
+            f"{', '.join(f'{x:g}' for x in txs)}"
             for t, _, e, txs in plan
         ),  # fmt: skip
     }
@@ -343,6 +346,7 @@ def run_references(opts: Any, argv: list[str]) -> dict[str, Any]:
             "quick": bool(opts.quick),
             "episodes": opts.episodes,
             "seed": opts.seed,
+            "seeds": opts.seeds,
             "tasks": list(opts.tasks),
             "tree_episodes": opts.tree_episodes,
         },  # fmt: skip
