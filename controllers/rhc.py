@@ -177,7 +177,7 @@ class RecedingHorizonController(RecedingHorizonBase):
 
     # ------------------------------------------------------------------ single decisions
     def _family(self, x: np.ndarray, mode: int, k: int) -> Family:
-        inside = max(self.model.constraint_values_one(x, k).tolist()) <= 0.0  # in C1 at time k
+        inside = self.model.in_region_one(x, k)  # in C1 at time k: act_batch's test
         return self._families[(mode, inside)]
 
     def _act_qp(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, dict[str, Any]]:

@@ -386,7 +386,7 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
         """
         x, mode, k = self._check_inputs(x, mode, k)
         with self._lock:
-            inside = max(self.model.constraint_values_one(x, k).tolist()) <= 0.0
+            inside = self.model.in_region_one(x, k)
             fam = self._families[(mode, inside)]
             depends = fam.depends
             ctx = self._context(fam, x, k)
