@@ -43,6 +43,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .kkt_confirm import CONFIRM_TOL, confirm_multipliers
+
 __all__ = [
     "CONFIRM_TOL",
     "KKT_TOL",
@@ -60,9 +62,6 @@ __all__ = [
 #: slack, which may be 1e12 per unit; a multiplier of nearly parallel rows is negative long
 #: before it is below 1e-9 of its terms).
 KKT_TOL = 1e-12
-
-#: Relative tolerance of :func:`confirm_multipliers`, of the gradient's scale per unit of row.
-CONFIRM_TOL = 1e-9
 
 #: Rank and definiteness thresholds of the exact solve, relative to the scale of the matrices.
 _RANK_TOL = 1e-11
@@ -372,6 +371,19 @@ def _free_scaling(fac: ActiveSetFactor, flat: np.ndarray) -> np.ndarray:
     return Dc
 
 
+def _scaled_inverse(M: np.ndarray, Q2: np.ndarray) -> np.ndarray | None:
+    """``-M^{-1} Q2'`` with ``M`` judged positive definite once its diagonal is scaled to 1
+    (nodes of path probability 1e-12 give directions of curvature 1e-13 times the others, which
+    that scaling makes definite), else None."""
+    dm = np.sqrt(np.abs(np.diag(M)))
+    if not np.all(dm > 0.0):
+        return None
+    eig, vecs = np.linalg.eigh(M / dm[:, None] / dm[None, :])
+    if not (eig[-1] > 0.0 and eig[0] > _PD_TOL * eig[-1]):
+        return None
+    return -((vecs / eig) @ (vecs.T @ (Q2.T / dm[:, None]))) / dm[:, None]
+
+
 def reduce_hessian(fac: ActiveSetFactor, P: np.ndarray):
     """The part of the solve that depends on ``P``: ``(Dc, Pt, Y, P_NB, ops)`` with ``Pt`` the
     scaled Hessian of the variables ``N``, ``Y = -(Q2' Pt Q2)^{-1} Q2'`` (d_n - s_u, d_n), so
@@ -396,9 +408,12 @@ def reduce_hessian(fac: ActiveSetFactor, P: np.ndarray):
         M = Q2.T @ Pt @ Q2
         M = 0.5 * (M + M.T)
         eig, vecs = np.linalg.eigh(M)
-        if not (eig[-1] > 0.0 and eig[0] > _PD_TOL * eig[-1]):
-            return None
-        Y = -((vecs / eig) @ (vecs.T @ Q2.T))
+        if eig[-1] > 0.0 and eig[0] > _PD_TOL * eig[-1]:
+            Y = -((vecs / eig) @ (vecs.T @ Q2.T))
+        else:
+            Y = _scaled_inverse(M, Q2)
+            if Y is None:
+                return None
     else:
         Y = np.zeros((0, dn))
     absPt = np.abs(Pt)
@@ -501,34 +516,6 @@ def solve_stacked(
             stat = stat + cache["CgBT2"] @ lam_g
         lam2[cache["at_b2"]] = stat * cache["lam_b2"]
     return z2, lam2
-
-
-def confirm_multipliers(
-    P: np.ndarray,
-    C: np.ndarray,
-    rows: tuple[int, ...],
-    w: np.ndarray,
-    which: np.ndarray,
-    z: np.ndarray,
-) -> bool:
-    """Whether the multipliers ``which`` (a mask over the sorted ``rows``), computed again from
-    the dense KKT system ``[[P, C_S'], [C_S, 0]] [z; lam] = [-q; h_S]``, have each
-    ``-lam_i max_j |C_ij| <= CONFIRM_TOL max(|P| |z| + |q|)`` at the returned ``z`` (False when
-    the system is singular or a number not finite). Called only for multipliers found below 0."""
-    d, idx = P.shape[0], np.asarray(rows, dtype=np.int64)
-    CS = C[idx]
-    K = np.zeros((d + idx.size, d + idx.size))
-    K[:d, :d], K[:d, d:], K[d:, :d] = P, CS.T, CS
-    try:
-        with np.errstate(over="ignore", invalid="ignore"):
-            lam = np.linalg.solve(K, np.concatenate([-w[:d], w[d + idx]]))[d:][which]
-    except np.linalg.LinAlgError:
-        return False
-    scale = float(np.max(np.abs(P) @ np.abs(z) + np.abs(w[:d]), initial=0.0))
-    size = np.abs(CS[which]).max(axis=1, initial=0.0)
-    if not (np.all(np.isfinite(lam)) and math.isfinite(scale)):
-        return False
-    return bool(np.all(-lam * size <= CONFIRM_TOL * scale))
 
 
 def check_active_set(

@@ -347,6 +347,7 @@ class TreeSolver:
         rho[pr.idle] = 0.0
         engine = fam.engine
         z = np.concatenate([nu.ravel(), rho])
+        engine.open_budget()
         sol = engine.local(z, w, y)
         if sol is None:
             # an offset of tiny path probability is determined by the objective only to about
