@@ -59,8 +59,8 @@ __all__ = [
 #: Relative tolerance of the KKT test: a residual (a row's, or a negated multiplier) is accepted
 #: when it is at most this fraction of the magnitude of the terms summed to compute it: about
 #: 4500 ulps, as what decides optimality is there (a row's residual is paid at the price of its
-#: slack, which may be 1e12 per unit; a multiplier of nearly parallel rows is negative long
-#: before it is below 1e-9 of its terms).
+#: slack, which may be 1e12 per unit; the negative multipliers of nearly parallel rows are
+#: 1e-11 of their terms).
 KKT_TOL = 1e-12
 
 #: Rank and definiteness thresholds of the exact solve, relative to the scale of the matrices.

@@ -27,10 +27,8 @@ MAX_LOCAL_CANDIDATES = 256
 #: spend on one instance (from :meth:`LocalSearch.open_budget`: a solve, a rescue), in a family
 #: of at most 64 variables; one of ``d > 64`` variables gets ``(64 / d)**3`` of it (a
 #: factorization costs ~d^3), at least 16. Then the search hands over to the next solver of the
-#: chain. A 33-node tree (132 variables) spent 2,300 per solve that failed anyway; on 160
-#: decisions of random trees of 9 to 33 nodes this budget verified as many answers (154) as an
-#: unlimited search, with 4,211 factorizations instead of 22,459; a tree of 63 variables needed
-#: 281 in one solve.
+#: chain. On random trees of 9 to 33 nodes it verifies as many answers as an unlimited search
+#: with a fifth of the factorizations; a tree of 63 variables needed 281 in one solve.
 SEARCH_FACTORIZATIONS = 500
 
 

@@ -68,7 +68,8 @@ Hessian, the weights of the objective's rows, and per active set the reduced Hes
 met again, the exact solve as two matrices) is kept for the probabilities met again, as they are
 wherever the chance rows are active. After failures the condensed QP goes to cvxpy + Clarabel
 (its active set verified), and as a last resort every ``nu = 0`` with the smallest feasible
-slacks. ``solver="osqp"``: the same with OSQP instead of DAQP. ``solver="cvxpy"``: the same tree
+slacks. ``solver="osqp"``: the same with OSQP instead of DAQP (on a tree of more than 64
+variables OSQP runs once, then DAQP from its iterate). ``solver="cvxpy"``: the same tree
 written plainly in cvxpy (rebuilt at every solve, solved by Clarabel), the reference the tests
 compare against.
 
