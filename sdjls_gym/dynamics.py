@@ -307,7 +307,7 @@ class Dynamics:
     def _G_abs_sum(self) -> np.ndarray:
         return np.abs(self.G).sum(axis=1)
 
-    @property
+    @cached_property
     def _tie_scale(self) -> float:
         return (self.n + 2) * float(np.finfo(np.float64).eps)
 
