@@ -24,11 +24,11 @@ MAX_LOCAL_CANDIDATES = 256
 
 #: Factorizations (:attr:`controllers.qp.QPFamily.factorizations`) the search around a solver's
 #: answer (:meth:`LocalSearch.local`: subsets of its nearly active rows, then repair steps) may
-#: spend on one instance (from :meth:`LocalSearch.open_budget`: a solve, a rescue), in a family
-#: of at most 64 variables; one of ``d > 64`` variables gets ``(64 / d)**3`` of it (a
+#: spend on one instance (from :meth:`LocalSearch.open_budget`: a solve and its rescue), in a
+#: family of at most 64 variables; one of ``d > 64`` variables gets ``(64 / d)**3`` of it (a
 #: factorization costs ~d^3), at least 16. Then the search hands over to the next solver of the
 #: chain. On random trees of 9 to 33 nodes it verifies as many answers as an unlimited search
-#: with a fifth of the factorizations; a tree of 63 variables needed 281 in one solve.
+#: with a sixth of the factorizations; a tree of 63 variables needed 281 in one solve.
 SEARCH_FACTORIZATIONS = 500
 
 
@@ -101,8 +101,8 @@ class LocalSearch:
 
     def open_budget(self) -> None:
         """Start the budget of the search of one instance (:data:`SEARCH_FACTORIZATIONS`,
-        scaled to the family's size): :meth:`solve` starts one, and so does a rescue that
-        verifies an outside answer."""
+        scaled to the family's size): :meth:`controllers.qp.QPFamily.solve` starts one (a rescue
+        after it shares it), and so does the cvxpy reference, which runs no solve."""
         share = min(1.0, 64.0 / max(self.d, 1)) ** 3
         self._search_until = self.factorizations + max(16, int(SEARCH_FACTORIZATIONS * share))
 

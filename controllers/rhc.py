@@ -238,7 +238,8 @@ class RecedingHorizonController(RecedingHorizonBase):
                 nu = project_nu(self.settings, nu)
                 hb = hbar(fam, self.model, np.array([k]))
                 z = np.concatenate([nu, min_rho(fam, x[None], nu[None], hb)])
-                fam.engine.open_budget()
+                if always:  # no solve ran (the fast path's rescue shares its solve's budget)
+                    fam.engine.open_budget()
                 sol = fam.engine.local(z, w)
                 if sol is not None:
                     y = (fam.lin @ x).tolist()

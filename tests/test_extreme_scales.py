@@ -61,12 +61,12 @@ def test_batch_does_not_trust_nearly_parallel_rows():
 
 
 def test_batch_answers_on_nearly_parallel_rows_are_optimal():
-    """Seeded fuzz (seed 0): 20 systems of two rows 10^U(-12, -9) apart, nu_bound 10^U(8, 12),
+    """Seeded fuzz (seed 0): 16 systems of two rows 10^U(-12, -9) apart, nu_bound 10^U(8, 12),
     random A and B, 8 states each. Every ok batch answer costs J* to 1e-9 relative (the code
-    before answered 80 of them up to 1e23 times J*); nearly every answer is ok."""
+    before answered 64 of the 128 up to 1.8e24 times J*); nearly every answer is ok."""
     rng = np.random.default_rng(0)
     oks = total = 0
-    for _ in range(20):
+    for _ in range(16):
         B = ((1.0, 1.0),) if rng.random() < 0.5 else tuple(map(tuple, rng.normal(size=(1, 2))))
         ctrl = parallel_rows_controller(
             a=rng.uniform(0.3, 2.0) * rng.choice([-1, 1]),
