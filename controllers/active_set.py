@@ -13,9 +13,10 @@ does not depend on earlier calls.
 
 The KKT test is that of :class:`controllers.kkt_maps.ActiveSetMaps`: each row, at the returned
 solution, at most :data:`controllers.kkt.KKT_TOL` times its own terms, and each negated
-multiplier at most that fraction of the magnitude of its terms. Residuals that are ``<= 0`` pass
-outright; only the rare borderline ones get the tolerance computed; the winner's rows are
-checked at its solution.
+multiplier at most that fraction of the magnitude of its terms, a negative one confirmed.
+Residuals that are ``<= 0`` pass outright; only the rare borderline ones get the tolerance
+computed; the winner's rows are checked at its solution, and a winner accepted on a tolerance
+is tested by :meth:`ActiveSetMaps.check` itself.
 
 Instances that no candidate settles are flagged, and the caller solves them otherwise. The
 family's size is capped (:data:`controllers.qp.MAX_CANDIDATES`); the caller builds an
@@ -96,7 +97,9 @@ class ActiveSetQP:
         # variable
         self._snap_row = np.full((len(maps), d), -1, dtype=np.int64)
         self._snap_coef = np.ones((len(maps), d))
+        self._active = np.zeros((len(maps), c), dtype=bool)  # each candidate's active rows
         for i, m in enumerate(maps):
+            self._active[i, list(m.rows)] = True
             for row, j, a in m.bounds:
                 self._snap_row[i, j], self._snap_coef[i, j] = row, a
         self.active_sets = [m.rows for m in maps]
@@ -135,13 +138,15 @@ class ActiveSetQP:
 
     def _exact_ok(self, cand: np.ndarray, wr: np.ndarray) -> np.ndarray:
         """KKT test with per-residual tolerances for pairs (candidate ``cand[i]``, column i):
-        the multipliers against their terms, every row at the candidate's solution."""
+        the multipliers against their terms, every row at the candidate's solution. A screen:
+        a winner it passes is tested again by the candidate's own :meth:`ActiveSetMaps.check`
+        (see :meth:`solve`)."""
         w = wr.T  # (B', width)
         c = self.c
         res = np.einsum("bij,bj->bi", self._R[cand, c:], w)
         tol = KKT_TOL * np.einsum("bij,bj->bi", self._T[cand, c:], np.abs(w))
         z = self._snap(np.einsum("bij,bj->bi", self._Z[cand], w), cand, w[:, self.d :])
-        return np.all(res <= tol, axis=1) & self._rows_hold(z, w[:, self.d :])
+        return np.all(res <= tol, axis=1) & self._rows_hold(z, w[:, self.d :], cand)
 
     def _snap(self, z: np.ndarray, cand: np.ndarray, h: np.ndarray) -> np.ndarray:
         """``z`` (B, d) of candidates ``cand`` (B,) with their active bounds set exactly."""
@@ -152,13 +157,24 @@ class ActiveSetQP:
         bound = np.take_along_axis(h, np.where(on, rows, 0), axis=1) / self._snap_coef[cand]
         return np.where(on, bound, z)
 
-    def _rows_hold(self, z: np.ndarray, h: np.ndarray) -> np.ndarray:
-        """Whether every row holds at ``z`` (B, d) to :data:`KKT_TOL` of its own terms (B,)."""
+    def _rows_hold(self, z: np.ndarray, h: np.ndarray, cand: np.ndarray) -> np.ndarray:
+        """Whether every row holds at ``z`` (B, d) to :data:`controllers.kkt.KKT_TOL` of its
+        own terms, the active rows of candidates ``cand`` (B,) both ways (B,)."""
         primal = z @ self.C.T - h
+        primal = np.where(self._active[cand], np.abs(primal), primal)
         return np.all(primal <= KKT_TOL * (np.abs(z) @ self.absC.T + np.abs(h)), axis=1)
 
     def solve(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Solve a batch of instances.
+
+        The lowest-index candidate that passes a batched screen wins; the screen accepts
+        outright only a candidate whose residuals are all at most 0 and whose rows, the active
+        ones both ways, hold at its solution. A winner accepted on a tolerance (a residual
+        above 0: a multiplier of an ill-conditioned set, possibly negative) or whose rows do
+        not hold is tested by :meth:`ActiveSetMaps.check`, the test of a single instance
+        (the multipliers accepted below zero computed again, one step of refinement), and
+        when it fails the instance goes through :meth:`solve_one`: an answer of the batch
+        passed the same test as one of :meth:`solve_one`.
 
         Parameters
         ----------
@@ -177,6 +193,7 @@ class ActiveSetQP:
         scale = np.abs(wT).max(axis=0, initial=0.0)
         z = np.full((B, d), np.nan)
         found = np.zeros(B, dtype=bool)
+        tolerated = np.zeros(B, dtype=bool)  # the winner had a residual above 0
         chosen = np.zeros(B, dtype=np.int64)
         # The lowest-index candidate that passes wins. For speed the candidates are tried in two
         # ranges: up to the one that won most often in the previous call, then the rest.
@@ -203,18 +220,24 @@ class ActiveSetQP:
             if not hit.all():
                 best, wr = best[hit], wr[:, hit]
             zr = (Z_rows @ wr).reshape(h, d, -1)
-            z[idx[hit]] = zr[best, :, np.arange(best.size)]
-            found[idx[hit]] = True
-            chosen[idx[hit]] = lo + best
+            won = idx[hit]
+            z[won] = zr[best, :, np.arange(best.size)]
+            found[won] = True
+            chosen[won] = lo + best
+            tolerated[won] = border[best, np.flatnonzero(hit)]
             winners.append(lo + best)
             todo = idx[~hit]
         if found.any():  # the active rows, and every row, at the returned solutions
             idx = np.flatnonzero(found)
             z[idx] = self._snap(z[idx], chosen[idx], w[idx, d:])
-            held = self._rows_hold(z[idx], w[idx, d:])
-            if not held.all():
-                z[idx[~held]] = np.nan
-                found[idx[~held]] = False
+            held = self._rows_hold(z[idx], w[idx, d:], chosen[idx])
+            for i in idx[~held | tolerated[idx]].tolist():
+                out = self._maps[int(chosen[i])].check(w[i])
+                if out is None:
+                    one = self.solve_one(w[i])
+                    out = None if one is None else one[1]
+                found[i] = out is not None
+                z[i] = np.nan if out is None else out
         if winners:
             counts = np.bincount(np.concatenate(winners), minlength=nc)
             self._guess = int(counts.argmax()) if counts.any() else self._guess

@@ -20,15 +20,14 @@ one test, for problem P3 and for the scenario tree alike:
   ``C_g' = Q R``, ``z = Q1 R1^{-T} r_g + Q2 y`` with ``(Q2' P Q2) y = -Q2'(q + P z_p)``
   (``r_g`` the general rows' right side less the fixed variables' part); the general rows'
   multipliers from the free variables' stationarity, the bounds' from the fixed ones';
-* the KKT test accepts ``S`` when every primal residual ``C_i z - h_i`` of an inactive row and
-  every negated multiplier is at most :data:`KKT_TOL` times the magnitude of the terms summed to
-  compute it. The magnitudes are carried through every product with absolute values (so a
-  cancellation is not mistaken for a small term), in the equilibrated variables, which makes
-  the test invariant under a scaling of the rows, of the variables or of the objective;
-* a multiplier accepted below zero is computed again, densely, and must be nonnegative to
-  :data:`KKT_TOL` of the gradient's scale (:func:`confirm_multipliers`): an ill-conditioned
-  reduced Hessian can make the magnitudes so large (1e10 for a multiplier of -3.8) that a point
-  above the optimum would pass.
+* the KKT test accepts ``S`` when every primal residual ``C_i z - h_i`` (of an active row: its
+  absolute value) and every negated multiplier is at most :data:`KKT_TOL` (round-off) times
+  the magnitude of the terms summed to compute it. The magnitudes are carried through every
+  product with absolute values (so a cancellation is not mistaken for a small term), in the
+  equilibrated variables, which makes the test invariant under a scaling of the rows, of the
+  variables or of the objective;
+* a multiplier accepted below zero is computed again, densely (:func:`confirm_multipliers`):
+  an ill-conditioned reduced Hessian made magnitudes of 1e10 for a multiplier of -3.8.
 
 Two forms compute the same numbers from one :class:`ActiveSetFactor` (the part that depends
 only on ``C`` and ``S``) and one :func:`reduce_hessian` (the part that depends on ``P``): the
@@ -44,7 +43,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .kkt_confirm import CONFIRM_TOL, confirm_multipliers
+
 __all__ = [
+    "CONFIRM_TOL",
     "KKT_TOL",
     "ActiveSetFactor",
     "active_set_factor",
@@ -54,9 +56,12 @@ __all__ = [
     "solve_stacked",
 ]
 
-#: Relative tolerance of the KKT test: a residual is accepted when it is at most this fraction of
-#: the magnitude of the terms summed to compute it.
-KKT_TOL = 1e-9
+#: Relative tolerance of the KKT test: a residual (a row's, or a negated multiplier) is accepted
+#: when it is at most this fraction of the magnitude of the terms summed to compute it: about
+#: 4500 ulps, as what decides optimality is there (a row's residual is paid at the price of its
+#: slack, which may be 1e12 per unit; the negative multipliers of nearly parallel rows are
+#: 1e-11 of their terms).
+KKT_TOL = 1e-12
 
 #: Rank and definiteness thresholds of the exact solve, relative to the scale of the matrices.
 _RANK_TOL = 1e-11
@@ -244,9 +249,9 @@ def active_set_factor(
 ) -> ActiveSetFactor | None:
     """The :class:`ActiveSetFactor` of ``rows`` of ``C``, or None when the active rows are not
     a candidate: two bounds on one variable, more active rows than variables, or reduced rows
-    whose scaled, normalized forms are linearly dependent. ``pivots`` (d,) bool: the variables
-    that may be pivot slacks (their rows of ``P`` must be zero: the slacks of the
-    receding-horizon QPs); None for none."""
+    whose scaled, normalized forms are linearly dependent or cancel their terms to round-off.
+    ``pivots`` (d,) bool: the variables that may be pivot slacks (their rows of ``P`` must be
+    zero: the slacks of the receding-horizon QPs); None for none."""
     d = C.shape[1]
     if len(rows) > d:
         return None
@@ -294,7 +299,9 @@ def active_set_factor(
     if s:
         Ct = Cr * Dr[:, None] * Dc[None, :]
         norms = np.sqrt(np.einsum("ij,ij->i", Ct, Ct))
-        if not np.all(norms > 0.0):
+        # a reduced row must not be round-off of its terms (rows 2.3e-12 apart: multipliers 1e24)
+        Mt = (np.abs(Cg[iu][:, N]) + np.abs(E) @ np.abs(CaN)) * Dr[:, None] * Dc[None, :]
+        if not np.all(norms > _RANK_TOL * np.sqrt(np.einsum("ij,ij->i", Mt, Mt))):
             return None
         Dn = Dr / norms  # the full row scaling of the reduced rows
         Chat = Cr * Dn[:, None] * Dc[None, :]
@@ -364,6 +371,19 @@ def _free_scaling(fac: ActiveSetFactor, flat: np.ndarray) -> np.ndarray:
     return Dc
 
 
+def _scaled_inverse(M: np.ndarray, Q2: np.ndarray) -> np.ndarray | None:
+    """``-M^{-1} Q2'`` with ``M`` judged positive definite once its diagonal is scaled to 1
+    (nodes of path probability 1e-12 give directions of curvature 1e-13 times the others, which
+    that scaling makes definite), else None."""
+    dm = np.sqrt(np.abs(np.diag(M)))
+    if not np.all(dm > 0.0):
+        return None
+    eig, vecs = np.linalg.eigh(M / dm[:, None] / dm[None, :])
+    if not (eig[-1] > 0.0 and eig[0] > _PD_TOL * eig[-1]):
+        return None
+    return -((vecs / eig) @ (vecs.T @ (Q2.T / dm[:, None]))) / dm[:, None]
+
+
 def reduce_hessian(fac: ActiveSetFactor, P: np.ndarray):
     """The part of the solve that depends on ``P``: ``(Dc, Pt, Y, P_NB, ops)`` with ``Pt`` the
     scaled Hessian of the variables ``N``, ``Y = -(Q2' Pt Q2)^{-1} Q2'`` (d_n - s_u, d_n), so
@@ -388,9 +408,12 @@ def reduce_hessian(fac: ActiveSetFactor, P: np.ndarray):
         M = Q2.T @ Pt @ Q2
         M = 0.5 * (M + M.T)
         eig, vecs = np.linalg.eigh(M)
-        if not (eig[-1] > 0.0 and eig[0] > _PD_TOL * eig[-1]):
-            return None
-        Y = -((vecs / eig) @ (vecs.T @ Q2.T))
+        if eig[-1] > 0.0 and eig[0] > _PD_TOL * eig[-1]:
+            Y = -((vecs / eig) @ (vecs.T @ Q2.T))
+        else:
+            Y = _scaled_inverse(M, Q2)
+            if Y is None:
+                return None
     else:
         Y = np.zeros((0, dn))
     absPt = np.abs(Pt)
@@ -493,34 +516,6 @@ def solve_stacked(
             stat = stat + cache["CgBT2"] @ lam_g
         lam2[cache["at_b2"]] = stat * cache["lam_b2"]
     return z2, lam2
-
-
-def confirm_multipliers(
-    P: np.ndarray,
-    C: np.ndarray,
-    rows: tuple[int, ...],
-    w: np.ndarray,
-    which: np.ndarray,
-    z: np.ndarray,
-) -> bool:
-    """Whether the multipliers ``which`` (a mask over the sorted ``rows``), computed again from
-    the dense KKT system ``[[P, C_S'], [C_S, 0]] [z; lam] = [-q; h_S]``, have each
-    ``-lam_i max_j |C_ij| <= KKT_TOL max(|P| |z| + |q|)`` at the returned ``z`` (False when the
-    system is singular or a number not finite). Called only for multipliers found below 0."""
-    d, idx = P.shape[0], np.asarray(rows, dtype=np.int64)
-    CS = C[idx]
-    K = np.zeros((d + idx.size, d + idx.size))
-    K[:d, :d], K[:d, d:], K[d:, :d] = P, CS.T, CS
-    try:
-        with np.errstate(over="ignore", invalid="ignore"):
-            lam = np.linalg.solve(K, np.concatenate([-w[:d], w[d + idx]]))[d:][which]
-    except np.linalg.LinAlgError:
-        return False
-    scale = float(np.max(np.abs(P) @ np.abs(z) + np.abs(w[:d]), initial=0.0))
-    size = np.abs(CS[which]).max(axis=1, initial=0.0)
-    if not (np.all(np.isfinite(lam)) and math.isfinite(scale)):
-        return False
-    return bool(np.all(-lam * size <= KKT_TOL * scale))
 
 
 def check_active_set(

@@ -20,10 +20,13 @@ How an instance is solved (:meth:`QPFamily.solve`)
 3. *OSQP*: the family's ``osqp.OSQP`` object (set up on first use; later only ``update`` and a
    warm-started ``solve``) finds an approximate optimum; the active set it identifies (nonzero
    multipliers, then the rows it leaves nearly active) is re-solved exactly and verified.
-4. *Enumeration*: the candidate active sets among the rows OSQP left nearly active; then, when the
-   family is small enough (:data:`MAX_CANDIDATES`), every candidate active set.
+4. *Enumeration*: the candidate active sets among the rows OSQP left nearly active (the search
+   of :mod:`controllers.qp_search`, within a budget of factorizations per instance; after DAQP
+   too); then, when the family is small enough (:data:`MAX_CANDIDATES`), every candidate.
 5. OSQP again from a cold start with ten times the iterations, then steps 3-4 (``osqp_runs``: 2
-   OSQP runs by default, fewer for families where its iterations are hopeless).
+   OSQP runs by default, fewer for families where its iterations are hopeless); then, for a
+   large family whose solver is OSQP (``daqp_after_osqp``), DAQP started from the rows OSQP's
+   last iterate leaves nearly active.
 
 The caller (the controller) decides what to do when all of this fails (the cvxpy reference, then
 a safe default). Every answer this class returns is the exact solution of the equality-
@@ -51,7 +54,6 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
-from itertools import chain, combinations
 from operator import attrgetter
 from typing import Any
 
@@ -67,7 +69,8 @@ from .dual_qp import DaqpData, DaqpWorkspace
 from .kkt import KKT_TOL
 from .kkt_maps import ActiveSetMaps, active_set_maps
 from .lru import BudgetedLRU
-from .qp_daqp import NEAR_ACTIVE_TOL, SCREEN_RATIO, DaqpSolving, Solution
+from .qp_daqp import SCREEN_RATIO, DaqpSolving, Solution
+from .qp_search import LocalSearch
 
 __all__ = [
     "DEFAULT_OSQP_SETTINGS",
@@ -92,9 +95,6 @@ MAX_ENUMERATION_FLOATS = 2_000_000
 #: Largest number of floats the enumerations of one controller hold together (128 MB): beyond,
 #: the least recently used family's enumeration is dropped (and rebuilt when needed again).
 ENUMERATION_BUDGET_FLOATS = 16_000_000
-
-#: Candidate active sets tried around an OSQP solution (subsets of its nearly active rows).
-MAX_LOCAL_CANDIDATES = 256
 
 #: Exact active-set maps kept per family (least recently used are dropped).
 MAX_CACHED_MAPS = 512
@@ -173,7 +173,7 @@ class EnumerationBudget(BudgetedLRU[int, "QPFamily"]):
         self.get(id(family), lambda: family)
 
 
-class QPFamily(DaqpSolving):
+class QPFamily(DaqpSolving, LocalSearch):
     """A QP family ``min 1/2 z'Pz + q'z  s.t.  l <= A z <= u`` with fixed ``P`` and ``A``.
 
     Parameters
@@ -192,6 +192,18 @@ class QPFamily(DaqpSolving):
         Whether DAQP (:mod:`controllers.dual_qp`) looks for the active set before OSQP.
     osqp_runs : int
         OSQP runs at most: 2 (a run, then a cold retry with ten times the iterations), 1 or 0.
+    daqp_after_osqp : bool
+        Whether DAQP, started from the rows OSQP's last iterate leaves nearly active, follows
+        OSQP when no answer of it verified (a large family whose solver is OSQP: there ADMM
+        takes tens of thousands of iterations to the tolerances the exact re-solve needs).
+
+    Attributes
+    ----------
+    factorizations : int
+        The work of the exact solves: QR factors of active rows and reduced Hessians computed
+        (not taken from a cache) since the family was built or unpickled.
+    osqp_iterations : int
+        OSQP's iterations since then.
 
     Notes
     -----
@@ -210,6 +222,7 @@ class QPFamily(DaqpSolving):
         budget: EnumerationBudget | None = None,
         use_daqp: bool = False,
         osqp_runs: int = 2,
+        daqp_after_osqp: bool = False,
     ) -> None:
         self.P = np.asarray(P, dtype=np.float64)
         self.A = np.asarray(A, dtype=np.float64)
@@ -239,6 +252,7 @@ class QPFamily(DaqpSolving):
         self.budget = budget if budget is not None else EnumerationBudget()
         self.use_daqp = bool(use_daqp)
         self.osqp_runs = int(osqp_runs)
+        self.daqp_after_osqp = bool(daqp_after_osqp)
         d = self.d
         # DAQP takes the identity rows of A (one per variable, in order) as simple bounds
         self._daqp_simple = bool(
@@ -279,6 +293,10 @@ class QPFamily(DaqpSolving):
         self._daqp_scaling: DaqpData | None = None
         self._daqp_ws: DaqpWorkspace | None = None  # DAQP's workspace (fixed P only)
         self.warm: tuple[int, ...] | None = None
+        self.factorizations = 0
+        self.osqp_iterations = 0
+        self._osqp_last: np.ndarray | None = None  # OSQP's last finite iterate
+        self.open_budget()
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
@@ -286,6 +304,7 @@ class QPFamily(DaqpSolving):
             "_maps",
             "_seen",
             "_osqp",
+            "_osqp_last",
             "_enum",
             "_daqp",
             "_daqp_ws",
@@ -373,9 +392,11 @@ class QPFamily(DaqpSolving):
     # ------------------------------------------------------------------ exact solves
     def maps(self, rows: tuple[int, ...]) -> ActiveSetMaps | None:
         """The exact maps of an active set (cached, least recently used dropped first)."""
-        return self._maps.get(
-            rows, lambda: active_set_maps(self.P, self.C, rows, pivots=self.pivots)
-        )
+        return self._maps.get(rows, self._new_maps, rows)
+
+    def _new_maps(self, rows: tuple[int, ...]) -> ActiveSetMaps | None:
+        self.factorizations += 2  # its QR factor and its reduced Hessian
+        return active_set_maps(self.P, self.C, rows, pivots=self.pivots)
 
     def seen(self) -> ActiveSetQP | None:
         """The active sets this family has met (the :data:`SEEN_SETS` most recently used of
@@ -409,63 +430,6 @@ class QPFamily(DaqpSolving):
             self._enum = ActiveSetQP(self.C, candidate_maps(self.P, self.C))
         self.budget.use(self)
         return self._enum
-
-    def near_active(self, z: np.ndarray, w: np.ndarray, loose: bool = False) -> np.ndarray:
-        """Rows of ``C`` that are nearly active at the approximate solution ``z``: the slack is
-        within :data:`NEAR_ACTIVE_TOL` of the row's own terms (with a floor from the largest
-        component: a slack of 1e-106 where the terms are 1e-106 is zero for OSQP), or, with
-        ``loose``, of the row's norm times the largest component (which also catches a row that
-        OSQP left loose within its tolerance, e.g. the slack of a node of tiny weight)."""
-        h = w[self.d :]
-        slack = h - self.C @ z
-        zmax = float(np.max(np.abs(z), initial=0.0))
-        floor = self.absC.sum(axis=1) * zmax
-        terms = (floor if loose else self.absC @ np.abs(z) + 1e-6 * floor) + np.abs(h)
-        return np.flatnonzero(slack <= NEAR_ACTIVE_TOL * terms)
-
-    def local(self, z: np.ndarray, w: np.ndarray, y: np.ndarray | None = None) -> Solution | None:
-        """Exact re-solve around an approximate solution: the active set of the multipliers,
-        the nearly active rows, then their subsets (largest first); the same again with the
-        looser test of nearly active rows. At most :data:`MAX_LOCAL_CANDIDATES` sets in all."""
-        tried: set[tuple[int, ...]] = set()
-        nears = [self.near_active(z, w, loose) for loose in (False, True)]
-        guesses: list[tuple[int, ...]] = []
-        for near in nears:  # the cheap guesses of both tests first
-            if y is not None:
-                guesses.append(self._rows_from_duals(y, near))
-            if near.size <= self.d:
-                guesses.append(tuple(near.tolist()))
-        subsets = (
-            rows
-            for near in nears
-            for size in range(min(near.size, self.d), -1, -1)
-            for rows in combinations(near.tolist(), size)
-        )
-        count = 0
-        for rows in chain(guesses, subsets):
-            if rows in tried:
-                continue
-            tried.add(rows)
-            count += 1
-            if count > MAX_LOCAL_CANDIDATES:
-                return None
-            out = self.verify(rows, w)
-            if out is not None:
-                return Solution(out, rows, "")
-        return None
-
-    def _rows_from_duals(self, y: np.ndarray, near: np.ndarray) -> tuple[int, ...]:
-        """One-sided rows among ``near`` whose OSQP multiplier has the matching sign and is not
-        negligible (``y_i > 0``: upper side active, ``y_i < 0``: lower side)."""
-        nu = self.upper_idx.size
-        scale = float(np.max(np.abs(y))) if y.size else 0.0
-        rows = []
-        for i in near.tolist():
-            a = self.upper_idx[i] if i < nu else self.lower_idx[i - nu]
-            yi = y[a] if i < nu else -y[a]
-            if yi > 1e-9 * scale:
-                rows.append(i)
-        return tuple(rows[: self.d])
 
     # ------------------------------------------------------------------ OSQP
     def run_osqp(
@@ -502,6 +466,8 @@ class QPFamily(DaqpSolving):
             return None, None, f"error {type(exc).__name__}: {exc}"
         z = np.asarray(res.x, dtype=np.float64)
         status = str(res.info.status)
+        self.osqp_iterations += int(res.info.iter)
+        self._osqp_last = z if np.all(np.isfinite(z)) else None
         if res.info.status_val != osqp.SolverStatus.OSQP_SOLVED or not np.all(np.isfinite(z)):
             self._osqp = None  # do not warm start from a failed iterate
             return None, None, status
@@ -516,6 +482,7 @@ class QPFamily(DaqpSolving):
         ``notes`` collects what failed on the way (for the caller's status message).
         """
         notes = [] if notes is None else notes
+        self.open_budget()
         if warm and self.warm is not None:
             sol = self.warm_solve(w)
             if sol is not None:
@@ -543,6 +510,11 @@ class QPFamily(DaqpSolving):
                 sol = self._enumerate_noted(w, notes, z is None)
                 if sol is not None:
                     return sol
+        if self.daqp_after_osqp and self._osqp_last is not None:
+            sol = self._daqp_from(self._osqp_last, w, notes)
+            if sol is not None:
+                self.warm = sol.rows
+                return sol
         if not enumerated:
             return self._enumerate_noted(w, notes, True)
         return None

@@ -89,6 +89,8 @@ class DaqpSolving:
             self, z: np.ndarray, w: np.ndarray, y: np.ndarray | None = None
         ) -> Solution | None: ...
 
+        def near_active(self, z: np.ndarray, w: np.ndarray, loose: bool = False) -> np.ndarray: ...
+
     def _solve_daqp(
         self, w: np.ndarray, start: tuple[int, ...] | None, notes: list[str]
     ) -> Solution | None:
@@ -126,6 +128,24 @@ class DaqpSolving:
                 status = "answer did not verify"
             first = first or status
         notes.append(f"daqp {first}")
+        return None
+
+    def _daqp_from(self, z: np.ndarray, w: np.ndarray, notes: list[str]) -> Solution | None:
+        """DAQP started from the rows ``z`` (another solver's approximate answer) leaves nearly
+        active, the active set of its answer verified (then :meth:`local` around it); None
+        when that fails (noted)."""
+        near = tuple(self.near_active(z, w, loose=True).tolist())
+        z2, y2, status = self.run_daqp(w, near)
+        if z2 is not None and y2 is not None:  # DAQP gives both or neither
+            rows = self.rows_of_multipliers(y2)
+            out = None if rows is None else self.verify(rows, w)
+            if rows is not None and out is not None:
+                return Solution(out, rows, "daqp")
+            sol = self.local(z2, w, y2)
+            if sol is not None:
+                return Solution(sol.z, sol.rows, "daqp")
+            status = "answer did not verify"
+        notes.append(f"daqp from the osqp iterate: {status}")
         return None
 
     def run_daqp(

@@ -183,7 +183,7 @@ class RecedingHorizonController(RecedingHorizonBase):
 
     # ------------------------------------------------------------------ single decisions
     def _family(self, x: np.ndarray, mode: int, k: int) -> Family:
-        inside = max(self.model.constraint_values_one(x, k).tolist()) <= 0.0  # in C1 at time k
+        inside = self.model.in_region_one(x, k)  # in C1 at time k: act_batch's test
         return self._families[(mode, inside)]
 
     def _act_qp(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, dict[str, Any]]:
@@ -244,6 +244,8 @@ class RecedingHorizonController(RecedingHorizonBase):
                 nu = project_nu(self.settings, nu)
                 hb = hbar(fam, self.model, np.array([k]))
                 z = np.concatenate([nu, min_rho(fam, x[None], nu[None], hb)])
+                if always:  # no solve ran (the fast path's rescue shares its solve's budget)
+                    fam.engine.open_budget()
                 sol = fam.engine.local(z, w)
                 if sol is not None:
                     y = (fam.lin @ x).tolist()

@@ -505,7 +505,8 @@ def build_tree_family(
         upper,
         s.osqp_settings,
         use_daqp=daqp,
-        osqp_runs=2 if d <= OSQP_MAX_VARIABLES or not daqp else 0,
+        osqp_runs=2 if d <= OSQP_MAX_VARIABLES else int(not daqp),
+        daqp_after_osqp=not daqp and d > OSQP_MAX_VARIABLES,
     )
     nb = s.nu_bound
     h_fixed = np.concatenate([np.full(2 * M * m, nb), np.zeros(M)])

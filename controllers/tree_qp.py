@@ -82,6 +82,8 @@ WARM_REPAIR_STEPS = 2
 #: OSQP runs (after DAQP) only for trees of at most this many QP variables. On larger trees its
 #: iterations cost more than the cvxpy rescue it would precede (a 111-node tree ran OSQP to its
 #: iteration limit twice, 7 s, before a 2 s cvxpy solve): DAQP failing there goes to cvxpy.
+#: With ``solver="osqp"`` a larger tree runs OSQP once (ADMM took 19,000 to 24,000 iterations to
+#: 1e-6 on the 111-node tree, and not 200,000 to the default 1e-10), then DAQP from its iterate.
 OSQP_MAX_VARIABLES = 64
 
 #: Clarabel settings of the cvxpy reference: tighter than P3's, since the offsets of nodes of
@@ -242,9 +244,15 @@ class TreeQP(QPFamily):
         """The active set's factor (:func:`controllers.kkt.active_set_factor`, a function of the
         rows and of which variables have no curvature; cached within
         :data:`FACTOR_CACHE_FLOATS`), or None when its rows are dependent."""
-        return self._factors.get(
-            (rows, self._pivot_key), active_set_factor, self.C, rows, self.pivots
-        )
+        return self._factors.get((rows, self._pivot_key), self._new_factor, rows)
+
+    def _new_factor(self, rows: tuple[int, ...]) -> ActiveSetFactor | None:
+        self.factorizations += 1
+        return active_set_factor(self.C, rows, self.pivots)
+
+    def _new_reduction(self, fac: ActiveSetFactor) -> _Reduced:
+        self.factorizations += 1
+        return _reduce(fac, self.P)
 
     def verify(
         self, rows: tuple[int, ...], w: np.ndarray, report: dict | None = None
@@ -271,8 +279,9 @@ class TreeQP(QPFamily):
         test, counted with ``count``); kept under the Hessian's token, computed afresh without
         one."""
         if self._token is None:
+            self.factorizations += 1
             return reduce_hessian(fac, self.P), None
-        entry = self._reduced.get((self._token, fac.rows), _reduce, fac, self.P)
+        entry = self._reduced.get((self._token, fac.rows), self._new_reduction, fac)
         if count and entry.red is not None:
             entry.uses += 1
             if entry.uses == 2 and entry.mappable:  # a pair tested again: worth its maps
@@ -332,17 +341,25 @@ class TreeQP(QPFamily):
         return Solution(sol.z, sol.rows, "repair")
 
     def repair(
-        self, rows: set[int], w: np.ndarray, report: dict, steps: int = REPAIR_STEPS
+        self,
+        rows: set[int],
+        w: np.ndarray,
+        report: dict,
+        steps: int = REPAIR_STEPS,
+        budget: bool = False,
     ) -> Solution | None:
         """Up to ``steps`` primal-dual active-set steps from the active set
         ``rows``, whose KKT test at ``w`` failed with ``report`` (see
         :func:`controllers.kkt.check_active_set`): the rows whose multipliers are negative leave
         the set, the violated rows join it (the most violated first, up to ``d`` rows), and the
-        new set is verified. None when no set verifies (or a set repeats)."""
+        new set is verified. None when no set verifies (or a set repeats), or, with ``budget``,
+        once the instance's budget of factorizations is spent (:meth:`open_budget`)."""
         seen = {tuple(sorted(rows))}
         freed = self._slack_bounds()
         for _ in range(steps):
             if not (report["add"] or report["drop"]):
+                return None
+            if budget and self.over_budget():
                 return None
             kept = rows.difference(report["drop"])
             add = report["add"][: max((self.d - len(kept)) // 2, 1)]
@@ -400,14 +417,14 @@ class TreeQP(QPFamily):
         if sol is not None:
             return sol
         rows = set(self.near_active(z, w, loose=True).tolist())
-        if len(rows) > self.d:
+        if len(rows) > self.d or self.over_budget():
             return None
         report: dict = {}
         key = tuple(sorted(rows))
         out = self.verify(key, w, report)
         if out is not None:
             return Solution(out, key, "")
-        sol = self.repair(rows, w, report)
+        sol = self.repair(rows, w, report, budget=True)
         return None if sol is None else Solution(sol.z, sol.rows, "")
 
 

@@ -276,6 +276,7 @@ class TreeSolver:
         engine = fam.engine
         engine.update_P(P, pr.token)
         if self.solver == "cvxpy":  # the plain reference, its active set verified
+            engine.open_budget()  # (the fast path's solve opens it, and its rescue shares it)
             out = solve_tree_cvxpy(self.settings, self.steps, fam, x, k, pr)
             if out is None:
                 notes.append("cvxpy failed")

@@ -24,6 +24,7 @@ to rounding (``tests/test_batched.py`` compares them), and each keeps its own nu
 from __future__ import annotations
 
 import bisect
+import math
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, overload
@@ -223,6 +224,8 @@ class Dynamics:
                 False: self._batched["cdf"][0].tolist(),
             },
             "W_identity": bool(np.array_equal(self.W, np.eye(self.p))),
+            "G": self.G.tolist(),
+            "G_abs_sum": np.abs(self.G).sum(axis=1).tolist(),
             "H": {},  # k -> H_k, filled on demand
         }
 
@@ -264,8 +267,49 @@ class Dynamics:
         return self.G @ x - self.H_one(k)
 
     def in_region(self, x: np.ndarray, k: int | np.ndarray) -> np.ndarray:
-        """Whether ``G x <= H_k`` holds in every row (``x`` in C1), eq. (eq:polyhedral)."""
-        return max_last(self.constraint_values(x, k)) <= 0.0
+        """Whether ``G x <= H_k`` holds in every row (``x`` in C1), eq. (eq:polyhedral), decided
+        exactly for the float64 data (``H_k`` as :meth:`H` computes it): a row whose value is
+        within round-off of 0 is evaluated in rational arithmetic, so the answer does not
+        depend on how the product was summed (a state alone and in a batch agree)."""
+        x = np.asarray(x, dtype=np.float64)
+        H = self.H(k)
+        values = x @ self.G.T - H
+        # the round-off of a row's value: at most (n + 1) ulps of its terms, which are at most
+        # sum|G_i| max|x| + |H_i| (and n subnormal units where the products underflow)
+        xmax = np.max(np.abs(x), axis=-1, initial=0.0)[..., None]
+        tie = np.abs(values) <= self._tie_scale * (self._G_abs_sum * xmax + np.abs(H)) + 1e-300
+        if tie.any():
+            G, xs = self.G.tolist(), np.broadcast_to(x, (*values.shape[:-1], self.n))
+            Hb = np.broadcast_to(H, values.shape)
+            for index in zip(*np.nonzero(tie), strict=True):
+                *batch, j = (int(i) for i in index)
+                xb, h = xs[tuple(batch)], float(Hb[index])
+                if np.all(np.isfinite(xb)) and math.isfinite(h):
+                    values[index] = exact.row_sign(G[j], xb.tolist(), h)
+        return max_last(values) <= 0.0
+
+    def in_region_one(self, x: np.ndarray, k: int) -> bool:
+        """:meth:`in_region` for one float64 state ``x`` (n,) and an int ``k``: the same exact
+        decision, in plain floats (the controllers' one-state path)."""
+        H = self.H_one(k)
+        values = (self.G @ x - H).tolist()
+        xmax = max(map(abs, x.tolist()), default=0.0)
+        scale, sums = self._tie_scale, self._one["G_abs_sum"]
+        inside = True
+        for j, (v, h, a) in enumerate(zip(values, H.tolist(), sums, strict=True)):
+            if abs(v) <= scale * (a * xmax + abs(h)) + 1e-300 and math.isfinite(xmax):
+                v = exact.row_sign(self._one["G"][j], x.tolist(), h)
+            if not v <= 0.0:
+                inside = False
+        return inside
+
+    @cached_property
+    def _G_abs_sum(self) -> np.ndarray:
+        return np.abs(self.G).sum(axis=1)
+
+    @cached_property
+    def _tie_scale(self) -> float:
+        return (self.n + 2) * float(np.finfo(np.float64).eps)
 
     # ------------------------------------------------------------------ modes
     def transition_rows(

@@ -5,7 +5,8 @@ From a finite ``x``, ``u``, ``w`` a step can overflow float64: its floating-poin
 between the one-state and the batched path of :meth:`~sdjls_gym.dynamics.Dynamics.transition`).
 Both environments answer such a step with :func:`exact_transition`: each value is the exact
 value of its formula, rounded once to float64 (``+-inf`` beyond its range, never NaN). Slow,
-and only called on such a step.
+and only called on such a step. :func:`row_sign` decides a row of the region test whose
+floating-point value is within round-off of 0.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from fractions import Fraction
 
 import numpy as np
 
-__all__ = ["exact_transition", "rounded"]
+__all__ = ["exact_transition", "row_sign", "rounded"]
 
 
 def _times(a: float, b: Fraction) -> Fraction:
@@ -29,6 +30,12 @@ def rounded(q: Fraction) -> float:
         return float(q)
     except OverflowError:
         return math.inf if q > 0 else -math.inf
+
+
+def row_sign(g: list[float], x: list[float], h: float) -> int:
+    """The sign (-1, 0 or 1) of ``g x - h`` for finite floats, exactly."""
+    value = sum(map(_times, g, map(Fraction, x)), Fraction(0)) - Fraction(h)
+    return (value > 0) - (value < 0)
 
 
 def exact_transition(

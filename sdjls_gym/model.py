@@ -250,13 +250,20 @@ class SDJLSModel:
         return self.dynamics.constraint_values_one(x, k)
 
     def in_region(self, x: np.ndarray, k: int | np.ndarray) -> np.ndarray:
-        """Whether ``G x <= H_k`` holds in every row (``x`` in C1), eq. (eq:polyhedral).
+        """Whether ``G x <= H_k`` holds in every row (``x`` in C1), eq. (eq:polyhedral), decided
+        exactly for the float64 data where a row's value is within round-off of 0 (so a state
+        alone and in a batch get the same answer).
 
         Returns
         -------
         (...) bool array (a numpy bool for a single state)
         """
         return self.dynamics.in_region(x, k)
+
+    def in_region_one(self, x: np.ndarray, k: int) -> bool:
+        """:meth:`in_region` for one float64 state ``x`` (n,) and an int ``k``: the same
+        decision (exact where a row's value is within round-off of 0), as a Python bool."""
+        return self.dynamics.in_region_one(x, k)
 
     def transition_rows(
         self, x: np.ndarray, mode: int | np.ndarray, k: int | np.ndarray

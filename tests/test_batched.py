@@ -233,3 +233,38 @@ def test_active_set_solve_of_a_batch_equals_the_single_instance_path():
         )
         prob.solve(solver=cp.CLARABEL)
         assert 0.5 * z1[i] @ P @ z1[i] + q[i] @ z1[i] == pytest.approx(prob.value, abs=1e-7)
+
+
+def test_act_and_act_batch_choose_the_same_family_at_an_exact_tie():
+    """States on the region's boundary to the last bit: ``H0 = G x`` as float64 computes it for
+    one state, so ``G x - H_0`` was 0.0 for ``act`` and 2.2e-16 for ``act_batch`` where BLAS
+    sums a batch in another order (11 of these 40 here): different families (``P_in`` or
+    ``P_out``), possibly different answers. Both now take the model's region test, which
+    decides a row within round-off of 0 exactly: the same family and answer, that of
+    ``G x <= H_0`` in rational arithmetic."""
+    from fractions import Fraction
+
+    rng = np.random.default_rng(0)
+    Psi = np.tile(np.eye(3), (2, 1, 1))
+    checked = []
+    for _ in range(40):
+        G, x = rng.normal(size=(2, 3)), rng.normal(size=3)
+        model = SDJLSModel(
+            A=0.5 * rng.normal(size=(2, 3, 3)), B=rng.normal(size=(2, 3, 1)),
+            P_in=[[0.9, 0.1], [0.2, 0.8]], P_out=[[0.1, 0.9], [0.7, 0.3]], G=G, H0=G @ x,
+            Q=np.eye(3), R=np.eye(1), x0=np.zeros(3),
+        )  # fmt: skip
+        exact = all(
+            sum(Fraction(g) * Fraction(v) for g, v in zip(row, x, strict=True)) <= Fraction(h)
+            for row, h in zip(G.tolist(), model.H0.tolist(), strict=True)
+        )
+        ctrl = RecedingHorizonController(model, np.zeros((2, 1, 3)), Psi=Psi, xi=0.9)
+        _, one = ctrl.act(x, 0, 0)
+        _, batch = ctrl.act_batch(np.tile(x, (8, 1)), np.zeros(8, dtype=int), 0)
+        assert np.all(batch["in_region"] == one["in_region"]), (one["in_region"], exact)
+        np.testing.assert_allclose(batch["nu"], np.tile(one["nu"], (8, 1)), rtol=1e-9, atol=1e-12)
+        assert np.allclose(batch["cost"], one["cost"], rtol=1e-12)
+        checked.append((model, x, one["in_region"], exact))
+    for model, x, inside, exact in checked:
+        assert inside is exact and np.all(model.in_region(x, 0) == exact)
+        assert model.in_region_one(x, 0) is exact
