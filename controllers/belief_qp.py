@@ -39,8 +39,9 @@ from .dual_qp import DAQP_INF, REGULARIZE, DaqpWorkspace, daqp_data, run_daqp
 from .kkt import ActiveSetFactor, active_set_factor, check_active_set
 from .kkt_maps import ActiveSetMaps, active_set_maps
 from .lru import BudgetedLRU
-from .qp import MAX_CANDIDATES, MAX_LOCAL_CANDIDATES, Solution, candidate_count
+from .qp import MAX_CANDIDATES, Solution, candidate_count
 from .qp_daqp import NEAR_ACTIVE_TOL
+from .qp_search import MAX_LOCAL_CANDIDATES
 
 __all__ = ["FACTOR_CACHE_FLOATS", "RECENT_SETS", "REPAIR_STEPS", "SCREEN_TOL", "BeliefQP"]
 
@@ -414,7 +415,7 @@ class BeliefQP:
         """The rows nearly active at an approximate solution ``z`` (within
         :data:`controllers.qp_daqp.NEAR_ACTIVE_TOL` of their terms, then of the row's size times
         the largest component) and their subsets, largest first: at most
-        :data:`controllers.qp.MAX_LOCAL_CANDIDATES` sets tried."""
+        :data:`controllers.qp_search.MAX_LOCAL_CANDIDATES` sets tried."""
         d = kr.d
         h = np.asarray(w[d:])
         slack = h - kr.C @ z

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 import controllers.tree_qp as tree_qp
-from benchmarks.speed import large_tree_model
+from benchmarks.speed.measure import large_tree_model
 from controllers import ScenarioTreeController
 from controllers.qp import QPFamily
 from sdjls_gym import SDJLSModel
