@@ -65,9 +65,6 @@ def parse_args(argv: list[str] | None = None) -> tuple[Options, Any]:
     import argparse
 
     from benchmarks.core.cli import (
-        CliError,
-        file_option_error,
-        import_attribute,
         options_parser,
         parse_options,
     )
@@ -99,22 +96,8 @@ def parse_args(argv: list[str] | None = None) -> tuple[Options, Any]:
             check_evaluation(opts.tree_episodes, 0)
         except ValueError as exc:
             parser.error(str(exc).replace("episodes = ", "--tree-episodes = "))
-    factory = None
     if opts.policy is not None:
-        given = [f"--{n.replace('_', '-')}" for n in ("out", "tree_episodes", "quick")
-                 if getattr(opts, n) not in (None, False)]  # fmt: skip
-        if given:
-            parser.error(f"{', '.join(given)}: apply to the references (without --policy) only")
-        if opts.json is not None and (error := file_option_error("--json", opts.json)):
-            parser.error(error)
-        try:
-            factory = import_attribute(opts.policy, "--policy")
-        except CliError as exc:
-            parser.error(str(exc))
-        if not callable(factory):
-            parser.error(f"--policy {opts.policy} is {a_type(factory)}; expected a function "
-                         "task -> policy")  # fmt: skip
-        return opts, factory
+        return opts, _factory(parser, opts)
     if opts.json is not None:
         parser.error("--json applies with --policy only (the references write into --out)")
     from benchmarks.core.cli import output_folder
@@ -123,6 +106,26 @@ def parse_args(argv: list[str] | None = None) -> tuple[Options, Any]:
     opts.out = str(output_folder(parser, "--out", opts.out, quick=opts.quick, default=DEFAULT_OUT,
                                  script="suite"))  # fmt: skip
     return opts, None
+
+
+def _factory(parser: Any, opts: Options) -> Any:
+    """With ``--policy``: the factory it names, the options checked against it."""
+    from benchmarks.core.cli import CliError, file_option_error, import_attribute
+
+    given = [f"--{n.replace('_', '-')}" for n in ("out", "tree_episodes", "quick")
+             if getattr(opts, n) not in (None, False)]  # fmt: skip
+    if given:
+        parser.error(f"{', '.join(given)}: apply to the references (without --policy) only")
+    if opts.json is not None and (error := file_option_error("--json", opts.json)):
+        parser.error(error)
+    try:
+        factory = import_attribute(str(opts.policy), "--policy")
+    except CliError as exc:
+        parser.error(str(exc))
+    if not callable(factory):
+        parser.error(f"--policy {opts.policy} is {a_type(factory)}; expected a function "
+                     "task -> policy")  # fmt: skip
+    return factory
 
 
 def main(argv: list[str] | None = None) -> Any:
