@@ -79,3 +79,25 @@ def test_readme_is_short_and_wrapped():
         elif not in_code and not line.startswith("|") and len(line) > 100:
             long.append(number)
     assert len(lines) <= 230 and not long, (len(lines), long)
+
+
+def _conclusions(report: str) -> list[str]:
+    """The bullet sentences of a report's "## Conclusions" section, whitespace folded."""
+    text = (ROOT / report).read_text(encoding="utf-8")
+    match = re.search(r"^## Conclusions\n(.*?)(?=^## |\Z)", text, flags=re.M | re.S)
+    assert match, f"{report} has no '## Conclusions' section"
+    return [" ".join(b.split()) for b in re.findall(r"^- (.*?)(?=^- |\Z)", match.group(1),
+                                                     flags=re.M | re.S)]  # fmt: skip
+
+
+def test_the_readmes_conclusions_are_the_reports_own_sentences():
+    """The conclusions the README states about the RL comparisons are copied from the reports,
+    where code writes them from the numbers (benchmarks/rl/claims.py): a sentence typed by hand,
+    or left over from an earlier scoring, fails here."""
+    section = _section("Receding horizon against reinforcement learning")
+    match = re.search(r"^Conclusions[^\n]*:\n\n(.*?)(?=\n\n[^-]|\Z)", section, flags=re.M | re.S)
+    assert match, "README's RL section has no 'Conclusions ...:' list"
+    bullets = [" ".join(b.split()) for b in re.findall(r"^- (.*?)(?=^- |\Z)", match.group(1),
+                                                       flags=re.M | re.S)]  # fmt: skip
+    reports = _conclusions("results/rl/REPORT.md") + _conclusions("results/rl_suite/REPORT.md")
+    assert bullets and all(b in reports for b in bullets), [b for b in bullets if b not in reports]
