@@ -199,6 +199,7 @@ def _section(text: str, title: str) -> str:
         ("Receding horizon against reinforcement learning", "results/rl/REPORT.md", 20),
         ("Speed", "results/speed/SPEED.md", 14),
         ("The suite, scored as one benchmark", "results/suite/REPORT.md", 12),
+        ("Learn the model, then control", "results/identify/REPORT.md", 8),
     ],
 )
 def test_benchmark_tables_are_copied_from_the_committed_reports(title, report, min_rows):

@@ -1,8 +1,9 @@
 """The README's tables are copies of the committed benchmark reports, not numbers typed by hand.
 
 The README copies the claims table of ``results/paper/REPORT.md``, the results table of
-``results/rl/REPORT.md`` and the speed tables of ``results/speed/SPEED.md``. When a benchmark is
-re-run and its report changes, this test fails until the README is updated from it.
+``results/rl/REPORT.md``, the speed tables of ``results/speed/SPEED.md`` and the steps table of
+``results/identify/REPORT.md``. When a benchmark is re-run and its report changes, this test
+fails until the README is updated from it.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ def _table_rows(text: str) -> list[str]:
         ("Receding horizon against reinforcement learning", "results/rl/REPORT.md", 10),
         ("Speed", "results/speed/SPEED.md", 6),
         ("The suite, scored as one benchmark", "results/suite/REPORT.md", 8),
+        ("Learn the model, then control", "results/identify/REPORT.md", 8),
     ],
 )
 def test_readme_tables_are_copied_from_the_committed_reports(title, report, min_rows):
@@ -49,6 +51,7 @@ def test_readme_names_the_commands_and_shows_the_figures():
         "python -m benchmarks.reproduce_paper",
         "python -m benchmarks.compare_rl",
         "python -m benchmarks.speed",
+        "python -m benchmarks.identify",
     ):
         assert command in README
     for figure in re.findall(r"!\[[^\]]*\]\(([^)]+)\)", README):
