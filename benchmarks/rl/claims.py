@@ -7,7 +7,9 @@ same records the tables are (never typed by hand), and each says only what its n
   reference at equal risk (the 95% interval of the gap entirely below 0), how many costlier
   (entirely above), how many undecided, and how many have no gap (a diverged episode, riskier
   or safer than the whole curve);
-* :func:`task_sentence`: one task's sentence over its configurations;
+* :func:`headline_sentence`: one task's conclusion in a line (which configurations are cheaper
+  on every seed, on some, and how many have no gap on any seed);
+* :func:`task_sentence`: one task's sentence over its configurations, each with its counts;
 * :func:`across_sentence`: the sentence across tasks, from rliable's IQM of the bounded gaps
   (every run counts): a configuration "beats" the reference only where the interval of its IQM
   lies below 0, "loses" where it lies above, and is "not distinguishable" otherwise.
@@ -21,7 +23,14 @@ from typing import Any
 
 from benchmarks.core.stats import CurveGap
 
-__all__ = ["RunCounts", "across_sentence", "run_counts", "task_sentence", "verdict"]
+__all__ = [
+    "RunCounts",
+    "across_sentence",
+    "headline_sentence",
+    "run_counts",
+    "task_sentence",
+    "verdict",
+]
 
 
 @dataclass(frozen=True)
@@ -85,6 +94,23 @@ def task_sentence(env_id: str, reference: str, counts: Sequence[RunCounts]) -> s
     lead = (f"every seed of {', '.join(winners)} is cheaper than the {reference} at equal risk"
             if winners else f"no configuration is cheaper than the {reference} on every seed")  # fmt: skip
     return f"On {env_id}, {lead}: " + "; ".join(c.phrase() for c in counts) + "."
+
+
+def _names(configs: Sequence[str]) -> str:
+    return ", ".join(configs) if configs else "none"
+
+
+def headline_sentence(env_id: str, reference: str, counts: Sequence[RunCounts]) -> str:
+    """One task's conclusion against ``reference`` in a line, from its configurations' counts."""
+    if not counts:
+        return f"On {env_id}, no agent is kept."
+    every = [c.config for c in counts if c.cheaper == c.seeds]
+    some = [c.config for c in counts if 0 < c.cheaper < c.seeds]
+    none = [c.config for c in counts if c.no_gap == c.seeds]
+    return (f"On {env_id}, cheaper than the {reference} at equal risk on every seed: "
+            f"{_names(every)}; on some seeds: {_names(some)}; without a gap on any seed "
+            f"(diverged, or outside the curve's range): {len(none)} of {len(counts)} "
+            "configuration(s).")  # fmt: skip
 
 
 def verdict(iqm_ci95: tuple[float, float]) -> str:

@@ -60,7 +60,13 @@ from benchmarks.core.frontier import (
 from benchmarks.core.montecarlo import rollouts
 from benchmarks.core.reference import QUICK_TREE, TREE_BY_TASK, TREE_STEPS, TREE_XIS
 from benchmarks.core.stats import CurveGap, CurveStatus, curve_status, efficient_points
-from benchmarks.rl.claims import across_sentence, run_counts, task_sentence
+from benchmarks.rl.claims import (
+    RunCounts,
+    across_sentence,
+    headline_sentence,
+    run_counts,
+    task_sentence,
+)
 from benchmarks.rl.envs import comparison_env_kwargs
 from benchmarks.rl.report import RunResult, aggregate, result_json
 from benchmarks.rl.suite_tables import (
@@ -464,12 +470,17 @@ def conclusion_lines(reports: list[TaskReport], across: list[ConfigAcross]) -> l
         across_sentence("3-step tree", [(c.config, c.bounded_tree) for c in across]),
     ]
     for r in reports:
-        counts = []
-        for config in dict.fromkeys(a.config for a in r.agents):
-            mine = [a for a in r.agents if a.config == config]
-            counts.append(run_counts(config, [a.gap for a in mine], [a.bounded for a in mine]))
-        lines.append(task_sentence(r.env_id, "one-step RHC", counts))
+        lines.append(headline_sentence(r.env_id, "one-step RHC", task_counts(r)))
     return lines
+
+
+def task_counts(r: TaskReport) -> list[RunCounts]:
+    """Per configuration of a task, its seeds against the one-step RHC (:mod:`.claims`)."""
+    counts = []
+    for config in dict.fromkeys(a.config for a in r.agents):
+        mine = [a for a in r.agents if a.config == config]
+        counts.append(run_counts(config, [a.gap for a in mine], [a.bounded for a in mine]))
+    return counts
 
 
 # ----------------------------------------------------------------------------- outputs
@@ -581,7 +592,8 @@ def report_suite(specs: list[RunSpec], records: Sequence[RunRecord | None], run_
         *[f"![{name}]({name})\n" for name in drawn],
     ]
     for r in reports:
-        lines += task_section(r, figures[r.env_id])
+        lines += task_section(r, figures[r.env_id],
+                              task_sentence(r.env_id, "one-step RHC", task_counts(r)))  # fmt: skip
     write_atomic(out / "REPORT.md", "\n".join(lines) + "\n")
     log(f"wrote {out}/REPORT.md")
     return summary
