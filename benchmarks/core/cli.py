@@ -38,6 +38,7 @@ __all__ = [
     "import_attribute",
     "load_cli_policy",
     "one_of",
+    "option",
     "options_parser",
     "out_folder_error",
     "output_folder",
@@ -62,6 +63,15 @@ class CliError(Exception):
 
 
 # ----------------------------------------------------------------------------- options
+def option(default: Any, help: str, **metadata: Any) -> Any:
+    """A field of an options dataclass (:func:`options_parser`): its default (a list is copied
+    for each instance), its ``help`` and any other metadata (``choices``, ``metavar``)."""
+    meta = {"help": help, **metadata}
+    if isinstance(default, list):
+        return dataclasses.field(default_factory=lambda: list(default), metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
 def _field_kind(cls: type, name: str, hint: Any) -> tuple[Any, bool]:
     """``(scalar type, takes a list)`` of an annotation: ``int | None`` -> (int, False),
     ``list[Path] | None`` -> (Path, True)."""

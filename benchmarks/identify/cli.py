@@ -12,11 +12,11 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from benchmarks.core.cli import COMMITTED_RESULTS
+from benchmarks.core.cli import COMMITTED_RESULTS, option
 from benchmarks.core.commands import prog
 from benchmarks.core.logs import log
 from sdjls_gym import SUITE
@@ -34,36 +34,35 @@ QUICK: dict[str, Any] = {"tasks": ("SDJLS-Solar-v0", "SDJLS-Degradation-v0"),
 
 @dataclass
 class Options:
-    tasks: list[str] | None = field(
-        default=None,
-        metadata={"help": "tasks of the suite (default: all; with --quick: "
-                  f"{', '.join(QUICK['tasks'])})", "choices": SUITE, "metavar": "TASK"},
-    )  # fmt: skip
-    seeds: int | None = field(
-        default=None,
-        metadata={"help": f"exploration seeds 0..SEEDS-1 per task (default {SEEDS}; 1 with "
-                  "--quick)"},
-    )  # fmt: skip
-    episodes: int | None = field(
-        default=None,
-        metadata={"help": "evaluation episodes per point and evaluation seed (default 1000; "
-                  f"{QUICK['episodes']} with --quick)"},
-    )  # fmt: skip
-    agents: str | None = field(
-        default=None,
-        metadata={"help": "the suite comparison's summary.json to read the agents' learning "
-                  "curves from (default: results/rl_suite/summary.json)"},
-    )  # fmt: skip
-    out: str | None = field(
-        default=None,
-        metadata={"help": "output folder; default results/identify, or a new temporary folder "
-                  "with --quick (a smoke test never writes into the committed results)"},
-    )  # fmt: skip
-    quick: bool = field(
-        default=False,
-        metadata={"help": "smoke test: two tasks, budgets of 2 and 10 episodes, one seed, "
-                  f"{QUICK['episodes']} episodes"},
-    )  # fmt: skip
+    tasks: list[str] | None = option(
+        None,
+        f"tasks of the suite (default: all; with --quick: {', '.join(QUICK['tasks'])})",
+        choices=SUITE,
+        metavar="TASK",
+    )
+    seeds: int | None = option(
+        None, f"exploration seeds 0..SEEDS-1 per task (default {SEEDS}; 1 with --quick)"
+    )
+    episodes: int | None = option(
+        None,
+        "evaluation episodes per point and evaluation seed (default 1000; "
+        f"{QUICK['episodes']} with --quick)",
+    )
+    agents: str | None = option(
+        None,
+        "the suite comparison's summary.json to read the agents' learning "
+        "curves from (default: results/rl_suite/summary.json)",
+    )
+    out: str | None = option(
+        None,
+        "output folder; default results/identify, or a new temporary folder "
+        "with --quick (a smoke test never writes into the committed results)",
+    )
+    quick: bool = option(
+        False,
+        "smoke test: two tasks, budgets of 2 and 10 episodes, one seed, "
+        f"{QUICK['episodes']} episodes",
+    )
 
 
 @dataclass(frozen=True)

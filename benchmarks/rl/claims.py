@@ -25,6 +25,7 @@ from benchmarks.core.stats import CurveGap
 
 __all__ = [
     "RunCounts",
+    "conclusions_section",
     "across_sentence",
     "headline_sentence",
     "run_counts",
@@ -135,3 +136,9 @@ def across_sentence(reference: str, rows: Sequence[tuple[str, Any]]) -> str:
         parts.append(f"{config} {verdict((lo, hi))} it (IQM {a.iqm_gap:+.1f}%, 95% interval "
                      f"{lo:+.1f} to {hi:+.1f}, {a.runs} seeds x {a.tasks} tasks)")  # fmt: skip
     return f"Every run counted, against the {reference}: " + "; ".join(parts) + "."
+
+
+def conclusions_section(sentences: Sequence[str]) -> list[str]:
+    """A report's ``## Conclusions`` section (Markdown lines) of ``sentences``."""
+    return ["## Conclusions", "", "Written by the report's code from the tables below "
+            "(`benchmarks/rl/claims.py`).", "", *[f"- {line}" for line in sentences], ""]  # fmt: skip

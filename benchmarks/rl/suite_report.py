@@ -63,6 +63,7 @@ from benchmarks.core.stats import CurveGap, CurveStatus, curve_status, efficient
 from benchmarks.rl.claims import (
     RunCounts,
     across_sentence,
+    conclusions_section,
     headline_sentence,
     run_counts,
     task_sentence,
@@ -581,12 +582,7 @@ def report_suite(specs: list[RunSpec], records: Sequence[RunRecord | None], run_
         f"{summary['scoring']['wall_s'] / 60:.1f} min ({summary['scoring']['cpu_s'] / 60:.1f} "
         "CPU-min).",
         "",
-        "## Conclusions",
-        "",
-        "Written by the report's code from the tables below (`benchmarks/rl/claims.py`).",
-        "",
-        *[f"- {line}" for line in conclusions],
-        "",
+        *conclusions_section(conclusions),
         *runs_section(reports),
         *across_section(across, tree_refs),
         *[f"![{name}]({name})\n" for name in drawn],
