@@ -15,6 +15,7 @@ import pytest
 from scipy.stats import trim_mean
 
 from benchmarks.core.stats import CurveGap
+from benchmarks.core.frontier import WORST_GAP
 from benchmarks.rl import compare as compare_rl
 from benchmarks.rl import tuned_report
 
@@ -38,10 +39,14 @@ def _gap(value: float) -> CurveGap:
 
 
 def _agent(record, gap: float | None, tree: float):
-    score = SimpleNamespace(cost_mean=100.0, violation=0.1, diverged=0)
+    """A scored run: a gap at equal risk, or (gap None) a run that diverged, whose bounded gap
+    is the worst value, as benchmarks.core.frontier.bounded_gap gives it."""
+    score = SimpleNamespace(cost_mean=100.0, violation=0.1, diverged=0 if gap is not None else 3)
     return SimpleNamespace(run=record, result=SimpleNamespace(score=score),
                            gap=None if gap is None else _gap(gap),
                            reason="diverged in 3 episode(s)" if gap is None else None,
+                           bounded=WORST_GAP if gap is None else gap,
+                           tree=SimpleNamespace(value=tree),
                            tree_gap=_gap(tree), tree_reason=None)  # fmt: skip
 
 
@@ -101,15 +106,18 @@ def test_both_groups_are_read_at_the_study_budget(monkeypatch, tmp_path):
     ] * 2
 
 
-def test_a_run_without_a_gap_leaves_its_group_unsummarized(monkeypatch, tmp_path):
+def test_a_run_without_a_gap_counts_at_the_worst_value(monkeypatch, tmp_path):
+    """Every run counts (issue 47): a diverged seed enters its group at +WORST_GAP, not left
+    out, so the comparison is not made on the lucky seeds alone."""
     _fake_scoring(monkeypatch, [1.0, None, 2.0], [0.0, -1.0, -2.0])
     out = tuned_report.compare_study(_study(tmp_path), tmp_path, 3, 200, 0, True, log=str)
     d = out["groups"]["default"]["rhc"]
-    assert d["gaps"] is None and d["no_gap_seeds"] == [1] and "diverged" in d["left_out"][0]
-    assert out["compare_rhc"] is None  # not the lucky seeds alone
-    assert out["compare_tree"] is not None  # every run has a gap to the tree
+    assert d["gaps"] == [1.0, WORST_GAP, 2.0]
+    assert d["iqm"] == pytest.approx(trim_mean([1.0, WORST_GAP, 2.0], 0.25), abs=1e-12)
+    assert out["compare_rhc"] is not None and out["compare_tree"] is not None
+    assert out["compare_rhc"]["iqm_difference"] < 0  # the tuned group never diverged
     text = tuned_report.write_markdown([out], "python -m benchmarks.tuned_report", 200)
-    assert "none: no gap for seed(s) 1 (see the rows)" in text
+    assert "diverged in 3 episode(s)" in text  # the row says why that seed sits at the worst value
 
 
 def test_bad_options_are_parser_errors(tmp_path, capsys):

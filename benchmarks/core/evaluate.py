@@ -259,8 +259,9 @@ def evaluate_rollouts(
             gap = None
         reason = gap_reason(stats["violation"], stats["diverged"], gap, curve.violations,
                             curve.costs)  # fmt: skip
-        shown = curve.refine(stats["violation"]) if not stats["diverged"] else curve
-        points = tuple(shown.point(i) for i in range(len(shown.xis)))
+        if not stats["diverged"]:  # a diverged run is not drawn against the curve
+            shown = curve.refine(stats["violation"])
+            points = tuple(shown.point(i) for i in range(len(shown.xis)))
     score_ = Score(
         curve_gap_reason=reason,
         curve_points=points,
