@@ -48,6 +48,7 @@ that passed the KKT test of :mod:`controllers.kkt` (``info["ok"]``).
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 import numpy as np
@@ -58,11 +59,16 @@ from sdjls_gym.model import SDJLSModel
 from sdjls_gym.model_checks import ROW_SUM_TOL
 from sdjls_gym.validation import check_array, check_choice, check_int, check_int_array, check_number
 
+if sys.version_info >= (3, 11):
+    from typing import Unpack
+else:  # pragma: no cover
+    from typing_extensions import Unpack
+
 from .base import MAX_STATE
 from .belief_qp import BeliefQP
 from .belief_risk import RiskAllocation
 from .belief_rows import answer_rho, min_rho, solve_belief_cvxpy
-from .horizon import MAX_QP_ENTRY, RecedingHorizonBase, Status
+from .horizon import MAX_QP_ENTRY, HorizonKwargs, RecedingHorizonBase, Status, shows_settings
 from .p3 import build_family, check_magnitudes
 from .qp import EnumerationBudget
 
@@ -83,6 +89,7 @@ _PATHS = {
 }
 
 
+@shows_settings
 class BeliefRecedingHorizonController(RecedingHorizonBase):
     """Problem P3 on the belief of a hidden mode, with the risk shared across the modes.
 
@@ -148,18 +155,9 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         model: SDJLSModel,
         K: np.ndarray,
         *,
-        Psi: np.ndarray,
-        xi: float | None = None,
-        constraint: str = "individual",
-        alpha: float = 1000.0,
-        nu_bound: float = 100.0,
-        solver: str = "daqp",
-        nu_set: str = "box",
-        horizon: int | None = None,
-        osqp_settings: dict[str, Any] | None = None,
-        cvxpy_fallback: bool = True,
         gain: str = "weighted",
         give_up: float = 0.75,
+        **settings: Unpack[HorizonKwargs],
     ) -> None:
         self.gain = check_choice("gain", gain, GAINS)
         self.give_up = check_number(
@@ -171,20 +169,7 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
             high_open=True,
             what="the share of the risk budget 1 - xi that modes of small belief may take",
         )
-        super().__init__(
-            model,
-            K,
-            Psi=Psi,
-            xi=xi,
-            constraint=constraint,
-            alpha=alpha,
-            nu_bound=nu_bound,
-            solver=solver,
-            nu_set=nu_set,
-            horizon=horizon,
-            osqp_settings=osqp_settings,
-            cvxpy_fallback=cvxpy_fallback,
-        )
+        super().__init__(model, K, **settings)
 
     def _build(self) -> None:
         """The tightening, every mode's matrices per region, and the QP's solver."""

@@ -79,6 +79,7 @@ Thread-safe (the base class's lock) and picklable.
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 from typing import Any
 
@@ -87,7 +88,12 @@ import numpy as np
 from sdjls_gym.model import SDJLSModel
 from sdjls_gym.validation import check_int
 
-from .horizon import MAX_QP_ENTRY, RecedingHorizonBase, Status
+if sys.version_info >= (3, 11):
+    from typing import Unpack
+else:  # pragma: no cover
+    from typing_extensions import Unpack
+
+from .horizon import MAX_QP_ENTRY, HorizonKwargs, RecedingHorizonBase, Status, shows_settings
 from .tree_data import (
     FamilyCache,
     RegionClasses,
@@ -178,6 +184,7 @@ def _aitken(q0: np.ndarray, q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
     return np.clip(q2 + r / (1.0 - r) * d2, 0.0, 1.0)
 
 
+@shows_settings
 class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
     """Multi-step receding-horizon control on a scenario tree of modes (beyond the paper).
 
@@ -243,22 +250,9 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
         steps: int = 3,
         branching: int | None = None,
         iterations: int = 10,
-        Psi: np.ndarray,
-        xi: float | None = None,
-        constraint: str = "individual",
-        alpha: float = 1000.0,
-        nu_bound: float = 100.0,
-        solver: str = "daqp",
-        nu_set: str = "box",
-        horizon: int | None = None,
-        osqp_settings: dict[str, Any] | None = None,
-        cvxpy_fallback: bool = True,
+        **settings: Unpack[HorizonKwargs],
     ) -> None:
-        super().__init__(
-            model, K, Psi=Psi, xi=xi, constraint=constraint, alpha=alpha, nu_bound=nu_bound,
-            solver=solver, nu_set=nu_set, horizon=horizon, osqp_settings=osqp_settings,
-            cvxpy_fallback=cvxpy_fallback,
-        )  # fmt: skip
+        super().__init__(model, K, **settings)
         self.steps = check_int("steps", steps, low=1, what="stages of the tree")
         self._lookahead = self.steps  # the chance constraints read H up to k + steps
         if branching is None:
