@@ -35,9 +35,7 @@ class _LinearPolicy(Controller):
 
     def act(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, dict[str, Any]]:
         """``u = K_mode x``; ``info["cost"]`` is the stage cost ``x'Q x + u'R u``."""
-        x, mode, k = self._check_inputs(x, mode, k)
-        u, info = self.act_batch(x[None], np.array([mode]), np.array([k]))
-        return u[0], {key: value[0] for key, value in info.items()}
+        return self._act_as_batch(x, mode, k)
 
     def act_batch(
         self, x: np.ndarray, mode: np.ndarray, k: np.ndarray | int

@@ -133,7 +133,9 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
     -----
     Thread-safe: concurrent calls on one controller are serialized by its lock. Picklable.
     Decisions are stateless (a function of ``(x, belief, k)``); the filter of the belief
-    across an episode is :class:`controllers.HiddenModePolicy`'s.
+    across an episode is :class:`controllers.HiddenModePolicy`'s. :meth:`predict` takes
+    observations that show the mode: the belief is then certain, ``e_theta``, and the answer
+    is P3's.
 
     Examples
     --------
@@ -508,15 +510,9 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         return u, out
 
     # ------------------------------------------------------------------ observations
-    def predict(
-        self,
-        observation: np.ndarray,
-        state: Any = None,
-        episode_start: Any = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, Any]:
-        """Actions for observations that show the mode (``observe="mode"``): the belief is
-        then certain, ``e_theta``, and the answer is P3's. A state-only observation raises
+    def _observed_inputs(self, observation: Any) -> tuple[np.ndarray, bool]:
+        """For observations that show the mode (``observe="mode"``): the belief is then
+        certain, ``e_theta``, and the answer is P3's. A state-only observation raises
         :class:`~sdjls_gym.errors.ModeNotObservedError`: the belief across an episode is
         :class:`controllers.HiddenModePolicy`'s (its ``predict`` keeps the filter)."""
         model = self.model
@@ -530,5 +526,4 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
             )
         obs = self._observation(observation)
         xs, modes, ks = self._decode_own(obs)
-        actions = self.act_batch(xs, np.eye(model.N)[modes], ks)[0].astype(np.float32)
-        return (actions[0] if obs.ndim == 1 else actions), state
+        return self.act_batch(xs, np.eye(model.N)[modes], ks)[0], obs.ndim == 1

@@ -243,9 +243,10 @@ class BeliefQP:
                     sol = self._guess(kr, rows, P, w, "warm" if i == 0 else "recent")
                     if sol is not None:
                         break
-            if sol is None:
-                finder = self._daqp_solve if method == "daqp" else self._osqp_solve
-                sol = finder(kr, P, w, recent[0] if recent and warm else None, notes)
+            if sol is None and method == "daqp":
+                sol = self._daqp_solve(kr, P, w, recent[0] if recent and warm else None, notes)
+            elif sol is None:
+                sol = self._osqp_solve(kr, P, w, notes)
             if sol is None and warm and not self.fixed:
                 for i, rows in enumerate(recent):
                     sol = self._guess(kr, rows, P, w, "warm" if i == 0 else "recent")
@@ -348,12 +349,7 @@ class BeliefQP:
         return None if sol is None else Solution(sol.z, sol.rows, "daqp")
 
     def _osqp_solve(
-        self,
-        kr: KeptRows,
-        P: np.ndarray,
-        w: np.ndarray,
-        start: tuple[int, ...] | None,
-        notes: list[str],
+        self, kr: KeptRows, P: np.ndarray, w: np.ndarray, notes: list[str]
     ) -> Solution | None:
         """OSQP (set up for this Hessian), then its answer's active set verified."""
         d = kr.d

@@ -24,7 +24,7 @@ from gymnasium import wrappers as gw
 from sdjls_gym.messages import a_type, describe
 from sdjls_gym.model import SDJLSModel
 
-from .base import Controller
+from .base import Controller, ObservationPolicy
 
 __all__ = ["ControllerPolicy", "PASS_THROUGH_NAMES", "PASS_THROUGH_WRAPPERS", "policy_for"]
 
@@ -64,8 +64,10 @@ def _layers(env: gym.Env) -> tuple[list[gym.Wrapper], gym.Env]:
     return wrappers, env
 
 
-class ControllerPolicy:
-    """``predict`` of a controller for a wrapped SDJLS environment (see :func:`policy_for`).
+class ControllerPolicy(ObservationPolicy):
+    """``predict`` of a controller for a wrapped SDJLS environment (see :func:`policy_for`):
+    the observation decoded with the environment's own horizon, the controller's input mapped
+    to the outer action (see :meth:`action`).
 
     Attributes
     ----------
@@ -88,30 +90,19 @@ class ControllerPolicy:
             a = lo_a + (a - low) * (hi_a - lo_a) / (high - low)
         return a
 
-    def predict(
-        self,
-        observation: np.ndarray,
-        state: Any = None,
-        episode_start: Any = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, Any]:
-        """Actions for observations of the wrapped environment, in stable-baselines3's shape.
-
-        The observation is decoded as :meth:`Controller.predict` does (its mode part must be
-        one-hot), with time at the environment's own horizon: a time entry that is not a
-        multiple of ``1 / horizon`` in [0, 1] is refused, whatever the controller.
-        """
+    def _observed_inputs(self, observation: Any) -> tuple[np.ndarray, bool]:
+        """The outer actions for observations of the wrapped environment: decoded as
+        :meth:`Controller.predict` does (the mode part must be one-hot), with time at the
+        environment's own horizon (a time entry that is not a multiple of ``1 / horizon`` in
+        [0, 1] is refused, whatever the controller), then mapped by :meth:`action`."""
         obs = self.controller._observation(observation)
-        single = obs.ndim == 1
         x, mode, k = self.controller._decode(
             obs,
             self.horizon,
             f"the environment's horizon {self.horizon}: the observation is not one of this "
             "environment's",
         )
-        u = self.controller.act_batch(x, mode, k)[0]
-        actions = self.action(u).astype(np.float32)
-        return (actions[0] if single else actions), state
+        return self.action(self.controller.act_batch(x, mode, k)[0]), obs.ndim == 1
 
 
 def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:

@@ -96,9 +96,7 @@ class ExplorationPolicy(Controller):
 
     def act(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, dict[str, Any]]:
         """``u = K_mode x + input_mean + input_std * eps``; ``info["cost"]`` is the stage cost."""
-        x, mode, k = self._check_inputs(x, mode, k)
-        u, info = self.act_batch(x[None], np.array([mode]), np.array([k]))
-        return u[0], {key: value[0] for key, value in info.items()}
+        return self._act_as_batch(x, mode, k)
 
     def act_batch(
         self, x: np.ndarray, mode: np.ndarray, k: np.ndarray | int

@@ -123,19 +123,20 @@ class HorizonSettings:
     ``A_i + B_i K_i`` (N, n, n), eq. (sys:stabilized_input).
     """
 
+    # the data, the problem, the solver
     model: SDJLSModel
     K: np.ndarray
     Psi: np.ndarray
+    A_tilde: np.ndarray
+    chance: bool
     xi: float | None
     constraint: str
     alpha: float
     nu_bound: float
-    solver: str
     nu_set: str
+    solver: str
     osqp_settings: dict[str, Any]
     cvxpy_fallback: bool
-    chance: bool
-    A_tilde: np.ndarray
 
 
 class HorizonKwargs(TypedDict, total=False):
