@@ -223,13 +223,6 @@ class Controller(ObservationPolicy):
         """
         raise NotImplementedError
 
-    def _act_as_batch(self, x: Any, mode: Any, k: Any) -> tuple[np.ndarray, dict[str, Any]]:
-        """:meth:`act` of a controller whose :meth:`act_batch` is the vectorized one: the
-        checked state as a batch of one."""
-        x, mode, k = self._check_inputs(x, mode, k)
-        u, info = self.act_batch(x[None], np.array([mode]), np.array([k]))
-        return u[0], {key: value[0] for key, value in info.items()}
-
     @property
     def max_k(self) -> int:
         """The largest time index ``k`` accepted: ``2**53 - lookahead``, where ``lookahead`` is

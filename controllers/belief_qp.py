@@ -27,6 +27,7 @@ passed the KKT test. ``"active_set"`` enumerates at every call.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from itertools import chain, combinations
 from typing import Any
 
@@ -40,7 +41,7 @@ from .kkt import ActiveSetFactor, active_set_factor, check_active_set
 from .kkt_maps import ActiveSetMaps, active_set_maps
 from .lru import BudgetedLRU
 from .qp import MAX_CANDIDATES, Solution, candidate_count
-from .qp_daqp import NEAR_ACTIVE_TOL
+from .qp_daqp import NEAR_ACTIVE_TOL, DaqpAnswer, active_set_of_multipliers, first_verified
 from .qp_search import MAX_LOCAL_CANDIDATES
 
 __all__ = ["FACTOR_CACHE_FLOATS", "RECENT_SETS", "REPAIR_STEPS", "SCREEN_TOL", "BeliefQP"]
@@ -293,21 +294,16 @@ class BeliefQP:
         attempts += [("scaled", mu) for mu in REGULARIZE]
         lo, hi = kr.two_sided(w[d:])
         q = np.asarray(w[:d])
-        first = ""
-        for how, mu in attempts:
-            if how == "scaled":
-                z, y, status = run_daqp(data, q, lo, hi, None, mu)
-            else:
-                assert held is not None  # the workspace of a fixed Hessian
-                z, y, status = held.solve(q, lo, hi, cold=how == "cold")
-            if z is not None and y is not None:  # DAQP gives both or neither
-                sol = self._settle(kr, P, w, z, y, "daqp")
-                if sol is not None:
-                    return sol
-                status = "answer did not verify"
-            first = first or status
-        notes.append(f"daqp {first}")
-        return None
+
+        def runs() -> Iterator[DaqpAnswer]:
+            for how, mu in attempts:
+                if how == "scaled":
+                    yield run_daqp(data, q, lo, hi, None, mu)
+                else:
+                    assert held is not None  # the workspace of a fixed Hessian
+                    yield held.solve(q, lo, hi, cold=how == "cold")
+
+        return first_verified(runs(), lambda z, y: self._settle(kr, P, w, z, y, "daqp"), notes)
 
     def _daqp_direct(
         self, kr: KeptRows, P: np.ndarray, w: np.ndarray, start: tuple[int, ...] | None
@@ -337,11 +333,8 @@ class BeliefQP:
         z = np.asarray(x, dtype=np.float64)
         if flag != 1 or not np.isfinite(z).all():
             return None
-        lam = np.asarray(info["lam"])
-        nz = np.flatnonzero(lam)
-        active = np.where(lam[nz] > 0.0, upper_of[nz], lower_of[nz])
-        if nz.size <= d and (not nz.size or int(active.min()) >= 0):
-            found = tuple(sorted(active.tolist()))
+        found = active_set_of_multipliers(np.asarray(info["lam"]), upper_of, lower_of, d)
+        if found is not None:
             out = self.verify(kr, found, P, w)
             if out is not None:
                 return Solution(out, found, "daqp")

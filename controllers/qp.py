@@ -69,7 +69,7 @@ from .dual_qp import DaqpData, DaqpWorkspace
 from .kkt import KKT_TOL
 from .kkt_maps import ActiveSetMaps, active_set_maps
 from .lru import BudgetedLRU
-from .qp_daqp import SCREEN_RATIO, DaqpSolving, Solution
+from .qp_daqp import SCREEN_RATIO, DaqpSolving, Solution, active_set_of_multipliers
 from .qp_search import LocalSearch
 
 __all__ = [
@@ -380,14 +380,8 @@ class QPFamily(DaqpSolving, LocalSearch):
         """The active set (one-sided rows, sorted) of multipliers ``y`` in OSQP's form (one per
         row of ``A``: positive where its upper side is active, negative for the lower, 0 where
         inactive, as DAQP reports them); None when a side that does not exist is active or
-        there are more than ``d`` rows."""
-        nz = np.flatnonzero(y)
-        if nz.size > self.d:
-            return None
-        rows = np.where(y[nz] > 0.0, self._upper_of[nz], self._lower_of[nz])
-        if nz.size and int(rows.min()) < 0:
-            return None
-        return tuple(sorted(rows.tolist()))
+        there are more than ``d`` rows (:func:`controllers.qp_daqp.active_set_of_multipliers`)."""
+        return active_set_of_multipliers(y, self._upper_of, self._lower_of, self.d)
 
     # ------------------------------------------------------------------ exact solves
     def maps(self, rows: tuple[int, ...]) -> ActiveSetMaps | None:
