@@ -359,7 +359,7 @@ class QPFamily(DaqpSolving, LocalSearch):
         self._maps.clear()
         self._seen = None
         self._enum = None
-        if self._daqp is not None:  # DAQP's scaling and scaled rows are kept (~3 ms)
+        if self._daqp is not None:  # DAQP's scaling and scaled rows are kept (costly to redo)
             self._daqp_scaling = self._daqp
         self._daqp = None
         self._daqp_ws = None

@@ -21,15 +21,12 @@ solves; :data:`PROB_TOL` ends them early, and so does an answer of the fast path
 verified). They start from the plan of ``nu = 0`` with each node's mean moved into the interval
 that its parent's chance rows allow (per class of parallel rows of ``G``, the nearest point):
 where the optimum keeps a row active, that is where it puts the mean, and the first solve then
-confirms the start (on the closed loop of the
-macroeconomic example, four decisions in five at ``steps = 3`` take one solve; from the plan of
-``nu = 0`` itself every decision took at least two). When it does not, the next ``q`` is
-Newton's step along the first move, ``q + t (q(plan) - q)``: the answer's change along that
-line is that of its active set held (the exact solve applied to the change of the QP's data,
-no new factorization), the region probabilities are evaluated exactly along it, and ``t``
-makes the residual ``q(plan) - q`` smallest (the other decisions take two solves, where the
-plain iteration with Aitken's extrapolation took three). Later steps are damped iterations with
-Aitken's extrapolation.
+confirms the start (most decisions take one solve; results/speed/HISTORY.md). When it does not,
+the next ``q`` is Newton's step along the first move, ``q + t (q(plan) - q)``: the answer's
+change along that line is that of its active set held (the exact solve applied to the change of
+the QP's data, no new factorization), the region probabilities are evaluated exactly along it,
+and ``t`` makes the residual ``q(plan) - q`` smallest (one solve fewer than the plain
+iteration). Later steps are damped iterations with Aitken's extrapolation.
 This is an approximation of the state-dependent jumps in two ways: ``q`` is evaluated at the
 plan instead of being part of the optimization, and the Gaussian law of a node's state given
 its path ignores that a mode drawn from a random state tilts that state's law (the law of the
