@@ -237,32 +237,49 @@ class BeliefQP:
         recent = self._recent.setdefault(kr.modes, [])
         sol = None
         if method != "active_set":
-            # with one input, the cached maps make the warm sets cheap to test; with more, the
-            # solver warm-started from the last set is cheaper than testing a set that fails
-            if warm and self.fixed:
-                for i, rows in enumerate(recent):
-                    sol = self._guess(kr, rows, P, w, "warm" if i == 0 else "recent")
-                    if sol is not None:
-                        break
-            if sol is None and method == "daqp":
-                sol = self._daqp_solve(kr, P, w, recent[0] if recent and warm else None, notes)
-            elif sol is None:
-                sol = self._osqp_solve(kr, P, w, notes)
-            if sol is None and warm and not self.fixed:
-                for i, rows in enumerate(recent):
-                    sol = self._guess(kr, rows, P, w, "warm" if i == 0 else "recent")
-                    if sol is not None:
-                        break
+            sol = self._found(kr, P, w, method, recent if warm else [], notes)
         if sol is None:
             sol = self.enumerate(kr, P, w)
             if sol is None:
                 notes.append("no enumerated active set verified")
-        if sol is not None:
-            if sol.rows in recent:
-                recent.remove(sol.rows)
-            recent.insert(0, sol.rows)
-            del recent[RECENT_SETS:]
+                return None
+        if sol.rows in recent:
+            recent.remove(sol.rows)
+        recent.insert(0, sol.rows)
+        del recent[RECENT_SETS:]
         return sol
+
+    def _found(
+        self,
+        kr: KeptRows,
+        P: np.ndarray,
+        w: np.ndarray,
+        method: str,
+        recent: list[tuple[int, ...]],
+        notes: list[str],
+    ) -> Solution | None:
+        """The ``recent`` sets and the solver of ``method``: with one input the cached maps make
+        the recent sets cheap to test, so they come first; with more, the solver warm-started
+        from the last set is cheaper than testing a set that fails, so they come after it."""
+        sol = self._recent_guess(kr, recent, P, w) if self.fixed else None
+        if sol is None and method == "daqp":
+            sol = self._daqp_solve(kr, P, w, recent[0] if recent else None, notes)
+        elif sol is None:
+            sol = self._osqp_solve(kr, P, w, notes)
+        if sol is None and not self.fixed:
+            sol = self._recent_guess(kr, recent, P, w)
+        return sol
+
+    def _recent_guess(
+        self, kr: KeptRows, recent: list[tuple[int, ...]], P: np.ndarray, w: np.ndarray
+    ) -> Solution | None:
+        """The first of the ``recent`` sets that :meth:`_guess` verifies (the last one's path
+        ``"warm"``, the others' ``"recent"``), or None."""
+        for i, rows in enumerate(recent):
+            sol = self._guess(kr, rows, P, w, "warm" if i == 0 else "recent")
+            if sol is not None:
+                return sol
+        return None
 
     def _daqp_solve(
         self,

@@ -157,6 +157,13 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
     if not isinstance(env, gym.Env):
         raise TypeError(f"env = {describe(env)} is {a_type(env)}; expected a gymnasium.Env")
     wrappers, base = _layers(env)
+    horizon = _check_base(base, controller)
+    return ControllerPolicy(controller, horizon, _rescales(wrappers, base))
+
+
+def _check_base(base: gym.Env, controller: Controller) -> int:
+    """The horizon of the environment ``base`` under the wrappers, after checking that it is an
+    SDJLS environment of the controller's model."""
     model, horizon = getattr(base, "model", None), getattr(base, "horizon", None)
     if isinstance(model, SDJLSModel) and not (
         isinstance(horizon, int) and not isinstance(horizon, bool)
@@ -174,10 +181,15 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
         raise ValueError(
             f"env's model {model!r} is not the controller's model {controller.model!r}"
         )
+    return horizon
+
+
+def _rescales(wrappers: list[gym.Wrapper], base: gym.Env) -> list:
+    """The ``RescaleAction`` layers among ``wrappers`` (outermost first) as ``(low, high, min,
+    max)``; the layers that pass through are skipped, any other is refused by name."""
     rescales = []
     for layer in wrappers:
         kind = type(layer)
-        name = kind.__name__
         if kind in PASS_THROUGH_WRAPPERS or f"{kind.__module__}.{kind.__qualname__}" in (
             PASS_THROUGH_NAMES
         ):
@@ -194,27 +206,28 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
                     outer.high.astype(np.float64),
                 )
             )
-        elif kind is gw.ClipAction:
-            continue  # the controllers' inputs are clipped to the box by the env anyway
-        else:
-            if layer.observation_space != base.observation_space or isinstance(
-                layer, gym.ObservationWrapper
-            ):
-                what = "that changes the observation"
-            elif isinstance(layer, gym.ActionWrapper) or layer.action_space != (
-                layer.env.action_space
-            ):
-                what = "that changes the action in a way policy_for cannot undo"
-            else:
-                what = "that policy_for does not know (it may change the observation or the action)"
-            known = ", ".join(
-                [k.__name__ for k in PASS_THROUGH_WRAPPERS]
-                + [path.rsplit(".", 1)[1] for path in PASS_THROUGH_NAMES]
-            )
-            raise ValueError(
-                f"env has a {name} {what}; a controller needs the raw observation [x, "
-                "one-hot(mode), k / horizon] and its input u must reach the raw env. policy_for "
-                f"acts through {known}, undoes RescaleAction and ClipAction, and "
-                "refuses every other wrapper (act on env.unwrapped instead)"
-            )
-    return ControllerPolicy(controller, horizon, rescales)
+        elif kind is not gw.ClipAction:  # ClipAction: the env clips the inputs to the box anyway
+            raise ValueError(_refusal(layer, base))
+    return rescales
+
+
+def _refusal(layer: gym.Wrapper, base: gym.Env) -> str:
+    """What :func:`policy_for` says of a wrapper it cannot act through."""
+    if layer.observation_space != base.observation_space or isinstance(
+        layer, gym.ObservationWrapper
+    ):
+        what = "that changes the observation"
+    elif isinstance(layer, gym.ActionWrapper) or layer.action_space != layer.env.action_space:
+        what = "that changes the action in a way policy_for cannot undo"
+    else:
+        what = "that policy_for does not know (it may change the observation or the action)"
+    known = ", ".join(
+        [k.__name__ for k in PASS_THROUGH_WRAPPERS]
+        + [path.rsplit(".", 1)[1] for path in PASS_THROUGH_NAMES]
+    )
+    return (
+        f"env has a {type(layer).__name__} {what}; a controller needs the raw observation [x, "
+        "one-hot(mode), k / horizon] and its input u must reach the raw env. policy_for "
+        f"acts through {known}, undoes RescaleAction and ClipAction, and "
+        "refuses every other wrapper (act on env.unwrapped instead)"
+    )

@@ -477,16 +477,19 @@ class QPFamily(DaqpSolving, LocalSearch):
         """
         notes = [] if notes is None else notes
         self.open_budget()
+        sol = None
         if warm and self.warm is not None:
             sol = self.warm_solve(w)
-            if sol is not None:
-                self.warm = sol.rows
-                return sol
-        if self.use_daqp:
+        if sol is None and self.use_daqp:
             sol = self._solve_daqp(w, self.warm if warm else None, notes)
-            if sol is not None:
-                self.warm = sol.rows
-                return sol
+        if sol is None:
+            return self._solve_osqp(w, notes)
+        self.warm = sol.rows
+        return sol
+
+    def _solve_osqp(self, w: np.ndarray, notes: list[str]) -> Solution | None:
+        """The chain after DAQP: OSQP (and its retry), the enumeration after OSQP's first
+        answer, DAQP from OSQP's last iterate, the enumeration if it has not run."""
         enumerated = False
         for retry in (False, True)[: self.osqp_runs]:
             z, y, status = self.run_osqp(w, retry)
