@@ -16,40 +16,28 @@ exits (``--help``: 0, a bad option: 2) pass through.
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable
+
+from benchmarks.core.commands import COMMANDS
 
 __all__ = ["compare_rl", "evaluate", "reproduce_paper", "speed", "suite", "tune"]
 
 
-def _run(module: str) -> int:
-    importlib.import_module(f"benchmarks.{module}").main()
-    return 0
+def _command(script: str, target: str) -> Callable[[], int]:
+    """The console command of ``script``: runs ``target``'s ``main`` and returns 0."""
+
+    def run() -> int:
+        importlib.import_module(f"benchmarks.{script}").main()
+        return 0
+
+    run.__name__ = run.__qualname__ = script
+    run.__doc__ = f"``{COMMANDS[script]}``: :func:`{target}.main`."
+    return run
 
 
-def reproduce_paper() -> int:
-    """``sdjls-reproduce-paper``: :func:`benchmarks.paper.reproduce.main`."""
-    return _run("reproduce_paper")
-
-
-def compare_rl() -> int:
-    """``sdjls-compare-rl``: :func:`benchmarks.rl.compare.main`."""
-    return _run("compare_rl")
-
-
-def evaluate() -> int:
-    """``sdjls-evaluate``: :func:`benchmarks.evaluate.main`."""
-    return _run("evaluate")
-
-
-def speed() -> int:
-    """``sdjls-speed``: :func:`benchmarks.speed.main`."""
-    return _run("speed")
-
-
-def suite() -> int:
-    """``sdjls-suite``: :func:`benchmarks.suite.main`."""
-    return _run("suite")
-
-
-def tune() -> int:
-    """``sdjls-tune``: :func:`benchmarks.rl.tune.main`."""
-    return _run("tune")
+reproduce_paper = _command("reproduce_paper", "benchmarks.paper.reproduce")
+compare_rl = _command("compare_rl", "benchmarks.rl.compare")
+evaluate = _command("evaluate", "benchmarks.evaluate")
+speed = _command("speed", "benchmarks.speed")
+suite = _command("suite", "benchmarks.suite")
+tune = _command("tune", "benchmarks.rl.tune")

@@ -21,18 +21,26 @@ wrong number in the preset makes a test fail. Modes are 0-based here (the paper'
 
 from __future__ import annotations
 
-import contextlib
-import re
-import warnings
-from collections.abc import Iterator
-from pathlib import Path
-from types import SimpleNamespace
-from typing import Any
+import os
 
-import numpy as np
-import pytest
+# One BLAS thread, before numpy is imported (as benchmarks/__init__.py does for the scripts):
+# the tests' matrices are small, and OpenBLAS threads fight over a shared machine's cores (a test
+# heavy in eigendecompositions took 0.5 s with one thread and 7-16 s with the default at load 6).
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
-from sdjls_gym import SDJLSModel
+import contextlib  # noqa: E402
+import re  # noqa: E402
+import warnings  # noqa: E402
+from collections.abc import Iterator  # noqa: E402
+from pathlib import Path  # noqa: E402
+from types import SimpleNamespace  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from sdjls_gym import SDJLSModel  # noqa: E402
 
 
 def paper_numbers() -> SimpleNamespace:
@@ -440,6 +448,7 @@ COPIED_TABLES = (
     ("Receding horizon against reinforcement learning", "results/rl/REPORT.md", 10, 20),
     ("Speed", "results/speed/SPEED.md", 6, 14),
     ("The suite, scored as one benchmark", "results/suite/REPORT.md", 8, 12),
+    ("Learn the model, then control", "results/identify/REPORT.md", 8, 8),
 )
 
 

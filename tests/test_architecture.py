@@ -30,9 +30,10 @@ FACES = {
     "benchmarks.core",
     "benchmarks.suite",
     "benchmarks.speed",
+    "benchmarks.identify",
 }
 #: The wings of ``benchmarks``: each assembles the core's pieces into one study.
-WINGS = ("paper", "pictures", "rl", "speed", "suite")
+WINGS = ("identify", "paper", "pictures", "rl", "speed", "suite")
 
 
 def import_graph() -> dict[str, set[str]]:

@@ -39,12 +39,13 @@ def parsed(monkeypatch, module: str, argv: list[str]):
 
 FLAGS = {
     "compare_rl": "--preset --tasks --configs --algos --variants --timesteps --seeds "
-    "--eval-episodes --seed --out --workers --backend --address --quick --train-only --score-only "
+    "--eval-episodes --seed --eval-seeds --out --workers --backend --address --quick --train-only "
+    "--score-only "
     "--tuned "
     "--retrain --no-progress",
     "reproduce_paper": "--runs --stat-runs --seed --out --no-progress",
     "render_picture": "--out --seed --episodes --fps-only --before",
-    "suite": "--policy --tasks --episodes --seed --json --out --tree-episodes --quick "
+    "suite": "--policy --tasks --episodes --seed --seeds --json --out --tree-episodes --quick "
     "--no-progress",
     "tune": "--algo --variant --task --trials --timesteps --seeds --storage --study-name --out "
     "--backend --address --workers --seed --quick --print-space --no-progress",

@@ -1,8 +1,9 @@
 """The README's tables are copies of the committed benchmark reports, not numbers typed by hand.
 
 The README copies the claims table of ``results/paper/REPORT.md``, the results table of
-``results/rl/REPORT.md`` and the speed tables of ``results/speed/SPEED.md``. When a benchmark is
-re-run and its report changes, this test fails until the README is updated from it.
+``results/rl/REPORT.md``, the speed tables of ``results/speed/SPEED.md`` and the steps table of
+``results/identify/REPORT.md``. When a benchmark is re-run and its report changes, this test
+fails until the README is updated from it.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import re
 from pathlib import Path
 
 import pytest
-from conftest import COPIED_TABLES, uncopied_rows
+from conftest import COPIED_TABLES, section, uncopied_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text(encoding="utf-8")
@@ -28,6 +29,7 @@ def test_readme_names_the_commands_and_shows_the_figures():
         "python -m benchmarks.reproduce_paper",
         "python -m benchmarks.compare_rl",
         "python -m benchmarks.speed",
+        "python -m benchmarks.identify",
     ):
         assert command in README
     for figure in re.findall(r"!\[[^\]]*\]\(([^)]+)\)", README):
@@ -58,3 +60,23 @@ def test_readme_is_short_and_wrapped():
         elif not in_code and not line.startswith("|") and len(line) > 100:
             long.append(number)
     assert len(lines) <= 230 and not long, (len(lines), long)
+
+
+def _conclusions(report: str) -> list[str]:
+    """The bullet sentences of a report's "## Conclusions" section, whitespace folded."""
+    text = section((ROOT / report).read_text(encoding="utf-8"), "Conclusions")
+    return [" ".join(b.split()) for b in re.findall(r"^- (.*?)(?=^- |\Z)", text,
+                                                     flags=re.M | re.S)]  # fmt: skip
+
+
+def test_the_readmes_conclusions_are_the_reports_own_sentences():
+    """The conclusions the README states about the RL comparisons are copied from the reports,
+    where code writes them from the numbers (benchmarks/rl/claims.py): a sentence typed by hand,
+    or left over from an earlier scoring, fails here."""
+    rl = section(README, "Receding horizon against reinforcement learning")
+    match = re.search(r"^Conclusions[^\n]*:\n\n(.*?)(?=\n\n[^-]|\Z)", rl, flags=re.M | re.S)
+    assert match, "README's RL section has no 'Conclusions ...:' list"
+    bullets = [" ".join(b.split()) for b in re.findall(r"^- (.*?)(?=^- |\Z)", match.group(1),
+                                                       flags=re.M | re.S)]  # fmt: skip
+    reports = _conclusions("results/rl/REPORT.md") + _conclusions("results/rl_suite/REPORT.md")
+    assert bullets and all(b in reports for b in bullets), [b for b in bullets if b not in reports]

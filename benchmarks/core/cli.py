@@ -38,6 +38,7 @@ __all__ = [
     "import_attribute",
     "load_cli_policy",
     "one_of",
+    "option",
     "options_parser",
     "out_folder_error",
     "output_folder",
@@ -62,6 +63,15 @@ class CliError(Exception):
 
 
 # ----------------------------------------------------------------------------- options
+def option(default: Any, help: str, **metadata: Any) -> Any:
+    """A field of an options dataclass (:func:`options_parser`): its default (a list is copied
+    for each instance), its ``help`` and any other metadata (``choices``, ``metavar``)."""
+    meta = {"help": help, **metadata}
+    if isinstance(default, list):
+        return dataclasses.field(default_factory=lambda: list(default), metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
 def _field_kind(cls: type, name: str, hint: Any) -> tuple[Any, bool]:
     """``(scalar type, takes a list)`` of an annotation: ``int | None`` -> (int, False),
     ``list[Path] | None`` -> (Path, True)."""
@@ -264,6 +274,54 @@ def _saved_algorithms(path: str) -> tuple[str, ...] | None:
         return None
 
 
+def _check_sb3_options(policy: str, algo: str | None, train_env: str | None,
+                       vec_normalize: str | None) -> None:  # fmt: skip
+    """The options that go with a stable-baselines3 ``.zip`` ``policy``, each named."""
+    if algo is None:
+        raise CliError(f"--policy {policy} is a stable-baselines3 file: give --algo {SB3_ALGOS}")
+    if not Path(policy).is_file():
+        raise CliError(f"--policy {policy}: no such file")
+    if vec_normalize is not None and not Path(vec_normalize).is_file():
+        raise CliError(f"--vec-normalize {vec_normalize}: no such file")
+    if vec_normalize is not None and train_env is None:
+        raise CliError("--vec-normalize needs --train-env (the environment it normalized)")
+
+
+def _load_sb3(policy: str, algo: str) -> Any:
+    """The stable-baselines3 agent of the file ``policy`` as ``algo``."""
+    try:
+        import stable_baselines3
+    except ImportError:
+        raise CliError(
+            f'--policy {policy} needs stable-baselines3: pip install -e ".[rl]"'
+        ) from None
+    saved = _saved_algorithms(policy)
+    if saved is not None and algo not in saved:
+        raise CliError(
+            f"--policy {policy} holds a {'/'.join(a.upper() for a in saved)} agent, not "
+            f"--algo {algo}; give --algo {saved[-1]}"
+        )
+    try:
+        return getattr(stable_baselines3, algo.upper()).load(policy, device="cpu")
+    except Exception as exc:  # noqa: BLE001 - a corrupt or foreign file: name it
+        raise CliError(
+            f"--policy {policy} cannot be loaded as a stable-baselines3 {algo.upper()} agent "
+            f"({type(exc).__name__}: {exc})"
+        ) from None
+
+
+def _load_vec_normalize(vec_normalize: str, env: Any) -> Any:
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    try:
+        return VecNormalize.load(vec_normalize, DummyVecEnv([lambda: env]))
+    except Exception as exc:  # noqa: BLE001 - a corrupt or foreign file: name it
+        raise CliError(
+            f"--vec-normalize {vec_normalize} cannot be loaded as a VecNormalize "
+            f"({type(exc).__name__}: {exc})"
+        ) from None
+
+
 def load_cli_policy(
     policy: str, algo: str | None, train_env: str | None, vec_normalize: str | None = None
 ) -> Any:
@@ -279,50 +337,16 @@ def load_cli_policy(
                 "file only"
             )
         return import_attribute(policy, "--policy")
-    if algo is None:
-        raise CliError(f"--policy {policy} is a stable-baselines3 file: give --algo {SB3_ALGOS}")
-    if not Path(policy).is_file():
-        raise CliError(f"--policy {policy}: no such file")
-    if vec_normalize is not None and not Path(vec_normalize).is_file():
-        raise CliError(f"--vec-normalize {vec_normalize}: no such file")
-    if vec_normalize is not None and train_env is None:
-        raise CliError("--vec-normalize needs --train-env (the environment it normalized)")
+    _check_sb3_options(policy, algo, train_env, vec_normalize)
+    assert algo is not None  # checked just above
     env = None
     if train_env is not None:  # before the agent: a bad name fails fast
         env = import_attribute(train_env, "--train-env")
         env = env() if callable(env) and not isinstance(env, gym.Env) else env
-    try:
-        import stable_baselines3
-    except ImportError:
-        raise CliError(
-            f'--policy {policy} needs stable-baselines3: pip install -e ".[rl]"'
-        ) from None
-    saved = _saved_algorithms(policy)
-    if saved is not None and algo not in saved:
-        raise CliError(
-            f"--policy {policy} holds a {'/'.join(a.upper() for a in saved)} agent, not "
-            f"--algo {algo}; give --algo {saved[-1]}"
-        )
-    try:
-        agent = getattr(stable_baselines3, algo.upper()).load(policy, device="cpu")
-    except Exception as exc:  # noqa: BLE001 - a corrupt or foreign file: name it
-        raise CliError(
-            f"--policy {policy} cannot be loaded as a stable-baselines3 {algo.upper()} agent "
-            f"({type(exc).__name__}: {exc})"
-        ) from None
+    agent = _load_sb3(policy, algo)
     if env is None:
         return agent
-    norm = None
-    if vec_normalize is not None:
-        from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
-
-        try:
-            norm = VecNormalize.load(vec_normalize, DummyVecEnv([lambda: env]))
-        except Exception as exc:  # noqa: BLE001 - a corrupt or foreign file: name it
-            raise CliError(
-                f"--vec-normalize {vec_normalize} cannot be loaded as a VecNormalize "
-                f"({type(exc).__name__}: {exc})"
-            ) from None
+    norm = None if vec_normalize is None else _load_vec_normalize(vec_normalize, env)
     from benchmarks.core.policies import RawEnvPolicy
 
     try:

@@ -21,14 +21,14 @@ import csv
 import json
 import re
 import sys
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
-from benchmarks.core.cli import options_parser, output_folder, parse_options
+from benchmarks.core.cli import option, options_parser, output_folder, parse_options
 from benchmarks.core.commands import prog
 from benchmarks.core.files import stable_floats, write_atomic
 from benchmarks.core.montecarlo import Rollouts, rollout
@@ -45,24 +45,14 @@ CALIBRATION_XIS = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.93
 
 @dataclass
 class Options:
-    runs: int = field(
-        default=50,
-        metadata={"help": "Monte Carlo runs drawn in the income figures (the paper draws 50)"},
+    runs: int = option(50, "Monte Carlo runs drawn in the income figures (the paper draws 50)")
+    stat_runs: int = option(
+        2000,
+        "runs per configuration behind every statistic, claim check and the calibration figure",
     )
-    stat_runs: int = field(
-        default=2000,
-        metadata={
-            "help": "runs per configuration behind every statistic, claim check and the calibration figure"
-        },
-    )
-    seed: int = field(
-        default=0, metadata={"help": "seed of the noise; the same seed gives the same files"}
-    )
-    out: Path = field(
-        default=Path("results/paper"),
-        metadata={"help": "folder for figures, summary files and REPORT.md"},
-    )
-    no_progress: bool = field(default=False, metadata={"help": "do not show progress bars"})
+    seed: int = option(0, "seed of the noise; the same seed gives the same files")
+    out: Path = option(Path("results/paper"), "folder for figures, summary files and REPORT.md")
+    no_progress: bool = option(False, "do not show progress bars")
 
 
 def parse_args(argv: list[str] | None = None) -> Options:

@@ -34,7 +34,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +42,7 @@ import gymnasium as gym
 import numpy as np
 
 import sdjls_gym  # noqa: F401  (registers the ids)
-from benchmarks.core.cli import options_parser, output_folder, parse_options
+from benchmarks.core.cli import option, options_parser, output_folder, parse_options
 from benchmarks.core.commands import prog
 from sdjls_gym.env import SDJLSEnv
 from sdjls_gym.systems.macro import HORIZON, PAPER_K, PAPER_RHC, macro
@@ -52,28 +52,18 @@ TARGET_FPS = 30.0  # a 20-step episode recorded as video at >= 30 frames per sec
 
 @dataclass
 class Options:
-    out: Path = field(
-        default=Path("results/render"),
-        metadata={"help": "directory for the pictures, render.json and RENDER.md"},
+    out: Path = option(
+        Path("results/render"), "directory for the pictures, render.json and RENDER.md"
     )
-    seed: int = field(
-        default=0,
-        metadata={
-            "help": "seed of the pictured episodes; the timed ones use seed + 1, seed + 2, ..."
-        },
+    seed: int = option(
+        0, "seed of the pictured episodes; the timed ones use seed + 1, seed + 2, ..."
     )
-    episodes: int = field(default=10, metadata={"help": "number of timed 20-step episodes"})
-    fps_only: bool = field(
-        default=False,
-        metadata={
-            "help": "time env.render() only (no pictures, no reference; works on older code)"
-        },
+    episodes: int = option(10, "number of timed 20-step episodes")
+    fps_only: bool = option(
+        False, "time env.render() only (no pictures, no reference; works on older code)"
     )
-    before: Path | None = field(
-        default=None,
-        metadata={
-            "help": "render.json of an --fps-only run on the code before the change, for RENDER.md"
-        },
+    before: Path | None = option(
+        None, "render.json of an --fps-only run on the code before the change, for RENDER.md"
     )
 
 

@@ -7,7 +7,9 @@ same records the tables are (never typed by hand), and each says only what its n
   reference at equal risk (the 95% interval of the gap entirely below 0), how many costlier
   (entirely above), how many undecided, and how many have no gap (a diverged episode, riskier
   or safer than the whole curve);
-* :func:`task_sentence`: one task's sentence over its configurations;
+* :func:`headline_sentence`: one task's conclusion in a line (which configurations are cheaper
+  on every seed, on some, and how many have no gap on any seed);
+* :func:`task_sentence`: one task's sentence over its configurations, each with its counts;
 * :func:`across_sentence`: the sentence across tasks, from rliable's IQM of the bounded gaps
   (every run counts): a configuration "beats" the reference only where the interval of its IQM
   lies below 0, "loses" where it lies above, and is "not distinguishable" otherwise.
@@ -21,7 +23,15 @@ from typing import Any
 
 from benchmarks.core.stats import CurveGap
 
-__all__ = ["RunCounts", "across_sentence", "run_counts", "task_sentence", "verdict"]
+__all__ = [
+    "RunCounts",
+    "conclusions_section",
+    "across_sentence",
+    "headline_sentence",
+    "run_counts",
+    "task_sentence",
+    "verdict",
+]
 
 
 @dataclass(frozen=True)
@@ -87,6 +97,23 @@ def task_sentence(env_id: str, reference: str, counts: Sequence[RunCounts]) -> s
     return f"On {env_id}, {lead}: " + "; ".join(c.phrase() for c in counts) + "."
 
 
+def _names(configs: Sequence[str]) -> str:
+    return ", ".join(configs) if configs else "none"
+
+
+def headline_sentence(env_id: str, reference: str, counts: Sequence[RunCounts]) -> str:
+    """One task's conclusion against ``reference`` in a line, from its configurations' counts."""
+    if not counts:
+        return f"On {env_id}, no agent is kept."
+    every = [c.config for c in counts if c.cheaper == c.seeds]
+    some = [c.config for c in counts if 0 < c.cheaper < c.seeds]
+    none = [c.config for c in counts if c.no_gap == c.seeds]
+    return (f"On {env_id}, cheaper than the {reference} at equal risk on every seed: "
+            f"{_names(every)}; on some seeds: {_names(some)}; without a gap on any seed "
+            f"(diverged, or outside the curve's range): {len(none)} of {len(counts)} "
+            "configuration(s).")  # fmt: skip
+
+
 def verdict(iqm_ci95: tuple[float, float]) -> str:
     """``"beats"``, ``"loses to"`` or ``"is not distinguishable from"`` the reference, by
     where the 95% interval of a (lower-is-better) IQM lies against 0."""
@@ -109,3 +136,9 @@ def across_sentence(reference: str, rows: Sequence[tuple[str, Any]]) -> str:
         parts.append(f"{config} {verdict((lo, hi))} it (IQM {a.iqm_gap:+.1f}%, 95% interval "
                      f"{lo:+.1f} to {hi:+.1f}, {a.runs} seeds x {a.tasks} tasks)")  # fmt: skip
     return f"Every run counted, against the {reference}: " + "; ".join(parts) + "."
+
+
+def conclusions_section(sentences: Sequence[str]) -> list[str]:
+    """A report's ``## Conclusions`` section (Markdown lines) of ``sentences``."""
+    return ["## Conclusions", "", "Written by the report's code from the tables below "
+            "(`benchmarks/rl/claims.py`).", "", *[f"- {line}" for line in sentences], ""]  # fmt: skip

@@ -29,7 +29,12 @@ from benchmarks.core.stats import (
     wilson,
 )
 from benchmarks.rl import hyperparams as HP
-from benchmarks.rl.claims import run_counts, task_sentence
+from benchmarks.rl.claims import (
+    conclusions_section,
+    headline_sentence,
+    run_counts,
+    task_sentence,
+)
 from benchmarks.rl.records import RunRecord
 
 #: Margin over the target 1 - xi within which a trained agent counts as comparable with the RHC.
@@ -421,7 +426,8 @@ def macro_conclusions(summary: Summary, reference: str) -> list[str]:
         bounded = [r.score.bounded_gap for r in runs]
         counts.append(run_counts(config, [r.score.curve_gap for r in runs],
                                  [WORST_GAP if b is None else b for b in bounded]))  # fmt: skip
-    return [task_sentence("SDJLS-Macro-v0", f"{reference} RHC", counts)]
+    return [headline_sentence("SDJLS-Macro-v0", reference, counts),
+            task_sentence("SDJLS-Macro-v0", reference, counts)]  # fmt: skip
 
 
 def write_report(summary: Summary, xi: float, reference: str) -> str:
@@ -454,12 +460,7 @@ def write_report(summary: Summary, xi: float, reference: str) -> str:
         "per-step cost c; every number here is the true cost. Hyperparameters and budgets: "
         "`benchmarks/rl_hyperparams.py`; how they were chosen: `HISTORY.md`.",
         "",
-        "## Conclusions",
-        "",
-        "Written by the report's code from the tables below (`benchmarks/rl/claims.py`).",
-        "",
-        *[f"- {line}" for line in macro_conclusions(summary, reference)],
-        "",
+        *conclusions_section(macro_conclusions(summary, reference)),
         "## Results",
         "",
         *table(main_mb + summary.rl_aggregates),

@@ -60,7 +60,14 @@ from benchmarks.core.frontier import (
 from benchmarks.core.montecarlo import rollouts
 from benchmarks.core.reference import QUICK_TREE, TREE_BY_TASK, TREE_STEPS, TREE_XIS
 from benchmarks.core.stats import CurveGap, CurveStatus, curve_status, efficient_points
-from benchmarks.rl.claims import across_sentence, run_counts, task_sentence
+from benchmarks.rl.claims import (
+    RunCounts,
+    across_sentence,
+    conclusions_section,
+    headline_sentence,
+    run_counts,
+    task_sentence,
+)
 from benchmarks.rl.envs import comparison_env_kwargs
 from benchmarks.rl.report import RunResult, aggregate, result_json
 from benchmarks.rl.suite_tables import (
@@ -464,12 +471,17 @@ def conclusion_lines(reports: list[TaskReport], across: list[ConfigAcross]) -> l
         across_sentence("3-step tree", [(c.config, c.bounded_tree) for c in across]),
     ]
     for r in reports:
-        counts = []
-        for config in dict.fromkeys(a.config for a in r.agents):
-            mine = [a for a in r.agents if a.config == config]
-            counts.append(run_counts(config, [a.gap for a in mine], [a.bounded for a in mine]))
-        lines.append(task_sentence(r.env_id, "one-step RHC", counts))
+        lines.append(headline_sentence(r.env_id, "one-step RHC", task_counts(r)))
     return lines
+
+
+def task_counts(r: TaskReport) -> list[RunCounts]:
+    """Per configuration of a task, its seeds against the one-step RHC (:mod:`.claims`)."""
+    counts = []
+    for config in dict.fromkeys(a.config for a in r.agents):
+        mine = [a for a in r.agents if a.config == config]
+        counts.append(run_counts(config, [a.gap for a in mine], [a.bounded for a in mine]))
+    return counts
 
 
 # ----------------------------------------------------------------------------- outputs
@@ -570,18 +582,14 @@ def report_suite(specs: list[RunSpec], records: Sequence[RunRecord | None], run_
         f"{summary['scoring']['wall_s'] / 60:.1f} min ({summary['scoring']['cpu_s'] / 60:.1f} "
         "CPU-min).",
         "",
-        "## Conclusions",
-        "",
-        "Written by the report's code from the tables below (`benchmarks/rl/claims.py`).",
-        "",
-        *[f"- {line}" for line in conclusions],
-        "",
+        *conclusions_section(conclusions),
         *runs_section(reports),
         *across_section(across, tree_refs),
         *[f"![{name}]({name})\n" for name in drawn],
     ]
     for r in reports:
-        lines += task_section(r, figures[r.env_id])
+        lines += task_section(r, figures[r.env_id],
+                              task_sentence(r.env_id, "one-step RHC", task_counts(r)))  # fmt: skip
     write_atomic(out / "REPORT.md", "\n".join(lines) + "\n")
     log(f"wrote {out}/REPORT.md")
     return summary

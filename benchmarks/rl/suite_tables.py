@@ -119,9 +119,10 @@ def across_section(across: list[Any], tree_refs: dict[str, Any]) -> list[str]:
     return lines
 
 
-def task_section(r: Any, figures: list[str]) -> list[str]:
+def task_section(r: Any, figures: list[str], sentence: str = "") -> list[str]:
     """One task's section (:class:`~benchmarks.rl.suite_report.TaskReport`): its references,
-    missing runs, agents' table, each run's two gaps, the flatness test and ``figures``."""
+    missing runs, agents' table, each run's two gaps, the sentence written from them (by
+    :func:`benchmarks.rl.claims.task_sentence`), the flatness test and ``figures``."""
     lines = [
         f"## {r.env_id}",
         "",
@@ -160,6 +161,8 @@ def task_section(r: Any, figures: list[str]) -> list[str]:
             lines.append(f"| {a.run.name} | {s.violation:.3f} | {s.cost_mean:.4g} | "
                          f"{gap_text(a.gap, a.reason)} | {gap_text(a.tree_gap, a.tree_reason)} | "
                          f"{a.bounded:+.1f} / {a.tree.value:+.1f} |")  # fmt: skip
+        if sentence:
+            lines += ["", sentence]
         lines += ["", "Learning curves (the flatness test of results/rl):", "",
                   *curve_table(r.status), ""]  # fmt: skip
     for name in figures:

@@ -4,9 +4,10 @@ model-based references into ``results/suite/`` (:mod:`benchmarks.suite.report`).
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
+from benchmarks.core.cli import option
 from benchmarks.core.commands import prog
 from benchmarks.core.evaluate import check_evaluation
 from benchmarks.core.suite import describe_suite, evaluate_suite
@@ -18,45 +19,38 @@ __all__ = ["Options", "main", "parse_args"]
 
 @dataclass
 class Options:
-    policy: str | None = field(
-        default=None,
-        metadata={"help": "package.module:factory, a function task -> policy (or a list of "
-                  "policies, one per run); without it, compute the model-based references"},
-    )  # fmt: skip
-    tasks: list[str] = field(
-        default_factory=lambda: list(SUITE),
-        metadata={"help": "tasks of the suite", "choices": SUITE},
+    policy: str | None = option(
+        None,
+        "package.module:factory, a function task -> policy (or a list of "
+        "policies, one per run); without it, compute the model-based references",
     )
-    episodes: int | None = field(
-        default=None,
-        metadata={"help": "episodes per task and controller, per noise seed; default 1000, "
-                  "50 with --quick"},
-    )  # fmt: skip
-    seed: int = field(default=0, metadata={"help": "(first) noise seed"})
-    seeds: int | None = field(
-        default=None,
-        metadata={"help": "noise seeds --seed, --seed + 1, ... whose episodes are pooled; "
-                  "default 3 for the references, 1 with --quick or --policy"},
-    )  # fmt: skip
-    json: str | None = field(
-        default=None, metadata={"help": "with --policy: write the suite's score here"}
+    tasks: list[str] = option(list(SUITE), "tasks of the suite", choices=SUITE)
+    episodes: int | None = option(
+        None, "episodes per task and controller, per noise seed; default 1000, 50 with --quick"
     )
-    out: str | None = field(
-        default=None,
-        metadata={"help": "references: output folder; default results/suite, or a new temporary "
-                  "folder with --quick (a smoke test never writes into the committed results)"},
-    )  # fmt: skip
-    tree_episodes: int | None = field(
-        default=None,
-        metadata={"help": "references: episodes per seed of the 3-step tree curve on every task "
-                  "(default: as --episodes, but benchmarks.core.reference.TREE_BY_TASK)"},
-    )  # fmt: skip
-    quick: bool = field(
-        default=False,
-        metadata={"help": "references, smoke test: 50 episodes, a coarse grid of xi, a 2-point "
-                  "tree curve on 10 episodes"},
-    )  # fmt: skip
-    no_progress: bool = field(default=False, metadata={"help": "do not show the progress bar"})
+    seed: int = option(0, "(first) noise seed")
+    seeds: int | None = option(
+        None,
+        "noise seeds --seed, --seed + 1, ... whose episodes are pooled; "
+        "default 3 for the references, 1 with --quick or --policy",
+    )
+    json: str | None = option(None, "with --policy: write the suite's score here")
+    out: str | None = option(
+        None,
+        "references: output folder; default results/suite, or a new temporary "
+        "folder with --quick (a smoke test never writes into the committed results)",
+    )
+    tree_episodes: int | None = option(
+        None,
+        "references: episodes per seed of the 3-step tree curve on every task "
+        "(default: as --episodes, but benchmarks.core.reference.TREE_BY_TASK)",
+    )
+    quick: bool = option(
+        False,
+        "references, smoke test: 50 episodes, a coarse grid of xi, a 2-point "
+        "tree curve on 10 episodes",
+    )
+    no_progress: bool = option(False, "do not show the progress bar")
 
 
 def parse_args(argv: list[str] | None = None) -> tuple[Options, Any]:
@@ -65,9 +59,6 @@ def parse_args(argv: list[str] | None = None) -> tuple[Options, Any]:
     import argparse
 
     from benchmarks.core.cli import (
-        CliError,
-        file_option_error,
-        import_attribute,
         options_parser,
         parse_options,
     )
@@ -99,22 +90,8 @@ def parse_args(argv: list[str] | None = None) -> tuple[Options, Any]:
             check_evaluation(opts.tree_episodes, 0)
         except ValueError as exc:
             parser.error(str(exc).replace("episodes = ", "--tree-episodes = "))
-    factory = None
     if opts.policy is not None:
-        given = [f"--{n.replace('_', '-')}" for n in ("out", "tree_episodes", "quick")
-                 if getattr(opts, n) not in (None, False)]  # fmt: skip
-        if given:
-            parser.error(f"{', '.join(given)}: apply to the references (without --policy) only")
-        if opts.json is not None and (error := file_option_error("--json", opts.json)):
-            parser.error(error)
-        try:
-            factory = import_attribute(opts.policy, "--policy")
-        except CliError as exc:
-            parser.error(str(exc))
-        if not callable(factory):
-            parser.error(f"--policy {opts.policy} is {a_type(factory)}; expected a function "
-                         "task -> policy")  # fmt: skip
-        return opts, factory
+        return opts, _factory(parser, opts)
     if opts.json is not None:
         parser.error("--json applies with --policy only (the references write into --out)")
     from benchmarks.core.cli import output_folder
@@ -123,6 +100,26 @@ def parse_args(argv: list[str] | None = None) -> tuple[Options, Any]:
     opts.out = str(output_folder(parser, "--out", opts.out, quick=opts.quick, default=DEFAULT_OUT,
                                  script="suite"))  # fmt: skip
     return opts, None
+
+
+def _factory(parser: Any, opts: Options) -> Any:
+    """With ``--policy``: the factory it names, the options checked against it."""
+    from benchmarks.core.cli import CliError, file_option_error, import_attribute
+
+    given = [f"--{n.replace('_', '-')}" for n in ("out", "tree_episodes", "quick")
+             if getattr(opts, n) not in (None, False)]  # fmt: skip
+    if given:
+        parser.error(f"{', '.join(given)}: apply to the references (without --policy) only")
+    if opts.json is not None and (error := file_option_error("--json", opts.json)):
+        parser.error(error)
+    try:
+        factory = import_attribute(str(opts.policy), "--policy")
+    except CliError as exc:
+        parser.error(str(exc))
+    if not callable(factory):
+        parser.error(f"--policy {opts.policy} is {a_type(factory)}; expected a function "
+                     "task -> policy")  # fmt: skip
+    return factory
 
 
 def main(argv: list[str] | None = None) -> Any:

@@ -1,0 +1,5 @@
+"""``python -m benchmarks.identify``."""
+
+from benchmarks.identify.cli import main
+
+main()
