@@ -98,14 +98,6 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
     model : SDJLSModel
     K : (N, m, n) array
         Pre-stabilising gains ``K_i``; the input is ``u = K(pi) x + nu``.
-    Psi : (N, n, n) array
-        Terminal weights, symmetric positive definite (keyword, required).
-    xi : float
-        Chance-constraint level in (0, 1) (keyword, required).
-    constraint, alpha, nu_bound, solver, nu_set, horizon, osqp_settings, cvxpy_fallback
-        As :class:`controllers.RecedingHorizonController` (the same names, defaults and
-        checks, :class:`controllers.horizon.RecedingHorizonBase`); ``solver`` is ``"daqp"``,
-        ``"osqp"``, ``"cvxpy"`` or ``"active_set"``.
     gain : {"weighted", "most_probable"}
         The rule of ``K(pi)`` (see the module docstring).
     give_up : float
@@ -114,6 +106,13 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         ``xi / (1 - 0.75 (1 - xi))``, 0.973 for ``xi = 0.9``). Above 0, so that the answer is
         continuous as the belief tends to a certain one; below 1, so that the kept modes' risk
         stays positive.
+    **settings
+        The settings of :class:`controllers.RecedingHorizonController`, keyword, with the same
+        names, types, defaults and checks (:class:`controllers.horizon.RecedingHorizonBase`,
+        :class:`~controllers.horizon.HorizonKwargs`): ``Psi`` the terminal weights (required),
+        ``xi`` the chance-constraint level (required), ``constraint``, ``alpha``, ``nu_bound``,
+        ``solver`` (here ``"daqp"``, ``"osqp"``, ``"cvxpy"`` or ``"active_set"``), ``nu_set``,
+        ``horizon``, ``osqp_settings``, ``cvxpy_fallback``.
 
     Attributes
     ----------

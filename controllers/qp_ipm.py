@@ -20,7 +20,20 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["IPM_MIN_VARIABLES", "IPM_MIN_VIOLATED", "IPM_SETTINGS", "interior_point_rows"]
+__all__ = [
+    "IPM_MIN_VARIABLES",
+    "IPM_MIN_VIOLATED",
+    "IPM_SETTINGS",
+    "clarabel_tolerances",
+    "interior_point_rows",
+]
+
+
+def clarabel_tolerances(tol: float, max_iter: int) -> dict[str, Any]:
+    """Clarabel's settings with one tolerance ``tol`` on the duality gap (absolute and relative)
+    and on feasibility, and at most ``max_iter`` iterations."""
+    return {"tol_gap_abs": tol, "tol_gap_rel": tol, "tol_feas": tol, "max_iter": max_iter}
+
 
 #: Families of at least this many variables (and screened: many more rows than variables) may
 #: take the hint; below, DAQP's iterations are cheap enough.
@@ -33,12 +46,7 @@ IPM_MIN_VIOLATED = 8
 
 #: Clarabel's settings for the hint: tolerances at which the indicator has separated the
 #: active rows (but for a few weakly active ones; see :meth:`controllers.tree_qp.TreeQP._mend_hint`).
-IPM_SETTINGS: dict[str, Any] = {
-    "tol_gap_abs": 1e-8,
-    "tol_gap_rel": 1e-8,
-    "tol_feas": 1e-8,
-    "max_iter": 100,
-}
+IPM_SETTINGS = clarabel_tolerances(1e-8, max_iter=100)
 
 
 def interior_point_rows(

@@ -202,14 +202,14 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
     iterations : int
         Largest number of QP solves per decision (fixed-point iterations on the branch
         probabilities), ``>= 1``.
-    Psi : (N, n, n) array
-        Terminal weights, symmetric positive definite (required).
-    xi : float
-        Chance-constraint level in (0, 1) (required).
-    constraint, alpha, nu_bound, solver, nu_set, horizon, osqp_settings, cvxpy_fallback
-        As :class:`controllers.horizon.RecedingHorizonBase`; here each slack is penalized by
-        ``alpha`` times its node's path probability, ``solver`` is ``"daqp"``, ``"osqp"`` or
-        ``"cvxpy"`` and ``nu_set`` ``"box"`` only.
+    **settings
+        The settings of every receding-horizon controller, keyword, with the names, types,
+        defaults and checks of :class:`controllers.horizon.RecedingHorizonBase`
+        (:class:`~controllers.horizon.HorizonKwargs`): ``Psi`` the terminal weights (required),
+        ``xi`` the chance-constraint level (required), ``constraint``, ``alpha``, ``nu_bound``,
+        ``solver``, ``nu_set``, ``horizon``, ``osqp_settings``, ``cvxpy_fallback``. Here each
+        slack is penalized by ``alpha`` times its node's path probability, ``solver`` is
+        ``"daqp"``, ``"osqp"`` or ``"cvxpy"`` and ``nu_set`` ``"box"`` only.
 
     Raises
     ------

@@ -32,6 +32,7 @@ from .kkt_maps import stacked_maps
 from .lru import BudgetedLRU
 from .p3 import CLARABEL_SETTINGS
 from .qp import QPFamily, Solution
+from .qp_ipm import clarabel_tolerances
 
 __all__ = [
     "FACTOR_CACHE_FLOATS",
@@ -87,13 +88,7 @@ OSQP_MAX_VARIABLES = 64
 #: Clarabel settings of the cvxpy reference: tighter than P3's, since the offsets of nodes of
 #: small path probability weigh little in the objective and are determined only to about
 #: ``sqrt(tolerance / probability)``.
-TREE_CLARABEL_SETTINGS: dict[str, Any] = {
-    **CLARABEL_SETTINGS,
-    "tol_gap_abs": 1e-12,
-    "tol_gap_rel": 1e-12,
-    "tol_feas": 1e-12,
-    "max_iter": 500,
-}
+TREE_CLARABEL_SETTINGS: dict[str, Any] = {**CLARABEL_SETTINGS, **clarabel_tolerances(1e-12, 500)}
 
 
 def _pays(stats: list[int]) -> bool:

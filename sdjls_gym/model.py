@@ -116,6 +116,12 @@ class SDJLSModel(Sizes):
     relative to each matrix's largest entry, so scaling a weight by any positive factor does
     not change the verdict.
 
+    The methods of the dynamics (``H``, ``constraint_values``, ``in_region``, ``next_state``,
+    ``next_mode``, ``step``, ``transition``, ...) are those of
+    :class:`~sdjls_gym.dynamics.Dynamics`, with its signatures and docstrings, called on
+    ``model.dynamics``; the sizes ``N``, ``n``, ``m``, ``p``, ``r`` are
+    :class:`~sdjls_gym.dynamics.Sizes`'s.
+
     Examples
     --------
     >>> import numpy as np

@@ -418,8 +418,12 @@ def raised_by_library(excinfo: pytest.ExceptionInfo, dirs=("sdjls_gym", "control
 
 
 def refused(error, name, value, call, dirs=("sdjls_gym", "controllers")) -> pytest.ExceptionInfo:
-    """``call()`` raises ``error`` naming ``name`` and showing ``value`` (:func:`raises_naming`),
-    with no warning on the way, from a check in the project's own code (``dirs``)."""
+    """``call()`` raises ``error`` naming ``name`` and showing ``value`` (:func:`raises_naming`:
+    not the sentence around them), with no warning on the way, from a check in the project's own
+    code (``dirs``: the innermost traceback frame is there, not deep inside numpy, scipy or
+    cvxpy). The error catalogues (``test_errors_*.py``) check every case with it, under the
+    :func:`no_solver` trap (``osqp.OSQP.solve`` and ``cvxpy.Problem.solve`` replaced: no solver
+    may start before the error)."""
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no warning on the way to the error either
         with raises_naming(error, name, value) as excinfo:

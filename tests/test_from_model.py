@@ -2,7 +2,7 @@
 
 ``RecedingHorizonController.from_model(model, xi=...)`` (and the scenario tree's) synthesizes
 ``K`` by Proposition 2 and takes the MJLS LQ value matrices as ``Psi``: the recipe the suite's
-task modules state for their committed data (``sdjls_gym/systems/*.py``), which is what these
+tasks state for their committed data (``sdjls_gym.systems``), which is what these
 tests hold it against.
 """
 

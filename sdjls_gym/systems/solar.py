@@ -46,12 +46,7 @@ Horizon 50 steps; action bound ``|u| <= 100``.
 
 ## Receding-horizon controller (``RHC``)
 
-Individual chance constraints at ``xi = 0.9``, ``alpha = 1000``, ``|nu| <= 50``;
-``Psi_i`` is the solution ``X_i`` of the coupled Riccati equations of the MJLS LQ problem with
-``P_in`` (``MJLSLQRController(solar(), "in").X``) to 4 significant digits; ``K`` is the
-solution of Proposition 2 by ``controllers.synthesize_gains(solar())`` (Clarabel) to 4
-decimals (tests/test_suite_tasks.py checks both against a fresh computation and certifies
-``K`` with Proposition 1).
+The suite's recipe (:mod:`sdjls_gym.systems`), with ``|nu| <= 50``.
 
 ## Version History
 

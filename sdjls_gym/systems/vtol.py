@@ -64,11 +64,7 @@ Horizon 60 steps (30 s); action bound ``|u_i| <= 30``.
 
 ## Receding-horizon controller (``RHC``)
 
-Individual chance constraints at ``xi = 0.9``, ``alpha = 1000``, ``|nu_i| <= 20``; ``Psi_i``
-is the coupled-Riccati solution ``X_i`` of the MJLS LQ problem with ``P_in``
-(``MJLSLQRController(vtol(), "in").X``) to 4 significant digits; ``K`` is the solution of
-Proposition 2 by ``controllers.synthesize_gains(vtol())`` to 4 decimals (checked in
-tests/test_suite_tasks.py).
+The suite's recipe (:mod:`sdjls_gym.systems`), with ``|nu_i| <= 20``.
 
 ## Version History
 
