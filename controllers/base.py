@@ -39,6 +39,7 @@ from sdjls_gym.validation import (
 
 __all__ = [
     "Controller",
+    "ObservationPolicy",
     "MAX_STATE",
     "ENV_DEFAULT_HORIZON",
     "check_model",
@@ -117,7 +118,53 @@ def check_terminal_weights(model: SDJLSModel, Psi: Any) -> np.ndarray:
     return frozen(0.5 * (Psi + Psi.transpose(0, 2, 1)))
 
 
-class Controller:
+class ObservationPolicy:
+    """stable-baselines3's ``predict`` on top of one method, ``_observed_inputs(observation)``
+    (the inputs ``u`` for the decoded observations): the base of :class:`Controller` and of
+    :class:`controllers.env_policy.ControllerPolicy`."""
+
+    def _observed_inputs(self, observation: Any) -> tuple[np.ndarray, bool]:
+        raise NotImplementedError
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]:
+        """Actions for observations of the environment, in stable-baselines3's shape.
+
+        For a controller, the actions are the inputs ``u`` in the raw environment's units (its
+        action space). On an environment whose actions are transformed by a wrapper (e.g.
+        ``gymnasium.wrappers.RescaleAction``) use :func:`controllers.policy_for` instead, whose
+        policy maps them through the wrappers.
+
+        Parameters
+        ----------
+        observation : (n + N + 1,) or (B, n + N + 1) array
+            ``[x, one-hot of the mode, k / horizon]`` as produced by the environment.
+        state, episode_start, deterministic
+            Accepted for compatibility and ignored (the controllers are memoryless and
+            deterministic).
+
+        Returns
+        -------
+        actions : (m,) or (B, m) float32 array
+        state : the ``state`` argument, unchanged (None)
+
+        Raises
+        ------
+        ModeNotObservedError
+            (a :class:`ValueError`) A state-only observation (``observe="state"``): these
+            controllers need the mode.
+        """
+        inputs, single = self._observed_inputs(observation)
+        actions = inputs.astype(np.float32)
+        return (actions[0] if single else actions), state
+
+
+class Controller(ObservationPolicy):
     """Shared plumbing of the controllers: input checks, batches, ``predict``, threads.
 
     Subclasses implement :meth:`act` (and may replace :meth:`act_batch` with a vectorized one).
@@ -355,39 +402,8 @@ class Controller:
             )
         return decode_observation(model, obs, horizon)
 
-    def predict(
-        self,
-        observation: np.ndarray,
-        state: Any = None,
-        episode_start: Any = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, Any]:
-        """Actions for observations of the raw environment, in stable-baselines3's shape.
-
-        The actions are the inputs ``u`` in the raw environment's units (its action space).
-        On an environment whose actions are transformed by a wrapper (e.g.
-        ``gymnasium.wrappers.RescaleAction``) use :func:`controllers.policy_for` instead.
-
-        Parameters
-        ----------
-        observation : (n + N + 1,) or (B, n + N + 1) array
-            ``[x, one-hot of the mode, k / horizon]`` as produced by the environment.
-        state, episode_start, deterministic
-            Accepted for compatibility and ignored (the controllers are memoryless and
-            deterministic).
-
-        Returns
-        -------
-        actions : (m,) or (B, m) float32 array
-        state : the ``state`` argument, unchanged (None)
-
-        Raises
-        ------
-        ModeNotObservedError
-            (a :class:`ValueError`) A state-only observation (``observe="state"``): these
-            controllers need the mode.
-        """
+    def _observed_inputs(self, observation: Any) -> tuple[np.ndarray, bool]:
+        """The inputs ``u`` (B, m) for the observation(s), and whether one observation was given
+        (the hook of :meth:`ObservationPolicy.predict`)."""
         obs = self._observation(observation)  # checked before its ndim is read
-        xs, modes, ks = self._decode_own(obs)
-        actions = self.act_batch(xs, modes, ks)[0].astype(np.float32)
-        return (actions[0] if obs.ndim == 1 else actions), state
+        return self.act_batch(*self._decode_own(obs))[0], obs.ndim == 1

@@ -28,13 +28,17 @@ __all__ = [
 
 
 class _LinearPolicy(Controller):
-    """``u = K_theta x`` for gains ``self.K`` (N, m, n); vectorized over batches."""
+    """``u = K_theta x + nu`` for gains ``self.K`` (N, m, n) and the offsets of
+    :meth:`_offsets` (none here); vectorized over batches."""
 
     K: np.ndarray
     _needs_time = False  # predict() needs no horizon
+    #: ``info["status"]`` of every decision
+    _status = "feedback"
 
     def act(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, dict[str, Any]]:
-        """``u = K_mode x``; ``info["cost"]`` is the stage cost ``x'Q x + u'R u``."""
+        """``u = K_mode x`` (plus the policy's offset ``info["nu"]``, if it has one);
+        ``info["cost"]`` is the stage cost ``x'Q x + u'R u``."""
         x, mode, k = self._check_inputs(x, mode, k)
         u, info = self.act_batch(x[None], np.array([mode]), np.array([k]))
         return u[0], {key: value[0] for key, value in info.items()}
@@ -42,17 +46,27 @@ class _LinearPolicy(Controller):
     def act_batch(
         self, x: np.ndarray, mode: np.ndarray, k: np.ndarray | int
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Inputs for a batch (see :meth:`Controller.act_batch`), one offset drawn per row."""
         x, mode, k = self._check_batch_inputs(x, mode, k)
-        u = np.einsum("bij,bj->bi", self.K[mode], x)
         B = x.shape[0]
+        nu = self._offsets(B)
+        u = np.einsum("bij,bj->bi", self.K[mode], x)
+        if nu is None:
+            nu = np.zeros((B, self.model.m))
+        else:
+            u = u + nu
         info = {
-            "nu": np.zeros((B, self.model.m)),
+            "nu": nu,
             "rho": np.zeros(B),
             "cost": self.model.stage_cost(x, mode, u),
-            "status": np.full(B, "feedback", dtype=object),
+            "status": np.full(B, self._status, dtype=object),
             "ok": np.ones(B, dtype=bool),
         }
         return u, info
+
+    def _offsets(self, size: int) -> np.ndarray | None:
+        """The offsets ``nu`` (size, m) of a batch, or None (no offset: ``nu = 0``)."""
+        return None
 
 
 class LinearFeedbackController(_LinearPolicy):

@@ -48,6 +48,7 @@ that passed the KKT test of :mod:`controllers.kkt` (``info["ok"]``).
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 import numpy as np
@@ -58,11 +59,16 @@ from sdjls_gym.model import SDJLSModel
 from sdjls_gym.model_checks import ROW_SUM_TOL
 from sdjls_gym.validation import check_array, check_choice, check_int, check_int_array, check_number
 
+if sys.version_info >= (3, 11):
+    from typing import Unpack
+else:  # pragma: no cover
+    from typing_extensions import Unpack
+
 from .base import MAX_STATE
 from .belief_qp import BeliefQP
 from .belief_risk import RiskAllocation
 from .belief_rows import answer_rho, min_rho, solve_belief_cvxpy
-from .horizon import MAX_QP_ENTRY, RecedingHorizonBase, Status
+from .horizon import MAX_QP_ENTRY, HorizonKwargs, RecedingHorizonBase, Status, shows_settings
 from .p3 import build_family, check_magnitudes
 from .qp import EnumerationBudget
 
@@ -83,6 +89,7 @@ _PATHS = {
 }
 
 
+@shows_settings
 class BeliefRecedingHorizonController(RecedingHorizonBase):
     """Problem P3 on the belief of a hidden mode, with the risk shared across the modes.
 
@@ -91,14 +98,6 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
     model : SDJLSModel
     K : (N, m, n) array
         Pre-stabilising gains ``K_i``; the input is ``u = K(pi) x + nu``.
-    Psi : (N, n, n) array
-        Terminal weights, symmetric positive definite (keyword, required).
-    xi : float
-        Chance-constraint level in (0, 1) (keyword, required).
-    constraint, alpha, nu_bound, solver, nu_set, horizon, osqp_settings, cvxpy_fallback
-        As :class:`controllers.RecedingHorizonController` (the same names, defaults and
-        checks, :class:`controllers.horizon.RecedingHorizonBase`); ``solver`` is ``"daqp"``,
-        ``"osqp"``, ``"cvxpy"`` or ``"active_set"``.
     gain : {"weighted", "most_probable"}
         The rule of ``K(pi)`` (see the module docstring).
     give_up : float
@@ -107,6 +106,13 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         ``xi / (1 - 0.75 (1 - xi))``, 0.973 for ``xi = 0.9``). Above 0, so that the answer is
         continuous as the belief tends to a certain one; below 1, so that the kept modes' risk
         stays positive.
+    **settings
+        The settings of :class:`controllers.RecedingHorizonController`, keyword, with the same
+        names, types, defaults and checks (:class:`controllers.horizon.RecedingHorizonBase`,
+        :class:`~controllers.horizon.HorizonKwargs`): ``Psi`` the terminal weights (required),
+        ``xi`` the chance-constraint level (required), ``constraint``, ``alpha``, ``nu_bound``,
+        ``solver`` (here ``"daqp"``, ``"osqp"``, ``"cvxpy"`` or ``"active_set"``), ``nu_set``,
+        ``horizon``, ``osqp_settings``, ``cvxpy_fallback``.
 
     Attributes
     ----------
@@ -126,7 +132,9 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
     -----
     Thread-safe: concurrent calls on one controller are serialized by its lock. Picklable.
     Decisions are stateless (a function of ``(x, belief, k)``); the filter of the belief
-    across an episode is :class:`controllers.HiddenModePolicy`'s.
+    across an episode is :class:`controllers.HiddenModePolicy`'s. :meth:`predict` takes
+    observations that show the mode: the belief is then certain, ``e_theta``, and the answer
+    is P3's.
 
     Examples
     --------
@@ -148,18 +156,9 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         model: SDJLSModel,
         K: np.ndarray,
         *,
-        Psi: np.ndarray,
-        xi: float | None = None,
-        constraint: str = "individual",
-        alpha: float = 1000.0,
-        nu_bound: float = 100.0,
-        solver: str = "daqp",
-        nu_set: str = "box",
-        horizon: int | None = None,
-        osqp_settings: dict[str, Any] | None = None,
-        cvxpy_fallback: bool = True,
         gain: str = "weighted",
         give_up: float = 0.75,
+        **settings: Unpack[HorizonKwargs],
     ) -> None:
         self.gain = check_choice("gain", gain, GAINS)
         self.give_up = check_number(
@@ -171,20 +170,7 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
             high_open=True,
             what="the share of the risk budget 1 - xi that modes of small belief may take",
         )
-        super().__init__(
-            model,
-            K,
-            Psi=Psi,
-            xi=xi,
-            constraint=constraint,
-            alpha=alpha,
-            nu_bound=nu_bound,
-            solver=solver,
-            nu_set=nu_set,
-            horizon=horizon,
-            osqp_settings=osqp_settings,
-            cvxpy_fallback=cvxpy_fallback,
-        )
+        super().__init__(model, K, **settings)
 
     def _build(self) -> None:
         """The tightening, every mode's matrices per region, and the QP's solver."""
@@ -523,15 +509,9 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         return u, out
 
     # ------------------------------------------------------------------ observations
-    def predict(
-        self,
-        observation: np.ndarray,
-        state: Any = None,
-        episode_start: Any = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, Any]:
-        """Actions for observations that show the mode (``observe="mode"``): the belief is
-        then certain, ``e_theta``, and the answer is P3's. A state-only observation raises
+    def _observed_inputs(self, observation: Any) -> tuple[np.ndarray, bool]:
+        """For observations that show the mode (``observe="mode"``): the belief is then
+        certain, ``e_theta``, and the answer is P3's. A state-only observation raises
         :class:`~sdjls_gym.errors.ModeNotObservedError`: the belief across an episode is
         :class:`controllers.HiddenModePolicy`'s (its ``predict`` keeps the filter)."""
         model = self.model
@@ -545,5 +525,4 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
             )
         obs = self._observation(observation)
         xs, modes, ks = self._decode_own(obs)
-        actions = self.act_batch(xs, np.eye(model.N)[modes], ks)[0].astype(np.float32)
-        return (actions[0] if obs.ndim == 1 else actions), state
+        return self.act_batch(xs, np.eye(model.N)[modes], ks)[0], obs.ndim == 1

@@ -27,6 +27,7 @@ passed the KKT test. ``"active_set"`` enumerates at every call.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from itertools import chain, combinations
 from typing import Any
 
@@ -40,7 +41,7 @@ from .kkt import ActiveSetFactor, active_set_factor, check_active_set
 from .kkt_maps import ActiveSetMaps, active_set_maps
 from .lru import BudgetedLRU
 from .qp import MAX_CANDIDATES, Solution, candidate_count
-from .qp_daqp import NEAR_ACTIVE_TOL
+from .qp_daqp import NEAR_ACTIVE_TOL, DaqpAnswer, active_set_of_multipliers, first_verified
 from .qp_search import MAX_LOCAL_CANDIDATES
 
 __all__ = ["FACTOR_CACHE_FLOATS", "RECENT_SETS", "REPAIR_STEPS", "SCREEN_TOL", "BeliefQP"]
@@ -236,31 +237,49 @@ class BeliefQP:
         recent = self._recent.setdefault(kr.modes, [])
         sol = None
         if method != "active_set":
-            # with one input, the cached maps make the warm sets cheap to test; with more, the
-            # solver warm-started from the last set is cheaper than testing a set that fails
-            if warm and self.fixed:
-                for i, rows in enumerate(recent):
-                    sol = self._guess(kr, rows, P, w, "warm" if i == 0 else "recent")
-                    if sol is not None:
-                        break
-            if sol is None:
-                finder = self._daqp_solve if method == "daqp" else self._osqp_solve
-                sol = finder(kr, P, w, recent[0] if recent and warm else None, notes)
-            if sol is None and warm and not self.fixed:
-                for i, rows in enumerate(recent):
-                    sol = self._guess(kr, rows, P, w, "warm" if i == 0 else "recent")
-                    if sol is not None:
-                        break
+            sol = self._found(kr, P, w, method, recent if warm else [], notes)
         if sol is None:
             sol = self.enumerate(kr, P, w)
             if sol is None:
                 notes.append("no enumerated active set verified")
-        if sol is not None:
-            if sol.rows in recent:
-                recent.remove(sol.rows)
-            recent.insert(0, sol.rows)
-            del recent[RECENT_SETS:]
+                return None
+        if sol.rows in recent:
+            recent.remove(sol.rows)
+        recent.insert(0, sol.rows)
+        del recent[RECENT_SETS:]
         return sol
+
+    def _found(
+        self,
+        kr: KeptRows,
+        P: np.ndarray,
+        w: np.ndarray,
+        method: str,
+        recent: list[tuple[int, ...]],
+        notes: list[str],
+    ) -> Solution | None:
+        """The ``recent`` sets and the solver of ``method``: with one input the cached maps make
+        the recent sets cheap to test, so they come first; with more, the solver warm-started
+        from the last set is cheaper than testing a set that fails, so they come after it."""
+        sol = self._recent_guess(kr, recent, P, w) if self.fixed else None
+        if sol is None and method == "daqp":
+            sol = self._daqp_solve(kr, P, w, recent[0] if recent else None, notes)
+        elif sol is None:
+            sol = self._osqp_solve(kr, P, w, notes)
+        if sol is None and not self.fixed:
+            sol = self._recent_guess(kr, recent, P, w)
+        return sol
+
+    def _recent_guess(
+        self, kr: KeptRows, recent: list[tuple[int, ...]], P: np.ndarray, w: np.ndarray
+    ) -> Solution | None:
+        """The first of the ``recent`` sets that :meth:`_guess` verifies (the last one's path
+        ``"warm"``, the others' ``"recent"``), or None."""
+        for i, rows in enumerate(recent):
+            sol = self._guess(kr, rows, P, w, "warm" if i == 0 else "recent")
+            if sol is not None:
+                return sol
+        return None
 
     def _daqp_solve(
         self,
@@ -292,21 +311,16 @@ class BeliefQP:
         attempts += [("scaled", mu) for mu in REGULARIZE]
         lo, hi = kr.two_sided(w[d:])
         q = np.asarray(w[:d])
-        first = ""
-        for how, mu in attempts:
-            if how == "scaled":
-                z, y, status = run_daqp(data, q, lo, hi, None, mu)
-            else:
-                assert held is not None  # the workspace of a fixed Hessian
-                z, y, status = held.solve(q, lo, hi, cold=how == "cold")
-            if z is not None and y is not None:  # DAQP gives both or neither
-                sol = self._settle(kr, P, w, z, y, "daqp")
-                if sol is not None:
-                    return sol
-                status = "answer did not verify"
-            first = first or status
-        notes.append(f"daqp {first}")
-        return None
+
+        def runs() -> Iterator[DaqpAnswer]:
+            for how, mu in attempts:
+                if how == "scaled":
+                    yield run_daqp(data, q, lo, hi, None, mu)
+                else:
+                    assert held is not None  # the workspace of a fixed Hessian
+                    yield held.solve(q, lo, hi, cold=how == "cold")
+
+        return first_verified(runs(), lambda z, y: self._settle(kr, P, w, z, y, "daqp"), notes)
 
     def _daqp_direct(
         self, kr: KeptRows, P: np.ndarray, w: np.ndarray, start: tuple[int, ...] | None
@@ -336,11 +350,8 @@ class BeliefQP:
         z = np.asarray(x, dtype=np.float64)
         if flag != 1 or not np.isfinite(z).all():
             return None
-        lam = np.asarray(info["lam"])
-        nz = np.flatnonzero(lam)
-        active = np.where(lam[nz] > 0.0, upper_of[nz], lower_of[nz])
-        if nz.size <= d and (not nz.size or int(active.min()) >= 0):
-            found = tuple(sorted(active.tolist()))
+        found = active_set_of_multipliers(np.asarray(info["lam"]), upper_of, lower_of, d)
+        if found is not None:
             out = self.verify(kr, found, P, w)
             if out is not None:
                 return Solution(out, found, "daqp")
@@ -348,12 +359,7 @@ class BeliefQP:
         return None if sol is None else Solution(sol.z, sol.rows, "daqp")
 
     def _osqp_solve(
-        self,
-        kr: KeptRows,
-        P: np.ndarray,
-        w: np.ndarray,
-        start: tuple[int, ...] | None,
-        notes: list[str],
+        self, kr: KeptRows, P: np.ndarray, w: np.ndarray, notes: list[str]
     ) -> Solution | None:
         """OSQP (set up for this Hessian), then its answer's active set verified."""
         d = kr.d

@@ -17,7 +17,7 @@ import numpy as np
 
 from .kkt import KKT_TOL
 from .p3 import CLARABEL_SETTINGS
-from .qp import Solution
+from .qp_daqp import Solution, active_set_of_multipliers
 
 __all__ = ["KeptRows", "answer_rho", "daqp_rows", "kept_rows", "min_rho", "solve_belief_cvxpy"]
 
@@ -60,14 +60,9 @@ class KeptRows:
 
     def rows_of_multipliers(self, y: np.ndarray) -> tuple[int, ...] | None:
         """The one-sided active set of multipliers ``y`` (one per row of ``A``, positive where
-        the upper side is active, negative for the lower), or None when it cannot be one."""
-        nz = np.flatnonzero(y)
-        if nz.size > self.d:
-            return None
-        rows = np.where(y[nz] > 0.0, self.upper_of[nz], self.lower_of[nz])
-        if nz.size and int(rows.min()) < 0:
-            return None
-        return tuple(sorted(rows.tolist()))
+        the upper side is active, negative for the lower), or None when it cannot be one
+        (:func:`controllers.qp_daqp.active_set_of_multipliers`)."""
+        return active_set_of_multipliers(y, self.upper_of, self.lower_of, self.d)
 
 
 def kept_rows(GB: np.ndarray, modes: tuple[int, ...]) -> KeptRows:

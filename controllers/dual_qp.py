@@ -15,7 +15,7 @@ given as a warm start; a family with a fixed Hessian keeps DAQP's workspace
 (:class:`DaqpWorkspace`), set up once and only updated.
 
 DAQP forms ``M = A R^-1`` (``H = R'R``) at every set-up with its own loops, ``m d^2 / 2``
-operations (~20 us a row at ``d = 222``), unless the Hessian is diagonal. For a QP of
+operations, unless the Hessian is diagonal. For a QP of
 :data:`WHITEN_MIN_VARIABLES` variables or more, :func:`run_daqp` therefore passes it whitened
 (:class:`Whitened`): the variables with curvature are replaced by ``v = R x`` (numpy's
 triangular solve, in BLAS), so that DAQP sees a diagonal Hessian; the same constraints and
@@ -56,7 +56,7 @@ RUIZ_SWEEPS = 15
 REGULARIZE = (1e-9, 1e-12, 1e-15)
 
 #: :func:`run_daqp` whitens the QPs of at least this many variables (see the module docstring;
-#: on the 111-node tree, 222 variables, a run's set-up went from ~8.5 ms to ~3.5 ms).
+#: the set-up time it saves is in results/speed/HISTORY.md).
 WHITEN_MIN_VARIABLES = 32
 
 

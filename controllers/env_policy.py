@@ -24,7 +24,7 @@ from gymnasium import wrappers as gw
 from sdjls_gym.messages import a_type, describe
 from sdjls_gym.model import SDJLSModel
 
-from .base import Controller
+from .base import Controller, ObservationPolicy
 
 __all__ = ["ControllerPolicy", "PASS_THROUGH_NAMES", "PASS_THROUGH_WRAPPERS", "policy_for"]
 
@@ -64,8 +64,10 @@ def _layers(env: gym.Env) -> tuple[list[gym.Wrapper], gym.Env]:
     return wrappers, env
 
 
-class ControllerPolicy:
-    """``predict`` of a controller for a wrapped SDJLS environment (see :func:`policy_for`).
+class ControllerPolicy(ObservationPolicy):
+    """``predict`` of a controller for a wrapped SDJLS environment (see :func:`policy_for`):
+    the observation decoded with the environment's own horizon, the controller's input mapped
+    to the outer action (see :meth:`action`).
 
     Attributes
     ----------
@@ -88,30 +90,19 @@ class ControllerPolicy:
             a = lo_a + (a - low) * (hi_a - lo_a) / (high - low)
         return a
 
-    def predict(
-        self,
-        observation: np.ndarray,
-        state: Any = None,
-        episode_start: Any = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, Any]:
-        """Actions for observations of the wrapped environment, in stable-baselines3's shape.
-
-        The observation is decoded as :meth:`Controller.predict` does (its mode part must be
-        one-hot), with time at the environment's own horizon: a time entry that is not a
-        multiple of ``1 / horizon`` in [0, 1] is refused, whatever the controller.
-        """
+    def _observed_inputs(self, observation: Any) -> tuple[np.ndarray, bool]:
+        """The outer actions for observations of the wrapped environment: decoded as
+        :meth:`Controller.predict` does (the mode part must be one-hot), with time at the
+        environment's own horizon (a time entry that is not a multiple of ``1 / horizon`` in
+        [0, 1] is refused, whatever the controller), then mapped by :meth:`action`."""
         obs = self.controller._observation(observation)
-        single = obs.ndim == 1
         x, mode, k = self.controller._decode(
             obs,
             self.horizon,
             f"the environment's horizon {self.horizon}: the observation is not one of this "
             "environment's",
         )
-        u = self.controller.act_batch(x, mode, k)[0]
-        actions = self.action(u).astype(np.float32)
-        return (actions[0] if single else actions), state
+        return self.action(self.controller.act_batch(x, mode, k)[0]), obs.ndim == 1
 
 
 def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
@@ -166,6 +157,13 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
     if not isinstance(env, gym.Env):
         raise TypeError(f"env = {describe(env)} is {a_type(env)}; expected a gymnasium.Env")
     wrappers, base = _layers(env)
+    horizon = _check_base(base, controller)
+    return ControllerPolicy(controller, horizon, _rescales(wrappers, base))
+
+
+def _check_base(base: gym.Env, controller: Controller) -> int:
+    """The horizon of the environment ``base`` under the wrappers, after checking that it is an
+    SDJLS environment of the controller's model."""
     model, horizon = getattr(base, "model", None), getattr(base, "horizon", None)
     if isinstance(model, SDJLSModel) and not (
         isinstance(horizon, int) and not isinstance(horizon, bool)
@@ -183,10 +181,15 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
         raise ValueError(
             f"env's model {model!r} is not the controller's model {controller.model!r}"
         )
+    return horizon
+
+
+def _rescales(wrappers: list[gym.Wrapper], base: gym.Env) -> list:
+    """The ``RescaleAction`` layers among ``wrappers`` (outermost first) as ``(low, high, min,
+    max)``; the layers that pass through are skipped, any other is refused by name."""
     rescales = []
     for layer in wrappers:
         kind = type(layer)
-        name = kind.__name__
         if kind in PASS_THROUGH_WRAPPERS or f"{kind.__module__}.{kind.__qualname__}" in (
             PASS_THROUGH_NAMES
         ):
@@ -203,27 +206,28 @@ def policy_for(controller: Controller, env: gym.Env) -> ControllerPolicy:
                     outer.high.astype(np.float64),
                 )
             )
-        elif kind is gw.ClipAction:
-            continue  # the controllers' inputs are clipped to the box by the env anyway
-        else:
-            if layer.observation_space != base.observation_space or isinstance(
-                layer, gym.ObservationWrapper
-            ):
-                what = "that changes the observation"
-            elif isinstance(layer, gym.ActionWrapper) or layer.action_space != (
-                layer.env.action_space
-            ):
-                what = "that changes the action in a way policy_for cannot undo"
-            else:
-                what = "that policy_for does not know (it may change the observation or the action)"
-            known = ", ".join(
-                [k.__name__ for k in PASS_THROUGH_WRAPPERS]
-                + [path.rsplit(".", 1)[1] for path in PASS_THROUGH_NAMES]
-            )
-            raise ValueError(
-                f"env has a {name} {what}; a controller needs the raw observation [x, "
-                "one-hot(mode), k / horizon] and its input u must reach the raw env. policy_for "
-                f"acts through {known}, undoes RescaleAction and ClipAction, and "
-                "refuses every other wrapper (act on env.unwrapped instead)"
-            )
-    return ControllerPolicy(controller, horizon, rescales)
+        elif kind is not gw.ClipAction:  # ClipAction: the env clips the inputs to the box anyway
+            raise ValueError(_refusal(layer, base))
+    return rescales
+
+
+def _refusal(layer: gym.Wrapper, base: gym.Env) -> str:
+    """What :func:`policy_for` says of a wrapper it cannot act through."""
+    if layer.observation_space != base.observation_space or isinstance(
+        layer, gym.ObservationWrapper
+    ):
+        what = "that changes the observation"
+    elif isinstance(layer, gym.ActionWrapper) or layer.action_space != layer.env.action_space:
+        what = "that changes the action in a way policy_for cannot undo"
+    else:
+        what = "that policy_for does not know (it may change the observation or the action)"
+    known = ", ".join(
+        [k.__name__ for k in PASS_THROUGH_WRAPPERS]
+        + [path.rsplit(".", 1)[1] for path in PASS_THROUGH_NAMES]
+    )
+    return (
+        f"env has a {type(layer).__name__} {what}; a controller needs the raw observation [x, "
+        "one-hot(mode), k / horizon] and its input u must reach the raw env. policy_for "
+        f"acts through {known}, undoes RescaleAction and ClipAction, and "
+        "refuses every other wrapper (act on env.unwrapped instead)"
+    )

@@ -18,12 +18,13 @@ from sdjls_gym.messages import a_type, describe
 from sdjls_gym.model import SDJLSModel
 from sdjls_gym.validation import check_array
 
-from .base import Controller, check_gain, frozen
+from .base import check_gain, frozen
+from .baselines import _LinearPolicy
 
 __all__ = ["ExplorationPolicy"]
 
 
-class ExplorationPolicy(Controller):
+class ExplorationPolicy(_LinearPolicy):
     """The exploration policy ``u_k = K_theta x_k + input_mean + input_std * eps_k``.
 
     ``eps_k ~ N(0, I_m)`` is drawn from ``rng``, independently at every call and for every row
@@ -66,7 +67,7 @@ class ExplorationPolicy(Controller):
     ((1000, 1), True)
     """
 
-    _needs_time = False  # predict() needs no horizon
+    _status = "explore"
 
     def __init__(
         self,
@@ -94,30 +95,11 @@ class ExplorationPolicy(Controller):
             )
         self.rng = rng
 
-    def act(self, x: np.ndarray, mode: int, k: int) -> tuple[np.ndarray, dict[str, Any]]:
-        """``u = K_mode x + input_mean + input_std * eps``; ``info["cost"]`` is the stage cost."""
-        x, mode, k = self._check_inputs(x, mode, k)
-        u, info = self.act_batch(x[None], np.array([mode]), np.array([k]))
-        return u[0], {key: value[0] for key, value in info.items()}
-
-    def act_batch(
-        self, x: np.ndarray, mode: np.ndarray, k: np.ndarray | int
-    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """Inputs for a batch, one noise draw per row (see :meth:`Controller.act_batch`)."""
-        x, mode, k = self._check_batch_inputs(x, mode, k)
-        size = x.shape[0]
+    def _offsets(self, size: int) -> np.ndarray:
+        """``input_mean + input_std * eps`` (size, m), one noise draw per row."""
         with self._lock:
             eps = self.rng.standard_normal((size, self.model.m))
-        nu = self.input_mean + self.input_std * eps
-        u = np.einsum("bij,bj->bi", self.K[mode], x) + nu
-        info = {
-            "nu": nu,
-            "rho": np.zeros(size),
-            "cost": self.model.stage_cost(x, mode, u),
-            "status": np.full(size, "explore", dtype=object),
-            "ok": np.ones(size, dtype=bool),
-        }
-        return u, info
+        return self.input_mean + self.input_std * eps
 
 
 def _per_input(model: SDJLSModel, name: str, value: Any) -> np.ndarray:

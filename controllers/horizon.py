@@ -1,19 +1,30 @@
 """What every receding-horizon controller shares: its parameters, their checks, its status.
 
 :class:`RecedingHorizonBase` holds the one signature of :class:`controllers.RecedingHorizonController`,
-:class:`controllers.UnconstrainedRecedingHorizonController` and
-:class:`controllers.ScenarioTreeController`: the model and the gains ``K`` positional, everything
-else keyword-only, with the same names, defaults and checks. The checked values form one record,
-:class:`HorizonSettings`, which the modules below the controllers (the QP data of P3 and of the
-tree, their cvxpy references) take instead of the controller. :class:`Status` is the vocabulary
-of ``info["status"]``.
+:class:`controllers.UnconstrainedRecedingHorizonController`,
+:class:`controllers.ScenarioTreeController` and
+:class:`controllers.BeliefRecedingHorizonController`: the model and the gains ``K`` positional,
+everything else keyword-only, with the same names, defaults and checks. A subclass with
+parameters of its own declares only those, and the rest as ``**settings:
+Unpack[HorizonKwargs]`` (so a type checker checks every setting of a call), with
+:func:`shows_settings` (so ``help()`` and ``inspect.signature`` show every setting, its type
+and its default). The checked values form one record, :class:`HorizonSettings`, which the
+modules below the controllers (the QP data of P3 and of the tree, their cvxpy references) take
+instead of the controller. :class:`Status` is the vocabulary of ``info["status"]``.
 """
 
 from __future__ import annotations
 
+import inspect
+import sys
 from dataclasses import dataclass
 from enum import Enum
 from typing import Any, TypeVar
+
+if sys.version_info >= (3, 11):
+    from typing import Required, TypedDict
+else:  # pragma: no cover
+    from typing_extensions import Required, TypedDict
 
 import numpy as np
 
@@ -29,10 +40,12 @@ __all__ = [
     "MAX_ALPHA",
     "MAX_NU_BOUND",
     "MAX_QP_ENTRY",
+    "HorizonKwargs",
     "HorizonSettings",
     "RecedingHorizonBase",
     "Status",
     "check_slack_and_offsets",
+    "shows_settings",
 ]
 
 #: Largest slack penalty ``alpha`` and offset bound ``nu_bound`` accepted: up to these, answers
@@ -44,9 +57,9 @@ MAX_NU_BOUND = 1e12
 #: Largest entry of the QP's matrices (see :func:`controllers.p3.check_magnitudes`).
 MAX_QP_ENTRY = 1e100
 
-#: Types accepted without conversion by the fast input check of ``act`` (bool is not among them).
 _Controller = TypeVar("_Controller", bound="RecedingHorizonBase")
 
+#: Types accepted without conversion by the fast input check of ``act`` (bool is not among them).
 _INT_TYPES = frozenset([int] + [np.dtype(c).type for c in np.typecodes["AllInteger"]])
 _FLOAT64 = np.dtype(np.float64)
 
@@ -110,19 +123,38 @@ class HorizonSettings:
     ``A_i + B_i K_i`` (N, n, n), eq. (sys:stabilized_input).
     """
 
+    # the data, the problem, the solver
     model: SDJLSModel
     K: np.ndarray
     Psi: np.ndarray
+    A_tilde: np.ndarray
+    chance: bool
+    xi: float | None
+    constraint: str
+    alpha: float
+    nu_bound: float
+    nu_set: str
+    solver: str
+    osqp_settings: dict[str, Any]
+    cvxpy_fallback: bool
+
+
+class HorizonKwargs(TypedDict, total=False):
+    """The keyword settings of :class:`RecedingHorizonBase` (``Psi`` required), as a subclass
+    that adds parameters of its own takes them: ``**settings: Unpack[HorizonKwargs]``. Their
+    defaults and meaning are :class:`RecedingHorizonBase`'s (``tests/test_from_model.py`` checks
+    that the names and types agree)."""
+
+    Psi: Required[np.ndarray]
     xi: float | None
     constraint: str
     alpha: float
     nu_bound: float
     solver: str
     nu_set: str
-    osqp_settings: dict[str, Any]
+    horizon: int | None
+    osqp_settings: dict[str, Any] | None
     cvxpy_fallback: bool
-    chance: bool
-    A_tilde: np.ndarray
 
 
 class RecedingHorizonBase(Controller):
@@ -356,3 +388,17 @@ class RecedingHorizonBase(Controller):
         }
         u = np.array([r[0] for r in results], dtype=np.float64).reshape(-1, m)
         return u, info
+
+
+def shows_settings(cls: type[_Controller]) -> type[_Controller]:
+    """Class decorator: ``cls.__init__``'s signature, as ``help()`` and ``inspect.signature``
+    show it, is its own parameters followed by the keyword settings of
+    :class:`RecedingHorizonBase` (names, types and defaults) in place of its
+    ``**settings: Unpack[HorizonKwargs]``. What the call does is unchanged."""
+    init = cls.__init__
+    own = inspect.signature(init).parameters.values()
+    base = inspect.signature(RecedingHorizonBase.__init__).parameters.values()
+    parameters = [p for p in own if p.kind is not p.VAR_KEYWORD]
+    parameters += [p for p in base if p.kind is p.KEYWORD_ONLY]
+    init.__signature__ = inspect.signature(init).replace(parameters=parameters)  # type: ignore[attr-defined]
+    return cls

@@ -113,9 +113,9 @@ def identify(
     trajectories: Sequence[Mapping[str, Any]],
     template: SDJLSModel,
     *,
+    return_info: Literal[True],
     prior: str = ...,
     prior_count: float = ...,
-    return_info: Literal[True],
 ) -> tuple[SDJLSModel, IdentificationInfo]: ...
 def identify(
     trajectories: Sequence[Mapping[str, Any]],
@@ -234,13 +234,7 @@ def identify(
     return_info = check_bool("return_info", return_info)
     steps = _pool(trajectories, template)
     A, B, cov, samples, condition = _fit_dynamics(steps, template)
-    inside = np.asarray(template.in_region(steps.x, steps.k), dtype=bool)
-    counts = {}
-    P = {}
-    for region, mask in (("in", inside), ("out", ~inside)):
-        counts[region] = _count_jumps(steps.mode[mask], steps.mode_next[mask], template.N)
-        prior_mean = getattr(template, f"P_{region}") if prior == "template" else None
-        P[region] = _dirichlet_mean(counts[region], prior_count, prior_mean)
+    P, counts = _fit_transitions(steps, template, prior, prior_count)
     model = dataclasses.replace(
         template,
         A=A,
@@ -264,6 +258,22 @@ def identify(
         prior=prior,
     )
     return model, info
+
+
+def _fit_transitions(
+    steps: _Steps, template: SDJLSModel, prior: str, prior_count: float
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """``P`` and the jump counts, keyed ``"in"`` and ``"out"``: the jumps counted from ``x_k``
+    inside the template's region and outside it, each row the mean of its Dirichlet posterior
+    (see :func:`identify`)."""
+    inside = np.asarray(template.in_region(steps.x, steps.k), dtype=bool)
+    counts = {}
+    P = {}
+    for region, mask in (("in", inside), ("out", ~inside)):
+        counts[region] = _count_jumps(steps.mode[mask], steps.mode_next[mask], template.N)
+        prior_mean = getattr(template, f"P_{region}") if prior == "template" else None
+        P[region] = _dirichlet_mean(counts[region], prior_count, prior_mean)
+    return P, counts
 
 
 # ---------------------------------------------------------------------- the data

@@ -337,8 +337,27 @@ def synthesize_gains(
         raise ValueError(f"objective = {objective!r}; expected one of {_OBJECTIVES}")
     verbose = check_bool("verbose", verbose)
     solver = pick_solver(solver)
-    N, n, m = model.N, model.n, model.m
+    X, Y, problem = _prop2_problem(model, objective, eps)
+    what = f"Proposition 2 gain synthesis (objective={objective!r}, eps={eps:g})"
+    status = solve(problem, solver, verbose, what)
+    Xv = sym(np.array([x.value for x in X], dtype=np.float64))
+    Yv = np.array([y.value for y in Y], dtype=np.float64)
+    K, P, margin = _verified_gains(model, Xv, Yv, f"{what}: solver {solver}", status)
+    return GainSynthesisResult(
+        K=frozen(K),
+        X=frozen(Xv),
+        Y=frozen(Yv),
+        P=frozen(P),
+        status=status,
+        solver=solver,
+        margin=margin,
+    )
 
+
+def _prop2_problem(model: SDJLSModel, objective: str, eps: float) -> tuple[list, list, cp.Problem]:
+    """``(X, Y, problem)``: the variables ``X_i``, ``Y_i`` and the problem of Proposition 2 with
+    ``objective`` (see :func:`synthesize_gains`)."""
+    N, n, m = model.N, model.n, model.m
     X = [cp.Variable((n, n), symmetric=True, name=f"X_{i}") for i in range(N)]
     Y = [cp.Variable((m, n), name=f"Y_{i}") for i in range(N)]
     size = (N + 1) * n
@@ -357,19 +376,22 @@ def synthesize_gains(
     for M in _prop2_blocks(model, X, Y):
         constraints.append(M << -bound * np.eye(size))  # eqs. (lmi:stabiization1), (...2)
     goal = cp.Minimize(0) if margin_var is None else cp.Maximize(margin_var)
-    problem = cp.Problem(goal, constraints)
-    what = f"Proposition 2 gain synthesis (objective={objective!r}, eps={eps:g})"
-    status = solve(problem, solver, verbose, what)
+    return X, Y, cp.Problem(goal, constraints)
 
-    Xv = sym(np.array([x.value for x in X], dtype=np.float64))
-    Yv = np.array([y.value for y in Y], dtype=np.float64)
+
+def _verified_gains(
+    model: SDJLSModel, Xv: np.ndarray, Yv: np.ndarray, source: str, status: str
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(K, P, margin)`` of the solver's ``X``, ``Y``, after the float64 checks of
+    :func:`synthesize_gains` (:class:`LMISolverError` when one fails; ``source`` names the
+    synthesis and the solver)."""
     if not (np.all(np.isfinite(Xv)) and np.all(np.isfinite(Yv))):
-        raise LMISolverError(f"{what}: solver {solver} returned non-finite X or Y")
+        raise LMISolverError(f"{source} returned non-finite X or Y")
     x_min = np.linalg.eigvalsh(Xv)[:, 0]
     if np.any(x_min <= roundoff(Xv)):
         i = int(np.argmin(x_min))
         raise LMISolverError(
-            f"{what}: solver {solver} returned status {status!r} but X[{i}] is not positive "
+            f"{source} returned status {status!r} but X[{i}] is not positive "
             f"definite in float64 (smallest eigenvalue {x_min[i]:.3g})"
         )
     P = sym(np.linalg.inv(Xv))
@@ -379,16 +401,8 @@ def synthesize_gains(
     allowance = roundoff(E, P)
     if not margin < -allowance:
         raise LMISolverError(
-            f"{what}: solver {solver} returned status {status!r} but the Proposition-1 check "
+            f"{source} returned status {status!r} but the Proposition-1 check "
             f"failed in float64: largest eigenvalue of E_i^j (eqs. LMI1, LMI2) is {margin:.3g}, "
             f"not below -{allowance:.1g}; the gains are not returned because they are unverified"
         )
-    return GainSynthesisResult(
-        K=frozen(K),
-        X=frozen(Xv),
-        Y=frozen(Yv),
-        P=frozen(P),
-        status=status,
-        solver=solver,
-        margin=margin,
-    )
+    return K, P, margin

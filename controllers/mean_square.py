@@ -295,14 +295,12 @@ def verify_mean_square_bound(
 
     Raises
     ------
-    TypeError
-        If ``model`` is not an :class:`SDJLSModel`.
+    TypeError, ValueError
+        As :func:`second_moment_spectral_radius` for ``model`` and ``K``.
     ValueError
-        If ``K`` has the wrong shape or a non-finite entry, or the products of the closed loop
-        ``A_i + B_i K_i`` overflow float64; if ``nu_bound``, ``delta``, ``kappa``, ``eps`` or
-        ``solver`` is invalid (``nu_bound`` at most ``sqrt(1.8e308 / m)``, so that ``delta``
-        is finite); or if ``beta2`` overflows float64 (``delta`` too large or ``kappa`` too
-        small).
+        If ``nu_bound``, ``delta``, ``kappa``, ``eps`` or ``solver`` is invalid (``nu_bound``
+        at most ``sqrt(1.8e308 / m)``, so that ``delta`` is finite); or if ``beta2`` overflows
+        float64 (``delta`` too large or ``kappa`` too small).
     LMIInfeasibleError
         If no ``P`` satisfies (LMI1) and (LMI2) for these gains: they cannot be certified. Gains
         whose closed loop is clearly not mean-square stable under ``P_in`` or ``P_out`` alone
@@ -336,94 +334,23 @@ def verify_mean_square_bound(
     N, n, m = model.N, model.n, model.m
     K = as_array("K", K, (N, m, n), "one m x n gain K_i per mode")
     eps = check_eps(eps)
-    if nu_bound is not None and delta is not None:
-        raise ValueError(
-            f"nu_bound = {nu_bound!r} and delta = {delta!r} were both given; give at most one "
-            "(delta = m * nu_bound**2 is derived from nu_bound)"
-        )
-    if nu_bound is not None:
-        limit = math.sqrt(sys.float_info.max / m)  # delta = m * nu_bound**2 finite
-        nu_v = check_number(
-            "nu_bound", nu_bound, low=0.0, high=limit, what="delta = m * nu_bound**2 is a float64"
-        )
-        delta_v = m * nu_v**2
-    elif delta is not None:
-        delta_v = check_scalar(
-            "delta", delta, positive=False, what="a finite number >= 0 bounding E||nu_k||^2"
-        )
-    else:
-        delta_v = 0.0
+    delta_v = _offset_bound(nu_bound, delta, m)
     if kappa is not None:
         kappa_v = check_scalar("kappa", kappa, positive=True, what="a finite number in (0, mu)")
     solver = pick_solver(solver)
 
     At = checked_closed_loop(model, K)
     _refuse_unstable(model, At)
-    I_n = np.eye(n)
-    P = [cp.Variable((n, n), symmetric=True, name=f"P_{i}") for i in range(N)]
-    t = cp.Variable(name="t")
-    constraints = []
-    for i in range(N):
-        constraints += [P[i] >> I_n, P[i] << t * I_n]
-        for Pi in (model.P_in, model.P_out):
-            L = sum(Pi[i, j] * P[j] for j in range(N) if Pi[i, j] != 0.0)
-            Ei = At[i].T @ L @ At[i] - P[i]
-            constraints.append((Ei + Ei.T) / 2 << -I_n)  # eqs. (LMI1), (LMI2), normalized
-    problem = cp.Problem(cp.Minimize(t), constraints)
     what = "Proposition 1 certificate (eqs. LMI1, LMI2) for the given gains K"
-    try:
-        status = solve(problem, solver, False, what)
-    except LMIInfeasibleError as exc:
-        raise LMIInfeasibleError(
-            f"{exc}: the gains K could not be certified; no P_i > 0 satisfies (LMI1) and (LMI2) "
-            "with Atilde_i = A_i + B_i K_i"
-        ) from None
-
-    Pv = sym(np.array([p.value for p in P], dtype=np.float64))
-    if not np.all(np.isfinite(Pv)):
-        raise LMISolverError(f"{what}: solver {solver} returned a non-finite P")
-    eigP = np.linalg.eigvalsh(Pv)
-    c1 = float(np.min(eigP[:, 0]))
-    c2 = float(np.max(eigP[:, -1]))
-    with np.errstate(over="ignore", invalid="ignore"):
-        E = prop1_matrices(model, K, Pv)  # E_i^1, E_i^2, eqs. (LMI1), (LMI2)
-    if not np.all(np.isfinite(E)):
-        raise LMISolverError(
-            f"{what}: solver {solver} returned status {status!r} but E_i^j (eqs. LMI1, LMI2) "
-            f"overflows float64 with the P found (entries up to {float(np.max(np.abs(Pv))):.3g})"
-        )
-    eigE = np.linalg.eigvalsh(E)  # (N, 2, n)
-    margins = eigE[..., -1]
-    mu = float(np.min(-eigE[..., -1]))  # min_{i,j} lambda_min(-E_i^j)
-    allowance = roundoff(E, Pv)
-    if not (c1 > allowance and mu >= max(eps, allowance)):
-        raise LMISolverError(
-            f"{what}: solver {solver} returned status {status!r} but the float64 check failed: "
-            f"min eigenvalue of P is {c1:.3g}, mu = min lambda_min(-E_i^j) is {mu:.3g}; expected "
-            f"both positive and mu >= eps = {eps:g}"
-        )
+    Pv, status = _solve_lmis(model, At, solver, what)
+    c1, c2, margins, mu = _checked_margins(model, K, Pv, eps, f"{what}: solver {solver}", status)
     if kappa is None:
         kappa_v = mu / 2.0
     elif not kappa_v < mu:
         raise ValueError(f"kappa = {kappa!r}; expected 0 < kappa < mu = {mu:.6g}")
 
-    L = weighted_sums(model.P_in, Pv)
-    M = weighted_sums(model.P_out, Pv)
-    Bt = model.B.transpose(0, 2, 1)
-    alpha1 = float(
-        max(
-            np.max(np.linalg.eigvalsh(sym(Bt @ L @ model.B))[:, -1]),
-            np.max(np.linalg.eigvalsh(sym(Bt @ M @ model.B))[:, -1]),
-        )
-    )
-    alpha2 = float(max(np.max(np.linalg.eigvalsh(L)[:, -1]), np.max(np.linalg.eigvalsh(M)[:, -1])))
-    norm_B = float(np.max(np.linalg.norm(model.B, ord=2, axis=(1, 2))))
-    norm_At = float(np.max(np.linalg.norm(At, ord=2, axis=(1, 2))))
-    beta = norm_B * alpha2 * norm_At
+    alpha1, alpha2, beta, noise_term = _appendix_constants(model, At, Pv)
     q = 1.0 - (mu - kappa_v) / c2
-    # E[w' E_i' Upsilon E_i w] = trace(Upsilon E_i W E_i') <= lambda_max(Upsilon) trace(E_i W E_i')
-    # <= alpha2 * max_i trace(E_i W E_i'); the paper's n * alpha2 is the case E_i = I, W = I.
-    noise_term = alpha2 * float(np.max(np.trace(model.noise_cov, axis1=1, axis2=2)))
     beta1 = c2 / c1
     # beta * beta, not beta**2 (a float's ** raises OverflowError); never 0 * inf
     offsets = delta_v * (alpha1 + beta * beta / kappa_v) if delta_v else 0.0
@@ -461,3 +388,103 @@ def verify_mean_square_bound(
         status=status,
         solver=solver,
     )
+
+
+def _offset_bound(nu_bound: float | None, delta: float | None, m: int) -> float:
+    """``delta``, the bound on ``E||nu_k||^2``: ``m * nu_bound**2``, ``delta`` as given, or 0
+    (at most one of the two given)."""
+    if nu_bound is not None and delta is not None:
+        raise ValueError(
+            f"nu_bound = {nu_bound!r} and delta = {delta!r} were both given; give at most one "
+            "(delta = m * nu_bound**2 is derived from nu_bound)"
+        )
+    if nu_bound is not None:
+        limit = math.sqrt(sys.float_info.max / m)  # delta = m * nu_bound**2 finite
+        nu_v = check_number(
+            "nu_bound", nu_bound, low=0.0, high=limit, what="delta = m * nu_bound**2 is a float64"
+        )
+        return m * nu_v**2
+    if delta is not None:
+        return check_scalar(
+            "delta", delta, positive=False, what="a finite number >= 0 bounding E||nu_k||^2"
+        )
+    return 0.0
+
+
+def _solve_lmis(
+    model: SDJLSModel, At: np.ndarray, solver: str, what: str
+) -> tuple[np.ndarray, str]:
+    """``P`` (N, n, n) satisfying (LMI1), (LMI2) with ``I << P_i << t I``, ``t`` minimal, and
+    the solver's status; :class:`LMIInfeasibleError` when there is none."""
+    N, n = model.N, model.n
+    I_n = np.eye(n)
+    P = [cp.Variable((n, n), symmetric=True, name=f"P_{i}") for i in range(N)]
+    t = cp.Variable(name="t")
+    constraints = []
+    for i in range(N):
+        constraints += [P[i] >> I_n, P[i] << t * I_n]
+        for Pi in (model.P_in, model.P_out):
+            L = sum(Pi[i, j] * P[j] for j in range(N) if Pi[i, j] != 0.0)
+            Ei = At[i].T @ L @ At[i] - P[i]
+            constraints.append((Ei + Ei.T) / 2 << -I_n)  # eqs. (LMI1), (LMI2), normalized
+    problem = cp.Problem(cp.Minimize(t), constraints)
+    try:
+        status = solve(problem, solver, False, what)
+    except LMIInfeasibleError as exc:
+        raise LMIInfeasibleError(
+            f"{exc}: the gains K could not be certified; no P_i > 0 satisfies (LMI1) and (LMI2) "
+            "with Atilde_i = A_i + B_i K_i"
+        ) from None
+    return sym(np.array([p.value for p in P], dtype=np.float64)), status
+
+
+def _checked_margins(
+    model: SDJLSModel, K: np.ndarray, Pv: np.ndarray, eps: float, source: str, status: str
+) -> tuple[float, float, np.ndarray, float]:
+    """``(c1, c2, margins, mu)`` of the ``P`` found, after its float64 check
+    (:class:`LMISolverError` when it fails; ``source`` names the certificate and the solver)."""
+    if not np.all(np.isfinite(Pv)):
+        raise LMISolverError(f"{source} returned a non-finite P")
+    eigP = np.linalg.eigvalsh(Pv)
+    c1 = float(np.min(eigP[:, 0]))
+    c2 = float(np.max(eigP[:, -1]))
+    with np.errstate(over="ignore", invalid="ignore"):
+        E = prop1_matrices(model, K, Pv)  # E_i^1, E_i^2, eqs. (LMI1), (LMI2)
+    if not np.all(np.isfinite(E)):
+        raise LMISolverError(
+            f"{source} returned status {status!r} but E_i^j (eqs. LMI1, LMI2) "
+            f"overflows float64 with the P found (entries up to {float(np.max(np.abs(Pv))):.3g})"
+        )
+    eigE = np.linalg.eigvalsh(E)  # (N, 2, n)
+    margins = eigE[..., -1]
+    mu = float(np.min(-eigE[..., -1]))  # min_{i,j} lambda_min(-E_i^j)
+    allowance = roundoff(E, Pv)
+    if not (c1 > allowance and mu >= max(eps, allowance)):
+        raise LMISolverError(
+            f"{source} returned status {status!r} but the float64 check failed: "
+            f"min eigenvalue of P is {c1:.3g}, mu = min lambda_min(-E_i^j) is {mu:.3g}; expected "
+            f"both positive and mu >= eps = {eps:g}"
+        )
+    return c1, c2, margins, mu
+
+
+def _appendix_constants(
+    model: SDJLSModel, At: np.ndarray, Pv: np.ndarray
+) -> tuple[float, float, float, float]:
+    """``(alpha1, alpha2, beta, noise_term)`` of Appendix A for the ``P`` found."""
+    L = weighted_sums(model.P_in, Pv)
+    M = weighted_sums(model.P_out, Pv)
+    Bt = model.B.transpose(0, 2, 1)
+    alpha1 = float(
+        max(
+            np.max(np.linalg.eigvalsh(sym(Bt @ L @ model.B))[:, -1]),
+            np.max(np.linalg.eigvalsh(sym(Bt @ M @ model.B))[:, -1]),
+        )
+    )
+    alpha2 = float(max(np.max(np.linalg.eigvalsh(L)[:, -1]), np.max(np.linalg.eigvalsh(M)[:, -1])))
+    norm_B = float(np.max(np.linalg.norm(model.B, ord=2, axis=(1, 2))))
+    norm_At = float(np.max(np.linalg.norm(At, ord=2, axis=(1, 2))))
+    # E[w' E_i' Upsilon E_i w] = trace(Upsilon E_i W E_i') <= lambda_max(Upsilon) trace(E_i W E_i')
+    # <= alpha2 * max_i trace(E_i W E_i'); the paper's n * alpha2 is the case E_i = I, W = I.
+    noise_term = alpha2 * float(np.max(np.trace(model.noise_cov, axis1=1, axis2=2)))
+    return alpha1, alpha2, norm_B * alpha2 * norm_At, noise_term

@@ -82,9 +82,9 @@ DEFAULT_RANGE_RTOL = 1e-6
 
 def _logsumexp(a: np.ndarray, axis: int) -> np.ndarray:
     """``log(sum(exp(a), axis))`` with the axis kept (size 1), ``-inf`` for an all ``-inf``
-    slice (``a`` has no NaN and no ``+inf``). Written out: ``scipy.special.logsumexp``'s
-    argument handling took half of a single :meth:`ModeFilter.step` (measured on VTOL: 0.6 ms
-    a step with it, 0.27 ms with this)."""
+    slice (``a`` has no NaN and no ``+inf``). Written out, a measured hot path:
+    ``scipy.special.logsumexp``'s argument handling took half of a :meth:`ModeFilter.step`
+    (results/speed/HISTORY.md)."""
     top = np.max(a, axis=axis, keepdims=True)
     shift = np.where(top > -np.inf, top, 0.0)
     with np.errstate(divide="ignore"):  # log 0 = -inf: every entry -inf

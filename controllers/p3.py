@@ -33,6 +33,7 @@ from .base import frozen
 from .horizon import HorizonSettings
 from .kkt import KKT_TOL
 from .qp import EnumerationBudget, QPFamily, Solution
+from .qp_ipm import clarabel_tolerances
 
 __all__ = [
     "Family",
@@ -51,13 +52,7 @@ __all__ = [
 _MAX_OFFSETS = 4096
 
 #: Clarabel settings of the cvxpy reference.
-CLARABEL_SETTINGS: dict[str, Any] = {
-    "tol_gap_abs": 1e-11,
-    "tol_gap_rel": 1e-11,
-    "tol_feas": 1e-11,
-    "tol_ktratio": 1e-9,
-    "max_iter": 200,
-}
+CLARABEL_SETTINGS: dict[str, Any] = {**clarabel_tolerances(1e-11, 200), "tol_ktratio": 1e-9}
 
 
 @dataclass(frozen=True, eq=False)

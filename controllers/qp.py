@@ -69,7 +69,7 @@ from .dual_qp import DaqpData, DaqpWorkspace
 from .kkt import KKT_TOL
 from .kkt_maps import ActiveSetMaps, active_set_maps
 from .lru import BudgetedLRU
-from .qp_daqp import SCREEN_RATIO, DaqpSolving, Solution
+from .qp_daqp import SCREEN_RATIO, DaqpSolving, Solution, active_set_of_multipliers
 from .qp_search import LocalSearch
 
 __all__ = [
@@ -359,7 +359,7 @@ class QPFamily(DaqpSolving, LocalSearch):
         self._maps.clear()
         self._seen = None
         self._enum = None
-        if self._daqp is not None:  # DAQP's scaling and scaled rows are kept (~3 ms)
+        if self._daqp is not None:  # DAQP's scaling and scaled rows are kept (costly to redo)
             self._daqp_scaling = self._daqp
         self._daqp = None
         self._daqp_ws = None
@@ -380,14 +380,8 @@ class QPFamily(DaqpSolving, LocalSearch):
         """The active set (one-sided rows, sorted) of multipliers ``y`` in OSQP's form (one per
         row of ``A``: positive where its upper side is active, negative for the lower, 0 where
         inactive, as DAQP reports them); None when a side that does not exist is active or
-        there are more than ``d`` rows."""
-        nz = np.flatnonzero(y)
-        if nz.size > self.d:
-            return None
-        rows = np.where(y[nz] > 0.0, self._upper_of[nz], self._lower_of[nz])
-        if nz.size and int(rows.min()) < 0:
-            return None
-        return tuple(sorted(rows.tolist()))
+        there are more than ``d`` rows (:func:`controllers.qp_daqp.active_set_of_multipliers`)."""
+        return active_set_of_multipliers(y, self._upper_of, self._lower_of, self.d)
 
     # ------------------------------------------------------------------ exact solves
     def maps(self, rows: tuple[int, ...]) -> ActiveSetMaps | None:
@@ -483,16 +477,19 @@ class QPFamily(DaqpSolving, LocalSearch):
         """
         notes = [] if notes is None else notes
         self.open_budget()
+        sol = None
         if warm and self.warm is not None:
             sol = self.warm_solve(w)
-            if sol is not None:
-                self.warm = sol.rows
-                return sol
-        if self.use_daqp:
+        if sol is None and self.use_daqp:
             sol = self._solve_daqp(w, self.warm if warm else None, notes)
-            if sol is not None:
-                self.warm = sol.rows
-                return sol
+        if sol is None:
+            return self._solve_osqp(w, notes)
+        self.warm = sol.rows
+        return sol
+
+    def _solve_osqp(self, w: np.ndarray, notes: list[str]) -> Solution | None:
+        """The chain after DAQP: OSQP (and its retry), the enumeration after OSQP's first
+        answer, DAQP from OSQP's last iterate, the enumeration if it has not run."""
         enumerated = False
         for retry in (False, True)[: self.osqp_runs]:
             z, y, status = self.run_osqp(w, retry)

@@ -11,6 +11,7 @@ first.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -27,6 +28,8 @@ __all__ = [
     "SCREEN_ROUNDS",
     "DaqpSolving",
     "Solution",
+    "active_set_of_multipliers",
+    "first_verified",
 ]
 
 #: A row whose residual at OSQP's solution is within this fraction of its terms counts as nearly
@@ -50,6 +53,46 @@ class Solution:
     z: list[float]
     rows: tuple[int, ...]
     path: str  # "warm", "repair", "clarabel", "daqp", "osqp", "osqp_retry", "enumeration"
+
+
+def active_set_of_multipliers(
+    y: np.ndarray, upper_of: np.ndarray, lower_of: np.ndarray, d: int
+) -> tuple[int, ...] | None:
+    """The active set (one-sided rows, sorted) of multipliers ``y`` in OSQP's form, one per
+    two-sided row: positive where its upper side is active (one-sided row ``upper_of[row]``),
+    negative for the lower (``lower_of[row]``; -1 where a side does not exist), 0 where
+    inactive, as DAQP reports them. None when a side that does not exist is active or more
+    than ``d`` rows (the variables) are."""
+    nz = np.flatnonzero(y)
+    if nz.size > d:
+        return None
+    rows = np.where(y[nz] > 0.0, upper_of[nz], lower_of[nz])
+    if nz.size and int(rows.min()) < 0:
+        return None
+    return tuple(sorted(rows.tolist()))
+
+
+#: DAQP's answer: ``(z, y, status)``, ``z`` and ``y`` None on failure.
+DaqpAnswer = tuple[np.ndarray | None, np.ndarray | None, str]
+
+
+def first_verified(
+    runs: Iterable[DaqpAnswer],
+    settle: Callable[[np.ndarray, np.ndarray], Solution | None],
+    notes: list[str],
+) -> Solution | None:
+    """The first of DAQP's answers ``runs`` (an iterator: each attempt runs when its turn comes)
+    that ``settle(z, y)`` turns into a verified solution; else None, the first failure noted."""
+    first = ""
+    for z, y, status in runs:
+        if z is not None and y is not None:  # DAQP gives both or neither
+            sol = settle(z, y)
+            if sol is not None:
+                return sol
+            status = "answer did not verify"
+        first = first or status
+    notes.append(f"daqp {first}")
+    return None
 
 
 class DaqpSolving:
@@ -102,7 +145,6 @@ class DaqpSolving:
             sol = self._solve_screened(w, start)
             if sol is not None:
                 return sol
-        status = first = ""
         attempts: list[tuple[tuple[int, ...] | str | None, float, bool]] = []
         if self._fixed_P:
             attempts += [(None, 0.0, False), (None, 0.0, True)]
@@ -112,23 +154,26 @@ class DaqpSolving:
         attempts += [(None, mu, True) for mu in REGULARIZE]
         if self._daqp_scaling is not None:  # then once more with the scaling of this P
             attempts.append(("rescale", 0.0, True))
-        for begin, mu, cold in attempts:
-            if isinstance(begin, str):  # "rescale"
-                self._daqp_scaling = self._daqp = None
-                begin = None
-            z, y, status = self.run_daqp(w, begin, mu, cold)
-            if z is not None and y is not None:  # DAQP gives both or neither
-                rows = self.rows_of_multipliers(y)
-                out = None if rows is None else self.verify(rows, w)
-                if rows is not None and out is not None:
-                    return Solution(out, rows, "daqp")
-                sol = self.local(z, w, y)
-                if sol is not None:
-                    return Solution(sol.z, sol.rows, "daqp")
-                status = "answer did not verify"
-            first = first or status
-        notes.append(f"daqp {first}")
-        return None
+
+        def runs() -> Iterator[DaqpAnswer]:
+            for begin, mu, cold in attempts:
+                if isinstance(begin, str):  # "rescale"
+                    self._daqp_scaling = self._daqp = None
+                    begin = None
+                yield self.run_daqp(w, begin, mu, cold)
+
+        return first_verified(runs(), lambda z, y: self._verified(z, y, w), notes)
+
+    def _verified(self, z: np.ndarray, y: np.ndarray, w: np.ndarray) -> Solution | None:
+        """DAQP's answer ``z`` (multipliers ``y``) to instance ``w``, verified: the active set of
+        its multipliers re-solved exactly, else :meth:`local` around it; None when neither
+        verifies."""
+        rows = self.rows_of_multipliers(y)
+        out = None if rows is None else self.verify(rows, w)
+        if rows is not None and out is not None:
+            return Solution(out, rows, "daqp")
+        sol = self.local(z, w, y)
+        return None if sol is None else Solution(sol.z, sol.rows, "daqp")
 
     def _daqp_from(self, z: np.ndarray, w: np.ndarray, notes: list[str]) -> Solution | None:
         """DAQP started from the rows ``z`` (another solver's approximate answer) leaves nearly
@@ -137,13 +182,9 @@ class DaqpSolving:
         near = tuple(self.near_active(z, w, loose=True).tolist())
         z2, y2, status = self.run_daqp(w, near)
         if z2 is not None and y2 is not None:  # DAQP gives both or neither
-            rows = self.rows_of_multipliers(y2)
-            out = None if rows is None else self.verify(rows, w)
-            if rows is not None and out is not None:
-                return Solution(out, rows, "daqp")
-            sol = self.local(z2, w, y2)
+            sol = self._verified(z2, y2, w)
             if sol is not None:
-                return Solution(sol.z, sol.rows, "daqp")
+                return sol
             status = "answer did not verify"
         notes.append(f"daqp from the osqp iterate: {status}")
         return None
@@ -227,16 +268,11 @@ class DaqpSolving:
             new = np.zeros(general.size, dtype=bool)
             new[self._general_of(np.flatnonzero(violated))] = True
             new &= ~take
-            rows = self.rows_of_multipliers(y)
             if not new.any():
                 self._pool = take
-                out = None if rows is None else self.verify(rows, w)
-                if rows is not None and out is not None:
-                    return Solution(out, rows, "daqp")
-                sol = self.local(z, w, y)
-                return None if sol is None else Solution(sol.z, sol.rows, "daqp")
+                return self._verified(z, y, w)
             take |= new
-            begin = rows
+            begin = self.rows_of_multipliers(y)
         return None
 
     def _general_of(self, rows: Any) -> np.ndarray:

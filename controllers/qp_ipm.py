@@ -3,10 +3,10 @@ active set its answer indicates.
 
 When the warm active set of a large family (a scenario tree of hundreds of variables) is far from
 the optimum, as at the first solve of a decision at a new state (tens to hundreds of rows
-violated at its solution), DAQP travels from it one row at a time: a few hundred iterations of
-tens of microseconds each, on the 111-node tree ~34 ms a solve. An interior-point method takes
-~20 iterations whatever the distance (~15 ms there). Clarabel (https://clarabel.org) is already
-a dependency, as cvxpy's solver. Its answer is only a hint: the rows whose multiplier exceeds
+violated at its solution), DAQP travels from it one row at a time: hundreds of iterations. An
+interior-point method takes some twenty iterations whatever the distance, less time on such a
+family (results/speed/HISTORY.md has the measurements). Clarabel (https://clarabel.org) is
+already a dependency, as cvxpy's solver. Its answer is only a hint: the rows whose multiplier exceeds
 their slack (the usual indicator of an interior-point method, which tells the active rows from
 the others as the barrier vanishes) are re-solved exactly and verified by
 :mod:`controllers.kkt`, or given to DAQP as its start when they do not verify (a set a few
@@ -20,25 +20,33 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["IPM_MIN_VARIABLES", "IPM_MIN_VIOLATED", "IPM_SETTINGS", "interior_point_rows"]
+__all__ = [
+    "IPM_MIN_VARIABLES",
+    "IPM_MIN_VIOLATED",
+    "IPM_SETTINGS",
+    "clarabel_tolerances",
+    "interior_point_rows",
+]
+
+
+def clarabel_tolerances(tol: float, max_iter: int) -> dict[str, Any]:
+    """Clarabel's settings with one tolerance ``tol`` on the duality gap (absolute and relative)
+    and on feasibility, and at most ``max_iter`` iterations."""
+    return {"tol_gap_abs": tol, "tol_gap_rel": tol, "tol_feas": tol, "max_iter": max_iter}
+
 
 #: Families of at least this many variables (and screened: many more rows than variables) may
 #: take the hint; below, DAQP's iterations are cheap enough.
 IPM_MIN_VARIABLES = 64
 
 #: The hint is taken when at least this many rows are violated at the solution of the warm
-#: active set. On the 111-node tree the first solve at a new state had 16-464 such rows, the
-#: later solves of the fixed-point iterations none (a few rows to drop: DAQP's business).
+#: active set: many at the first solve at a new state, none at the later solves of the
+#: fixed-point iterations (a few rows to drop: DAQP's business).
 IPM_MIN_VIOLATED = 8
 
 #: Clarabel's settings for the hint: tolerances at which the indicator has separated the
-#: active rows (on the 111-node tree it missed 0-3 weakly active rows of ~219, none extra).
-IPM_SETTINGS: dict[str, Any] = {
-    "tol_gap_abs": 1e-8,
-    "tol_gap_rel": 1e-8,
-    "tol_feas": 1e-8,
-    "max_iter": 100,
-}
+#: active rows (but for a few weakly active ones; see :meth:`controllers.tree_qp.TreeQP._mend_hint`).
+IPM_SETTINGS = clarabel_tolerances(1e-8, max_iter=100)
 
 
 def interior_point_rows(

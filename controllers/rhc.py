@@ -340,9 +340,9 @@ class RecedingHorizonController(RecedingHorizonBase):
 
         Parameters
         ----------
-        x : (B, n) array
-        mode : (B,) int array
-        k : (B,) int array or int
+        x, mode, k
+            As :meth:`controllers.base.Controller.act_batch`: ``(B, n)``, ``(B,)`` ints and
+            ``(B,)`` ints or an int.
 
         Returns
         -------

@@ -21,15 +21,12 @@ solves; :data:`PROB_TOL` ends them early, and so does an answer of the fast path
 verified). They start from the plan of ``nu = 0`` with each node's mean moved into the interval
 that its parent's chance rows allow (per class of parallel rows of ``G``, the nearest point):
 where the optimum keeps a row active, that is where it puts the mean, and the first solve then
-confirms the start (on the closed loop of the
-macroeconomic example, four decisions in five at ``steps = 3`` take one solve; from the plan of
-``nu = 0`` itself every decision took at least two). When it does not, the next ``q`` is
-Newton's step along the first move, ``q + t (q(plan) - q)``: the answer's change along that
-line is that of its active set held (the exact solve applied to the change of the QP's data,
-no new factorization), the region probabilities are evaluated exactly along it, and ``t``
-makes the residual ``q(plan) - q`` smallest (the other decisions take two solves, where the
-plain iteration with Aitken's extrapolation took three). Later steps are damped iterations with
-Aitken's extrapolation.
+confirms the start (most decisions take one solve; results/speed/HISTORY.md). When it does not,
+the next ``q`` is Newton's step along the first move, ``q + t (q(plan) - q)``: the answer's
+change along that line is that of its active set held (the exact solve applied to the change of
+the QP's data, no new factorization), the region probabilities are evaluated exactly along it,
+and ``t`` makes the residual ``q(plan) - q`` smallest (one solve fewer than the plain
+iteration). Later steps are damped iterations with Aitken's extrapolation.
 This is an approximation of the state-dependent jumps in two ways: ``q`` is evaluated at the
 plan instead of being part of the optimization, and the Gaussian law of a node's state given
 its path ignores that a mode drawn from a random state tilts that state's law (the law of the
@@ -79,6 +76,7 @@ Thread-safe (the base class's lock) and picklable.
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 from typing import Any
 
@@ -87,7 +85,12 @@ import numpy as np
 from sdjls_gym.model import SDJLSModel
 from sdjls_gym.validation import check_int
 
-from .horizon import MAX_QP_ENTRY, RecedingHorizonBase, Status
+if sys.version_info >= (3, 11):
+    from typing import Unpack
+else:  # pragma: no cover
+    from typing_extensions import Unpack
+
+from .horizon import MAX_QP_ENTRY, HorizonKwargs, RecedingHorizonBase, Status, shows_settings
 from .tree_data import (
     FamilyCache,
     RegionClasses,
@@ -178,6 +181,7 @@ def _aitken(q0: np.ndarray, q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
     return np.clip(q2 + r / (1.0 - r) * d2, 0.0, 1.0)
 
 
+@shows_settings
 class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
     """Multi-step receding-horizon control on a scenario tree of modes (beyond the paper).
 
@@ -198,14 +202,14 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
     iterations : int
         Largest number of QP solves per decision (fixed-point iterations on the branch
         probabilities), ``>= 1``.
-    Psi : (N, n, n) array
-        Terminal weights, symmetric positive definite (required).
-    xi : float
-        Chance-constraint level in (0, 1) (required).
-    constraint, alpha, nu_bound, solver, nu_set, horizon, osqp_settings, cvxpy_fallback
-        As :class:`controllers.horizon.RecedingHorizonBase`; here each slack is penalized by
-        ``alpha`` times its node's path probability, ``solver`` is ``"daqp"``, ``"osqp"`` or
-        ``"cvxpy"`` and ``nu_set`` ``"box"`` only.
+    **settings
+        The settings of every receding-horizon controller, keyword, with the names, types,
+        defaults and checks of :class:`controllers.horizon.RecedingHorizonBase`
+        (:class:`~controllers.horizon.HorizonKwargs`): ``Psi`` the terminal weights (required),
+        ``xi`` the chance-constraint level (required), ``constraint``, ``alpha``, ``nu_bound``,
+        ``solver``, ``nu_set``, ``horizon``, ``osqp_settings``, ``cvxpy_fallback``. Here each
+        slack is penalized by ``alpha`` times its node's path probability, ``solver`` is
+        ``"daqp"``, ``"osqp"`` or ``"cvxpy"`` and ``nu_set`` ``"box"`` only.
 
     Raises
     ------
@@ -243,22 +247,9 @@ class ScenarioTreeController(TreeSolver, RecedingHorizonBase):
         steps: int = 3,
         branching: int | None = None,
         iterations: int = 10,
-        Psi: np.ndarray,
-        xi: float | None = None,
-        constraint: str = "individual",
-        alpha: float = 1000.0,
-        nu_bound: float = 100.0,
-        solver: str = "daqp",
-        nu_set: str = "box",
-        horizon: int | None = None,
-        osqp_settings: dict[str, Any] | None = None,
-        cvxpy_fallback: bool = True,
+        **settings: Unpack[HorizonKwargs],
     ) -> None:
-        super().__init__(
-            model, K, Psi=Psi, xi=xi, constraint=constraint, alpha=alpha, nu_bound=nu_bound,
-            solver=solver, nu_set=nu_set, horizon=horizon, osqp_settings=osqp_settings,
-            cvxpy_fallback=cvxpy_fallback,
-        )  # fmt: skip
+        super().__init__(model, K, **settings)
         self.steps = check_int("steps", steps, low=1, what="stages of the tree")
         self._lookahead = self.steps  # the chance constraints read H up to k + steps
         if branching is None:

@@ -1,16 +1,7 @@
 """The scenario tree of modes and its QP data, for :class:`controllers.ScenarioTreeController`.
 
-Tree
-----
-A node is a pair (state, mode) at a stage ``t`` of the horizon. The root is ``(x_k, theta_k)`` at
-stage 0. Nodes at stages ``0 .. steps-1`` carry a decision (an offset ``nu`` and a slack
-``rho``); the states at stage ``steps`` only carry the terminal cost. A node at a stage
-``t < branching`` has one child per mode ``j`` that can follow its mode (at the root: the modes
-of positive probability in its row of ``P_in`` or ``P_out``; later: in either row); a node at a
-later stage has one child, with its own mode (the "robust horizon" of multi-stage MPC). All
-children of a node share its next state: their mean is ``Atilde_theta mean + B_theta nu`` and
-their covariance ``Atilde_theta Sigma Atilde_theta' + E_theta W E_theta'`` (``Sigma = 0`` at the
-root), where ``theta`` is the parent's mode.
+The tree itself (its nodes, their modes and stages, its size limits) is
+:mod:`controllers.tree_topology`'s.
 
 The tree of a controller depends on the root's mode and on whether ``x_k`` is in C1 (which row
 of transition probabilities the root uses): one tree and one QP *family* per pair, as for P3.
@@ -55,6 +46,14 @@ from .horizon import HorizonSettings
 from .lru import BudgetedLRU
 from .tree_qp import OSQP_MAX_VARIABLES, TreeQP
 from .tree_region import RegionClasses
+from .tree_topology import (
+    MAX_FAMILY_FLOATS,
+    MAX_TREE_VARIABLES,
+    Tree,
+    build_tree,
+    check_tree_size,
+    tree_node_count,
+)
 
 __all__ = [
     "FAMILY_BUDGET_FLOATS",
@@ -69,12 +68,6 @@ __all__ = [
     "family_magnitudes",
     "tree_node_count",
 ]
-
-#: Largest number of QP variables (``m + 1`` per decision node) of a tree.
-MAX_TREE_VARIABLES = 1000
-
-#: Largest number of floats in the dense matrices of one family (64 MB).
-MAX_FAMILY_FLOATS = 8_000_000
 
 #: Largest number of floats the matrices of the built families of one controller hold together
 #: (256 MB): beyond, the least recently used family is dropped (and built again when a decision
@@ -109,161 +102,6 @@ def _sqrt_psd(M: np.ndarray) -> np.ndarray:
     """``F`` with ``F'F = M`` for a symmetric positive semidefinite ``M`` (n, n)."""
     vals, vecs = np.linalg.eigh(0.5 * (M + M.T))
     return (vecs * np.sqrt(np.clip(vals, 0.0, None))).T
-
-
-# ---------------------------------------------------------------------------------- topology
-def _stage_counts(
-    root_support: np.ndarray, support: np.ndarray, mode: int, steps: int, branching: int
-) -> list[np.ndarray]:
-    """Number of nodes per mode at each stage ``0 .. steps-1`` (Python ints, no overflow)."""
-    N = support.shape[0]
-    counts = [np.zeros(N, dtype=object)]
-    counts[0][mode] = 1
-    S = support.astype(object)
-    for t in range(steps - 1):
-        prev = counts[-1]
-        if t >= branching:
-            nxt = prev.copy()
-        elif t == 0:
-            nxt = np.where(root_support, 1, 0).astype(object)
-        else:
-            nxt = prev @ S
-        counts.append(nxt)
-    return counts
-
-
-def tree_node_count(
-    root_support: np.ndarray, support: np.ndarray, mode: int, steps: int, branching: int
-) -> tuple[int, int]:
-    """``(M, M_last)``: decision nodes of the tree and those at the last stage."""
-    counts = _stage_counts(root_support, support, mode, steps, branching)
-    return int(sum(int(c.sum()) for c in counts)), int(counts[-1].sum())
-
-
-def check_tree_size(model: Any, steps: int, branching: int) -> None:
-    """ValueError naming ``steps`` and ``branching`` when a family's tree is beyond
-    :data:`MAX_TREE_VARIABLES` variables or :data:`MAX_FAMILY_FLOATS` floats."""
-    N, n, m = model.N, model.n, model.m
-    hint = (
-        "lower steps, or branching (the stages from branching on do not branch: one child per node)"
-    )
-    if steps * (m + 1) > MAX_TREE_VARIABLES:
-        raise ValueError(
-            f"steps = {steps} needs at least {steps * (m + 1)} QP variables (m + 1 = {m + 1} "
-            f"per stage); a scenario tree has at most {MAX_TREE_VARIABLES} "
-            f"(controllers.tree_data.MAX_TREE_VARIABLES): {hint}"
-        )
-    support = (model.P_in + model.P_out) > 0.0
-    worst = (0, 0, 0, False)
-    for mode in range(N):
-        for inside in (True, False):
-            row = (model.P_in if inside else model.P_out)[mode] > 0.0
-            M, M_last = tree_node_count(row, support, mode, steps, branching)
-            worst = max(worst, (M, M_last, mode, inside))
-    M, M_last, mode, _ = worst
-    d = M * (m + 1)
-    if d > MAX_TREE_VARIABLES:
-        raise ValueError(
-            f"steps = {steps} and branching = {branching} make a scenario tree of {M} decision "
-            f"nodes for mode {mode}, a QP of {d} variables (m + 1 = {m + 1} per node); at most "
-            f"{MAX_TREE_VARIABLES} are supported (controllers.tree_data.MAX_TREE_VARIABLES): "
-            f"{hint}"
-        )
-    rows = M * (n + m) + M_last * N * n
-    c = M * (model.r + 2 * m + 1)
-    floats = rows * (n + d) + 2 * c * d + 2 * M * n * (n + d)
-    if floats > MAX_FAMILY_FLOATS:
-        raise ValueError(
-            f"steps = {steps} and branching = {branching} make a scenario tree of {M} decision "
-            f"nodes whose QP matrices hold {floats:,} floats per family; at most "
-            f"{MAX_FAMILY_FLOATS:,} are supported (controllers.tree_data.MAX_FAMILY_FLOATS): "
-            f"{hint}"
-        )
-
-
-@dataclass(frozen=True, eq=False)
-class Tree:
-    """The topology of one family's tree; nodes in breadth-first order (the root is 0).
-
-    Attributes
-    ----------
-    mode, parent, stage : (M,) int arrays
-        The node's mode, its parent (-1 for the root) and its stage.
-    branched : (M,) bool
-        Whether the node branches (``stage < branching``; a last-stage node never has children).
-    children : (M, N) int array
-        ``children[i, j]``: the node that follows ``i`` when the next mode is ``j``; for a node
-        that does not branch, its single child whatever ``j``; -1 where there is none.
-    by_stage : tuple of (M_t,) int arrays
-        The nodes of each stage ``0 .. steps-1``.
-    last : (M_last,) int array
-        The nodes of the last stage (they carry the terminal cost).
-    sq : int array
-        The nodes whose branch probabilities depend on the state (stage >= 1 and branched or
-        last): their region probability ``q`` is computed at every decision.
-    """
-
-    mode: np.ndarray
-    parent: np.ndarray
-    stage: np.ndarray
-    branched: np.ndarray
-    children: np.ndarray
-    by_stage: tuple
-    last: np.ndarray
-    sq: np.ndarray
-
-    @property
-    def size(self) -> int:
-        return int(self.mode.shape[0])
-
-
-def build_tree(
-    root_support: np.ndarray, support: np.ndarray, root_mode: int, steps: int, branching: int
-) -> Tree:
-    """The tree of a family (see the module docstring); ``support[i, j]``: mode ``j`` can follow
-    mode ``i`` below the root, ``root_support[j]``: at the root."""
-    N = support.shape[0]
-    mode, parent, stage = [root_mode], [-1], [0]
-    children: list[list[int]] = [[-1] * N]
-    frontier = [0]
-    for t in range(steps - 1):
-        nxt = []
-        for i in frontier:
-            if t < branching:
-                follow = root_support if t == 0 else support[mode[i]]
-                modes = np.flatnonzero(follow).tolist()
-            else:
-                modes = [mode[i]]
-            for j in modes:
-                c = len(mode)
-                mode.append(j)
-                parent.append(i)
-                stage.append(t + 1)
-                children.append([-1] * N)
-                nxt.append(c)
-                if t < branching:
-                    children[i][j] = c
-                else:
-                    children[i] = [c] * N
-        frontier = nxt
-    mode_a = np.array(mode, dtype=np.int64)
-    stage_a = np.array(stage, dtype=np.int64)
-    branched = (stage_a < branching) & (stage_a < steps - 1)
-    last = np.flatnonzero(stage_a == steps - 1)
-    sq = np.flatnonzero((stage_a >= 1) & (branched | (stage_a == steps - 1)))
-    out = Tree(
-        mode=mode_a,
-        parent=np.array(parent, dtype=np.int64),
-        stage=stage_a,
-        branched=branched,
-        children=np.array(children, dtype=np.int64),
-        by_stage=tuple(np.flatnonzero(stage_a == t) for t in range(steps)),
-        last=last,
-        sq=sq,
-    )
-    for name in ("mode", "parent", "stage", "branched", "children", "last", "sq"):
-        getattr(out, name).setflags(write=False)
-    return out
 
 
 # ---------------------------------------------------------------------------------- families
@@ -457,57 +295,23 @@ def build_tree_family(
     """The family ``(mode, inside)`` of a :class:`controllers.ScenarioTreeController` with the
     checked parameters ``s``, ``steps`` and ``branching``."""
     model = s.model
-    N, n, m, r = model.N, model.n, model.m, model.r
+    n, m = model.n, model.m
     law = _node_laws(s, steps, branching, mode, inside)
     tree, P_row = law.tree, law.P_row
     M, modes = tree.size, tree.mode
     d = M * (m + 1)
-    K = s.K
-    Mx, Mz, cov, next_x, next_z, S = law.Mx, law.Mz, law.cov, law.next_x, law.next_z, law.S
-    cov_next, tight = law.cov_next, law.tight
-    At_n, B_n = s.A_tilde[modes], model.B[modes]
+    Mx, Mz, cov, tight = law.Mx, law.Mz, law.cov, law.tight
     with np.errstate(over="ignore", invalid="ignore"):  # magnitudes were checked by the caller
-        # the weighted rows of the objective
-        FQ, FR, FPsi = _weight_roots(s)
-        rows_x, rows_z, source = [], [], []
-        for i in range(M):
-            th = modes[i]
-            rows_x += [FQ[th] @ Mx[i], FR[th] @ K[th] @ Mx[i]]
-            rows_z += [FQ[th] @ Mz[i], FR[th] @ (K[th] @ Mz[i] + S[i])]
-            source += [i] * (n + m)
-        for a, i in enumerate(tree.last.tolist()):
-            for j in range(N):
-                rows_x.append(FPsi[j] @ next_x[i])
-                rows_z.append(FPsi[j] @ next_z[i])
-                source += [M + a * N + j] * n
-        Lx, Lz = np.vstack(rows_x), np.vstack(rows_z)
-        P_stack = _hessian_stack(Lz, np.array(source), M + tree.last.size * N)
+        Lx, Lz, source = _objective_rows(s, law)
+        P_stack = _hessian_stack(Lz, source, M + tree.last.size * model.N)
+        K = s.K
         QKRK = model.Q[modes] + K[modes].transpose(0, 2, 1) @ model.R[modes] @ K[modes]
         stage_trace = np.einsum("iab,iba->i", QKRK, cov)
-        term_trace = np.einsum("jab,iba->ij", s.Psi, cov_next[tree.last])
-        # constraints: [chance rows (M r); box (M m); rho (M)]
-        GA = model.G @ At_n  # (M, r, n)
-        GB = model.G @ B_n  # (M, r, m)
-        chance = np.einsum("jn,ind->ijd", model.G, next_z).reshape(M * r, d)
-        chance[np.arange(M * r), M * m + np.repeat(np.arange(M), r)] = -1.0  # - rho_i
-        chance_x = -np.einsum("jn,ink->ijk", model.G, next_x).reshape(M * r, n)
-    A = np.zeros((M * r + M * m + M, d))
-    A[: M * r] = chance
-    A[M * r + np.arange(M * m), np.arange(M * m)] = 1.0
-    A[M * r + M * m + np.arange(M), M * m + np.arange(M)] = 1.0
-    upper = np.concatenate([np.ones(M * r + M * m, bool), np.zeros(M, bool)])
-    lower = np.concatenate([np.zeros(M * r, bool), np.ones(M * m + M, bool)])
-    daqp = s.solver != "osqp"  # the cvxpy reference's families solve its rescue's active sets
-    engine = TreeQP(
-        np.eye(d),
-        A,
-        lower,
-        upper,
-        s.osqp_settings,
-        use_daqp=daqp,
-        osqp_runs=2 if d <= OSQP_MAX_VARIABLES else int(not daqp),
-        daqp_after_osqp=not daqp and d > OSQP_MAX_VARIABLES,
-    )
+        term_trace = np.einsum("jab,iba->ij", s.Psi, law.cov_next[tree.last])
+        GA = model.G @ s.A_tilde[modes]  # (M, r, n)
+        GB = model.G @ model.B[modes]  # (M, r, m)
+        chance, chance_x = _chance_rows(s, law, d)
+    engine = _tree_engine(s, chance, M, d)
     nb = s.nu_bound
     h_fixed = np.concatenate([np.full(2 * M * m, nb), np.zeros(M)])
     # a chance row of a node of path probability 0 is made slack for every z: its bound is at
@@ -536,13 +340,13 @@ def build_tree_family(
         mean_x=_frozen(Mx.reshape(M * n, n)),
         mean_z=_frozen(Mz.reshape(M * n, d)),
         cov=_frozen(cov),
-        cov_next=_frozen(cov_next),
+        cov_next=_frozen(law.cov_next),
         tightening=_frozen(tight),
         Lx=_frozen(Lx),
         Lz=_compact(Lz),
         LzT=_compact(Lz.T),
         P_stack=_compact(P_stack),
-        row_source=np.array(source, dtype=np.int64),
+        row_source=source,
         stage_trace=_frozen(stage_trace),
         term_trace=_frozen(term_trace),
         chance_x=_frozen(chance_x),
@@ -554,6 +358,63 @@ def build_tree_family(
         engine=engine,
         depends=bool(sq.size) and bool(np.any(Pin != Pout)),
         weights=BudgetedLRU(WEIGHTS_FLOATS, _weights_floats),
+    )
+
+
+def _objective_rows(
+    s: HorizonSettings, law: _NodeLaws
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(Lx, Lz, source)``: the weighted rows of the objective, ``Lx x + Lz z`` (the stage
+    costs of every node, then the terminal costs of the last stage's nodes, one block per next
+    mode), and the weight each row takes (its node, or its node and next mode)."""
+    model, tree, K = s.model, law.tree, s.K
+    n, m, N, M = model.n, model.m, model.N, law.tree.size
+    FQ, FR, FPsi = _weight_roots(s)
+    rows_x, rows_z, source = [], [], []
+    for i in range(M):
+        th = tree.mode[i]
+        rows_x += [FQ[th] @ law.Mx[i], FR[th] @ K[th] @ law.Mx[i]]
+        rows_z += [FQ[th] @ law.Mz[i], FR[th] @ (K[th] @ law.Mz[i] + law.S[i])]
+        source += [i] * (n + m)
+    for a, i in enumerate(tree.last.tolist()):
+        for j in range(N):
+            rows_x.append(FPsi[j] @ law.next_x[i])
+            rows_z.append(FPsi[j] @ law.next_z[i])
+            source += [M + a * N + j] * n
+    return np.vstack(rows_x), np.vstack(rows_z), np.array(source, dtype=np.int64)
+
+
+def _chance_rows(s: HorizonSettings, law: _NodeLaws, d: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(chance, chance_x)``: the chance rows of every node on ``z`` (less its slack) and on
+    ``x_k`` (negated), before their right side."""
+    G, M, r = s.model.G, law.tree.size, s.model.r
+    chance = np.einsum("jn,ind->ijd", G, law.next_z).reshape(M * r, d)
+    chance[np.arange(M * r), M * s.model.m + np.repeat(np.arange(M), r)] = -1.0  # - rho_i
+    chance_x = -np.einsum("jn,ink->ijk", G, law.next_x).reshape(M * r, s.model.n)
+    return chance, chance_x
+
+
+def _tree_engine(s: HorizonSettings, chance: np.ndarray, M: int, d: int) -> TreeQP:
+    """The family's QP engine: the constraints ``[chance rows (M r); box (M m); rho (M)]`` and
+    the solvers of ``s.solver`` (OSQP only on small trees; see
+    :data:`controllers.tree_qp.OSQP_MAX_VARIABLES`)."""
+    m, r = s.model.m, s.model.r
+    A = np.zeros((M * r + M * m + M, d))
+    A[: M * r] = chance
+    A[M * r + np.arange(M * m), np.arange(M * m)] = 1.0
+    A[M * r + M * m + np.arange(M), M * m + np.arange(M)] = 1.0
+    upper = np.concatenate([np.ones(M * r + M * m, bool), np.zeros(M, bool)])
+    lower = np.concatenate([np.zeros(M * r, bool), np.ones(M * m + M, bool)])
+    daqp = s.solver != "osqp"  # the cvxpy reference's families solve its rescue's active sets
+    return TreeQP(
+        np.eye(d),
+        A,
+        lower,
+        upper,
+        s.osqp_settings,
+        use_daqp=daqp,
+        osqp_runs=2 if d <= OSQP_MAX_VARIABLES else int(not daqp),
+        daqp_after_osqp=not daqp and d > OSQP_MAX_VARIABLES,
     )
 
 

@@ -32,6 +32,7 @@ from .kkt_maps import stacked_maps
 from .lru import BudgetedLRU
 from .p3 import CLARABEL_SETTINGS
 from .qp import QPFamily, Solution
+from .qp_ipm import clarabel_tolerances
 
 __all__ = [
     "FACTOR_CACHE_FLOATS",
@@ -50,18 +51,16 @@ FACTOR_CACHE_FLOATS = 4_000_000
 REDUCED_CACHE_FLOATS = 1_000_000
 
 #: Active sets a family remembers (the warm one and those optimal before it, distinct, most
-#: recent first), tried in turn when the warm one fails (:meth:`TreeQP.warm_solve`): on the
-#: closed loop of the example, the optimum that DAQP or the repair found was one of the two
-#: most recent sets 94% of the time (the state moves within a few regions of the optimum).
+#: recent first), tried in turn when the warm one fails (:meth:`TreeQP.warm_solve`): the state
+#: moves within a few regions of the optimum, so the optimum is usually one of the most recent
+#: sets (results/speed/HISTORY.md).
 RECENT_SETS = 4
 
 #: The earlier sets are tried while they pay: during a family's first :data:`RECENT_TRIAL`
 #: tries, then while at least one try in :data:`RECENT_PAYOFF` verifies, and otherwise once
-#: in :data:`RECENT_PAYOFF` warm failures (to notice when they pay again). On the 111-node tree,
-#: on new states, one try in ~60 verified, and each failed try is an exact solve of 222
-#: variables (~8 ms a decision in all). The repair from the warm set is tried by the same rule
-#: (there it ran 206 times in the speed benchmark's 160 decisions, ~7 ms each, and answered one
-#: of the 107 timed solves).
+#: in :data:`RECENT_PAYOFF` warm failures (to notice when they pay again). On a large tree at
+#: new states they seldom verify, and each failed try is an exact solve of the whole QP. The
+#: repair from the warm set is tried by the same rule (results/speed/HISTORY.md).
 RECENT_TRIAL = 16
 RECENT_PAYOFF = 8
 
@@ -74,28 +73,22 @@ STACKED_MAPS_FLOATS = 100_000
 #: fail.
 REPAIR_STEPS = 20
 
-#: The same from the warm start (:meth:`TreeQP.warm_solve`), before DAQP runs: on the closed
-#: loop of the example every repair that succeeded took one step, and those that failed ended
-#: (a set repeating) after two to four, each an exact solve wasted before DAQP.
+#: The same from the warm start (:meth:`TreeQP.warm_solve`), before DAQP runs: a repair that
+#: succeeds takes one step, and every further step of one that fails is an exact solve wasted
+#: before DAQP (results/speed/HISTORY.md).
 WARM_REPAIR_STEPS = 2
 
-#: OSQP runs (after DAQP) only for trees of at most this many QP variables. On larger trees its
-#: iterations cost more than the cvxpy rescue it would precede (a 111-node tree ran OSQP to its
-#: iteration limit twice, 7 s, before a 2 s cvxpy solve): DAQP failing there goes to cvxpy.
-#: With ``solver="osqp"`` a larger tree runs OSQP once (ADMM took 19,000 to 24,000 iterations to
-#: 1e-6 on the 111-node tree, and not 200,000 to the default 1e-10), then DAQP from its iterate.
+#: OSQP runs (after DAQP) only for trees of at most this many QP variables: on larger trees its
+#: iterations cost more than the cvxpy rescue it would precede, so DAQP failing there goes to
+#: cvxpy. With ``solver="osqp"`` a larger tree runs OSQP once (to a looser tolerance than its
+#: default, which ADMM reaches only after very many iterations), then DAQP from its iterate
+#: (results/speed/HISTORY.md).
 OSQP_MAX_VARIABLES = 64
 
 #: Clarabel settings of the cvxpy reference: tighter than P3's, since the offsets of nodes of
 #: small path probability weigh little in the objective and are determined only to about
 #: ``sqrt(tolerance / probability)``.
-TREE_CLARABEL_SETTINGS: dict[str, Any] = {
-    **CLARABEL_SETTINGS,
-    "tol_gap_abs": 1e-12,
-    "tol_gap_rel": 1e-12,
-    "tol_feas": 1e-12,
-    "max_iter": 500,
-}
+TREE_CLARABEL_SETTINGS: dict[str, Any] = {**CLARABEL_SETTINGS, **clarabel_tolerances(1e-12, 500)}
 
 
 def _pays(stats: list[int]) -> bool:
@@ -203,7 +196,7 @@ class TreeQP(QPFamily):
         """Keep the records of the warm tries (see :func:`_pays`) in ``records`` (keys
         ``"recent"`` and ``"repair"``), shared by the families of one controller: they behave
         alike, and a family built late then starts from what the others learned, not from a
-        trial of its own (on the 111-node tree, ~16 failed tries of 4-10 ms each per family).
+        trial of its own (:data:`RECENT_TRIAL` tries, most of them failed exact solves).
         Not kept through pickling (a family unpickled keeps its own records)."""
         self._recent_stats = records.setdefault("recent", [0, 0, 0])
         self._repair_stats = records.setdefault("repair", [0, 0, 0])
@@ -379,9 +372,8 @@ class TreeQP(QPFamily):
     ) -> tuple[tuple[int, ...], list[float] | None]:
         """Clarabel's hint (see :mod:`controllers.qp_ipm`) with every row violated at its
         solution joined, when none of its multipliers is negative: the indicator misses a few
-        weakly active rows (on the 111-node tree, 1-3 of ~219 in two hints of five; joined,
-        the hints of the speed benchmark's closed loop verified in 109 of 127; of its 107
-        timed solves, the hint answered 32 with the mend and 21 without)."""
+        weakly active rows, and joining them makes most hints verify
+        (results/speed/HISTORY.md)."""
         if report["drop"] or not report["add"] or len(rows) + len(report["add"]) > self.d:
             return rows, None
         key = tuple(sorted(set(rows).union(report["add"])))  # the slacks' bounds stay

@@ -45,9 +45,8 @@ TINY_PROBABILITY = 1e-12
 CONTINUATION_FROM = 1e3
 CONTINUATION_STEP = 1e3
 
-#: Newton's steps on the line of :meth:`TreeSolver._newton` at most (on 2000 closed-loop states
-#: of the example, 439 decisions took the step: 3 stopped after one, 277 after two, 159 at this
-#: limit; each then converged at its second solve).
+#: Newton's steps on the line of :meth:`TreeSolver._newton` at most (enough for the decisions
+#: of the example's closed loop to converge at their second solve; results/speed/HISTORY.md).
 NEWTON_STEPS = 3
 
 _PATHS = {

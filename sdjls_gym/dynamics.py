@@ -40,6 +40,7 @@ __all__ = [
     "BatchTransition",
     "Dynamics",
     "OneTransition",
+    "Sizes",
     "Transition",
     "check_time",
     "draw_categorical",
@@ -133,8 +134,44 @@ BatchTransition = tuple[
 ]
 
 
+class Sizes:
+    """The sizes of a system, read from its matrices ``A`` (N, n, n), ``B`` (N, n, m), ``E``
+    (N, n, p) and ``G`` (r, n): a base of :class:`Dynamics` and of the model. Cached: they are
+    read on every step."""
+
+    A: np.ndarray
+    B: np.ndarray
+    E: np.ndarray
+    G: np.ndarray
+
+    @cached_property
+    def N(self) -> int:
+        """Number of modes."""
+        return self.A.shape[0]
+
+    @cached_property
+    def n(self) -> int:
+        """Number of states."""
+        return self.A.shape[1]
+
+    @cached_property
+    def m(self) -> int:
+        """Number of inputs."""
+        return self.B.shape[2]
+
+    @cached_property
+    def p(self) -> int:
+        """Number of noise inputs (columns of E)."""
+        return self.E.shape[2]
+
+    @cached_property
+    def r(self) -> int:
+        """Number of rows of the region ``G x <= H_k``."""
+        return self.G.shape[0]
+
+
 @dataclass(frozen=True, eq=False)
-class Dynamics:
+class Dynamics(Sizes):
     """A model's validated matrices with the functions of its dynamics (see the module).
 
     Built by :class:`~sdjls_gym.SDJLSModel` from its fields (``model.dynamics``); every array has
@@ -153,26 +190,6 @@ class Dynamics:
     H_rate: np.ndarray  # (r,)
     Q: np.ndarray  # (N, n, n)
     R: np.ndarray  # (N, m, m)
-
-    @property
-    def N(self) -> int:
-        return self.A.shape[0]
-
-    @property
-    def n(self) -> int:
-        return self.A.shape[1]
-
-    @property
-    def m(self) -> int:
-        return self.B.shape[2]
-
-    @property
-    def p(self) -> int:
-        return self.E.shape[2]
-
-    @property
-    def r(self) -> int:
-        return self.G.shape[0]
 
     # ------------------------------------------------------------------ tables
     @cached_property
@@ -231,7 +248,22 @@ class Dynamics:
 
     # ------------------------------------------------------------------ region
     def H(self, k: int | np.ndarray) -> np.ndarray:
-        """``H_k = H0 + k * H_rate``: (..., r) for ``k`` an int or an (...) int array."""
+        """Right-hand side ``H_k = H0 + k * H_rate``.
+
+        Parameters
+        ----------
+        k : int or (...) int array
+            Time indices, ``0 <= k <= 2**53``.
+
+        Returns
+        -------
+        (..., r) array
+
+        Raises
+        ------
+        TypeError, ValueError
+            ``k`` is not a time index (see :func:`check_time`).
+        """
         k = np.asarray(check_time(k), dtype=np.float64)
         if k.ndim == 0:
             return self.H0 + k[..., None] * self.H_rate
@@ -258,19 +290,34 @@ class Dynamics:
         return H
 
     def constraint_values(self, x: np.ndarray, k: int | np.ndarray) -> np.ndarray:
-        """``G x - H_k`` (..., r): positive entries are violated rows."""
+        """``G x - H_k``: positive entries are violated rows.
+
+        Parameters
+        ----------
+        x : (..., n)
+        k : int or int array broadcastable to the batch shape
+
+        Returns
+        -------
+        (..., r) array
+        """
         x = np.asarray(x, dtype=np.float64)
         return x @ self.G.T - self.H(k)
 
     def constraint_values_one(self, x: np.ndarray, k: int) -> np.ndarray:
-        """:meth:`constraint_values` (r,) for one float64 state ``x`` (n,)."""
+        """:meth:`constraint_values` ``G x - H_k`` (r,) for one float64 state ``x`` (n,)."""
         return self.G @ x - self.H_one(k)
 
     def in_region(self, x: np.ndarray, k: int | np.ndarray) -> np.ndarray:
         """Whether ``G x <= H_k`` holds in every row (``x`` in C1), eq. (eq:polyhedral), decided
         exactly for the float64 data (``H_k`` as :meth:`H` computes it): a row whose value is
         within round-off of 0 is evaluated in rational arithmetic, so the answer does not
-        depend on how the product was summed (a state alone and in a batch agree)."""
+        depend on how the product was summed (a state alone and in a batch agree).
+
+        Returns
+        -------
+        (...) bool array (a numpy bool for a single state)
+        """
         x = np.asarray(x, dtype=np.float64)
         H = self.H(k)
         values = x @ self.G.T - H
@@ -290,7 +337,7 @@ class Dynamics:
 
     def in_region_one(self, x: np.ndarray, k: int) -> bool:
         """:meth:`in_region` for one float64 state ``x`` (n,) and an int ``k``: the same exact
-        decision, in plain floats (the controllers' one-state path)."""
+        decision, in plain floats, as a Python bool (the controllers' one-state path)."""
         H = self.H_one(k)
         values = (self.G @ x - H).tolist()
         xmax = max(map(abs, x.tolist()), default=0.0)
@@ -315,10 +362,54 @@ class Dynamics:
     def transition_rows(
         self, x: np.ndarray, mode: int | np.ndarray, k: int | np.ndarray
     ) -> np.ndarray:
-        """Row ``pi_{theta_k .}(x_k)`` of eq. (eq:p_tran): ``P_in[mode]`` in C1, else ``P_out``."""
+        """Row ``pi_{theta_k .}(x_k)`` of eq. (eq:p_tran): ``P_in[mode]`` in C1, ``P_out[mode]`` in C2.
+
+        Returns
+        -------
+        (..., N) array of probabilities of the next mode
+        """
         inside = self.in_region(x, k)
         mode = np.asarray(mode)
         return np.where(inside[..., None], self.P_in[mode], self.P_out[mode])
+
+    def next_mode(
+        self,
+        x: np.ndarray,
+        mode: int | np.ndarray,
+        k: int | np.ndarray,
+        uniform: np.ndarray | float,
+    ) -> np.ndarray:
+        """The next mode, by inverse-CDF sampling of :meth:`transition_rows` with ``uniform``.
+
+        Parameters
+        ----------
+        x : (..., n)
+        mode : int or (...) int array
+        k : int or (...) int array
+        uniform : float or (...) array of draws from U[0, 1)
+
+        Returns
+        -------
+        (...) int64 array (a 0-d array for a single state)
+        """
+        return self.draw_next_mode(self.in_region(x, k), mode, uniform)
+
+    def sample_next_mode(
+        self,
+        x: np.ndarray,
+        mode: int | np.ndarray,
+        k: int | np.ndarray,
+        rng: np.random.Generator,
+    ) -> np.ndarray:
+        """Draw ``theta_{k+1}`` from row ``pi_{theta_k .}(x_k)`` of eq. (eq:p_tran) with ``rng``, a
+        :class:`numpy.random.Generator`: :meth:`next_mode` (the same arguments and answer) with
+        one uniform per state drawn by ``rng.random``; :meth:`next_mode` itself takes the
+        uniforms, for replaying a trajectory."""
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"rng = {rng!r:.80}; expected a numpy.random.Generator")
+        inside = self.in_region(x, k)
+        shape = np.broadcast_shapes(np.shape(inside), np.shape(mode))
+        return self.draw_next_mode(inside, mode, rng.random(shape))
 
     def draw_next_mode(
         self, inside: Any, mode: int | np.ndarray, uniform: np.ndarray | float
@@ -343,7 +434,19 @@ class Dynamics:
     def next_state(
         self, x: np.ndarray, mode: int | np.ndarray, u: np.ndarray, w: np.ndarray
     ) -> np.ndarray:
-        """``A_theta x + B_theta u + E_theta w`` (..., n), eq. (sys:djls_noise)."""
+        """``A_theta x + B_theta u + E_theta w``, eq. (sys:djls_noise).
+
+        Parameters
+        ----------
+        x : (..., n)
+        mode : int or (...) int array
+        u : (..., m)
+        w : (..., p) noise sample (already scaled: ``w ~ N(0, W)``)
+
+        Returns
+        -------
+        (..., n) array
+        """
         z = stack_last(x, u, w)
         return self._per_mode(self._batched["ABE_T"], self.n, mode, z)
 
@@ -396,8 +499,17 @@ class Dynamics:
         uniform: np.ndarray | float,
         inside: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """``(x_{k+1}, theta_{k+1})`` from given randomness; ``inside`` is the region test of
-        ``x`` at ``k`` when the caller has it."""
+        """One transition ``(x_k, theta_k) -> (x_{k+1}, theta_{k+1})`` with given randomness.
+
+        The next mode uses the region test on ``x_k`` at time ``k`` (eq. eq:p_tran). Deterministic
+        given ``w`` and ``uniform``, so that callers can replay the same noise. ``inside``, the
+        region test of ``x`` at ``k``, may be passed when the caller already has it.
+
+        Returns
+        -------
+        x_next : (..., n)
+        mode_next : (...) int64
+        """
         if inside is None:
             inside = self.in_region(x, k)
         return self.next_state(x, mode, u, w), self.draw_next_mode(inside, mode, uniform)
@@ -434,13 +546,20 @@ class Dynamics:
         uniform: Any,
         inside: Any = None,
     ) -> Transition:
-        """The whole step: :meth:`step`, :meth:`stage_cost` of ``(x, u)`` and
-        :meth:`constraint_values` of the next state at ``k + 1``.
+        """The whole step with given randomness: :meth:`step`, the :meth:`stage_cost` of
+        ``(x_k, u_k)`` and the :meth:`constraint_values` of ``x_{k+1}`` at ``k + 1``.
 
+        Both environments take their steps here (through :func:`sdjls_gym.functional.step`).
         For one state (``mode`` and ``k`` Python ints, ``x`` (n,), ``u`` (m,), ``w`` (p,) float64
         arrays, ``uniform`` a float, ``inside`` a bool or None) it takes the one-state path:
         ``[x'; G x'] = [ABE; G ABE]_theta [x; u; w]`` in one product and the next mode by
         bisection of the CDF row, with few numpy calls.
+
+        Returns
+        -------
+        Transition
+            ``(x, mode, stage_cost, constraint_values)``: ``(..., n)``, ``(...)`` int,
+            ``(...)`` float, ``(..., r)`` (an int and a float for one state).
         """
         if type(mode) is not int:
             x_next, modes_next = self.step(x, mode, u, k, w, uniform, inside)
@@ -465,9 +584,11 @@ class Dynamics:
     def exact_transition(
         self, x: np.ndarray, mode: int, u: np.ndarray, k: int, w: np.ndarray
     ) -> tuple[np.ndarray, float, np.ndarray]:
-        """:meth:`transition`'s next state, stage cost and constraint values for one state, each
-        the exact value of its formula rounded once to float64 (beyond its range: +-inf, never
-        NaN); see :func:`sdjls_gym.exact.exact_transition`."""
+        """:meth:`transition`'s next state, stage cost and ``G x_next - H_{k+1}`` for one state,
+        each the exact value of its formula rounded once to float64 (beyond float64's range:
+        +-inf, never NaN): the answer of both environments to a step that overflows float64
+        (see :func:`sdjls_gym.exact.exact_transition`). The next mode is not computed: it does
+        not overflow."""
         return exact.exact_transition(
             self.ABE[mode], self.QR[mode], self.G, self.H_one(k + 1), x, u, w
         )

@@ -35,6 +35,7 @@ __all__ = [
     "action_space",
     "check_divergence_bound",
     "check_model_x0",
+    "check_seed",
     "make_env",
     "own_spec",
     "parse_reset_options",
@@ -91,6 +92,12 @@ def check_model_x0(model: SDJLSModel, divergence_bound: float) -> None:
             f"the model's x0 = {describe(model.x0)} has an entry beyond divergence_bound = "
             f"{divergence_bound:g}; raise divergence_bound or change x0"
         )
+
+
+def check_seed(seed: Any) -> int | None:
+    """``reset(seed=...)``: None, or an int ``>= 0`` of any size (Gymnasium itself would take a
+    bool as a seed and refuse a numpy int)."""
+    return None if seed is None else check_int("seed", seed, low=0, high=None)
 
 
 def parse_reset_options(
@@ -427,9 +434,7 @@ class SDJLSEnv(gym.Env[np.ndarray, np.ndarray]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        if seed is not None:  # Gymnasium takes a bool as a seed and refuses a numpy int
-            seed = check_int("seed", seed, low=0, high=None)
-        super().reset(seed=seed)
+        super().reset(seed=check_seed(seed))
         model = self.model
         x0, mode0 = parse_reset_options(model, options, self.divergence_bound)
         self._x = x = model.x0.copy() if x0 is None else x0

@@ -21,31 +21,44 @@ broadcastable against the batch.
 
 from __future__ import annotations
 
+import functools
 import inspect
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
 from functools import cached_property
-from typing import Any, overload
+from typing import Any, Concatenate, ParamSpec, TypeVar, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sdjls_gym.dynamics import (
-    BatchTransition,
-    Dynamics,
-    OneTransition,
-    Transition,
-    draw_categorical,
-)
+from sdjls_gym.dynamics import Dynamics, Sizes, draw_categorical
 from sdjls_gym.errors import InvalidModelError, InvalidModelTypeError
 from sdjls_gym.messages import a_type, describe
 from sdjls_gym.model_checks import validate_fields
 
 __all__ = ["SDJLSModel"]
 
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+
+
+def _handed_over(
+    method: Callable[Concatenate[Dynamics, _P], _R],
+) -> Callable[Concatenate[SDJLSModel, _P], _R]:
+    """The model's method of ``method``'s name: ``model.dynamics``'s, with its signature and
+    docstring (for ``help()``, ``inspect.signature`` and type checkers, overloads included)."""
+    name = method.__name__
+
+    @functools.wraps(method)
+    def hand_over(self: SDJLSModel, /, *args: _P.args, **kwargs: _P.kwargs) -> _R:
+        return getattr(self.dynamics, name)(*args, **kwargs)
+
+    hand_over.__qualname__ = f"SDJLSModel.{name}"
+    return hand_over
+
 
 @dataclass(frozen=True, eq=False)
-class SDJLSModel:
+class SDJLSModel(Sizes):
     """A discrete-time state-dependent jump linear system with a polyhedral region.
 
     Shapes use N modes, n states, m inputs, p noise inputs and r constraint rows. The per-mode
@@ -102,6 +115,12 @@ class SDJLSModel:
     Symmetry, positive (semi)definiteness and the row sums are checked with tolerances
     relative to each matrix's largest entry, so scaling a weight by any positive factor does
     not change the verdict.
+
+    The methods of the dynamics (``H``, ``constraint_values``, ``in_region``, ``next_state``,
+    ``next_mode``, ``step``, ``transition``, ...) are those of
+    :class:`~sdjls_gym.dynamics.Dynamics`, with its signatures and docstrings, called on
+    ``model.dynamics``; the sizes ``N``, ``n``, ``m``, ``p``, ``r`` are
+    :class:`~sdjls_gym.dynamics.Sizes`'s.
 
     Examples
     --------
@@ -162,33 +181,7 @@ class SDJLSModel:
                 value.setflags(write=False)
             object.__setattr__(self, name, value)
 
-    # ------------------------------------------------------------------ sizes
-    # the sizes are read on every step: cached, an attribute lookup after the first read
-    @cached_property
-    def N(self) -> int:
-        """Number of modes."""
-        return self.A.shape[0]
-
-    @cached_property
-    def n(self) -> int:
-        """Number of states."""
-        return self.A.shape[1]
-
-    @cached_property
-    def m(self) -> int:
-        """Number of inputs."""
-        return self.B.shape[2]
-
-    @cached_property
-    def p(self) -> int:
-        """Number of noise inputs (columns of E)."""
-        return self.E.shape[2]
-
-    @cached_property
-    def r(self) -> int:
-        """Number of rows of the region ``G x <= H_k``."""
-        return self.G.shape[0]
-
+    # ------------------------------------------------------------------ sizes (Sizes), dynamics
     @cached_property
     def dynamics(self) -> Dynamics:
         """The functions of the dynamics on this model's matrices (built on first use)."""
@@ -210,143 +203,22 @@ class SDJLSModel:
         return out
 
     # ------------------------------------------------------------------ the dynamics
-    def H(self, k: int | np.ndarray) -> np.ndarray:
-        """Right-hand side ``H_k = H0 + k * H_rate``.
-
-        Parameters
-        ----------
-        k : int or (...) int array
-            Time indices, ``0 <= k <= 2**53``.
-
-        Returns
-        -------
-        (..., r) array
-
-        Raises
-        ------
-        TypeError
-            ``k`` is not an int or an integer array (a float, a bool, ...).
-        ValueError
-            ``k`` is negative or above ``2**53`` (checked on the exact integer).
-        """
-        return self.dynamics.H(k)
-
-    def constraint_values(self, x: np.ndarray, k: int | np.ndarray) -> np.ndarray:
-        """``G x - H_k``: positive entries are violated rows.
-
-        Parameters
-        ----------
-        x : (..., n)
-        k : int or int array broadcastable to the batch shape
-
-        Returns
-        -------
-        (..., r) array
-        """
-        return self.dynamics.constraint_values(x, k)
-
-    def constraint_values_one(self, x: np.ndarray, k: int) -> np.ndarray:
-        """:meth:`constraint_values` ``G x - H_k`` (r,) for one float64 state ``x`` (n,)."""
-        return self.dynamics.constraint_values_one(x, k)
-
-    def in_region(self, x: np.ndarray, k: int | np.ndarray) -> np.ndarray:
-        """Whether ``G x <= H_k`` holds in every row (``x`` in C1), eq. (eq:polyhedral), decided
-        exactly for the float64 data where a row's value is within round-off of 0 (so a state
-        alone and in a batch get the same answer).
-
-        Returns
-        -------
-        (...) bool array (a numpy bool for a single state)
-        """
-        return self.dynamics.in_region(x, k)
-
-    def in_region_one(self, x: np.ndarray, k: int) -> bool:
-        """:meth:`in_region` for one float64 state ``x`` (n,) and an int ``k``: the same
-        decision (exact where a row's value is within round-off of 0), as a Python bool."""
-        return self.dynamics.in_region_one(x, k)
-
-    def transition_rows(
-        self, x: np.ndarray, mode: int | np.ndarray, k: int | np.ndarray
-    ) -> np.ndarray:
-        """Row ``pi_{theta_k .}(x_k)`` of eq. (eq:p_tran): ``P_in[mode]`` in C1, ``P_out[mode]`` in C2.
-
-        Returns
-        -------
-        (..., N) array of probabilities of the next mode
-        """
-        return self.dynamics.transition_rows(x, mode, k)
-
-    def next_state(
-        self, x: np.ndarray, mode: int | np.ndarray, u: np.ndarray, w: np.ndarray
-    ) -> np.ndarray:
-        """``A_theta x + B_theta u + E_theta w``, eq. (sys:djls_noise).
-
-        Parameters
-        ----------
-        x : (..., n)
-        mode : int or (...) int array
-        u : (..., m)
-        w : (..., p) noise sample (already scaled: ``w ~ N(0, W)``)
-
-        Returns
-        -------
-        (..., n) array
-        """
-        return self.dynamics.next_state(x, mode, u, w)
-
-    def next_mode(
-        self,
-        x: np.ndarray,
-        mode: int | np.ndarray,
-        k: int | np.ndarray,
-        uniform: np.ndarray | float,
-    ) -> np.ndarray:
-        """The next mode, by inverse-CDF sampling of :meth:`transition_rows` with ``uniform``.
-
-        Parameters
-        ----------
-        uniform : float or (...) array of draws from U[0, 1)
-
-        Returns
-        -------
-        (...) int64 array (a 0-d array for a single state)
-        """
-        return self.dynamics.draw_next_mode(self.in_region(x, k), mode, uniform)
-
-    def sample_next_mode(
-        self,
-        x: np.ndarray,
-        mode: int | np.ndarray,
-        k: int | np.ndarray,
-        rng: np.random.Generator,
-    ) -> np.ndarray:
-        """Draw ``theta_{k+1}`` from row ``pi_{theta_k .}(x_k)`` of eq. (eq:p_tran) with ``rng``.
-
-        The same law as :meth:`next_mode`, which takes the uniforms instead (for replaying a
-        trajectory); this draws one uniform per state with ``rng.random``.
-
-        Parameters
-        ----------
-        x : (..., n)
-        mode : int or (...) int array
-        k : int or (...) int array
-        rng : numpy.random.Generator
-
-        Returns
-        -------
-        (...) int64 array (a 0-d array for a single state)
-        """
-        if not isinstance(rng, np.random.Generator):
-            raise TypeError(f"rng = {rng!r:.80}; expected a numpy.random.Generator")
-        inside = self.in_region(x, k)
-        shape = np.broadcast_shapes(np.shape(inside), np.shape(mode))
-        return self.dynamics.draw_next_mode(inside, mode, rng.random(shape))
-
-    def sample_noise(
-        self, rng: np.random.Generator, batch_shape: tuple[int, ...] = ()
-    ) -> np.ndarray:
-        """Draw ``w ~ N(0, W)`` of shape ``(*batch_shape, p)`` from ``rng``."""
-        return self.dynamics.sample_noise(rng, batch_shape)
+    # model.H(k) is model.dynamics.H(k), and so on: the signatures and docstrings are
+    # Dynamics's, written once there
+    H = _handed_over(Dynamics.H)
+    constraint_values = _handed_over(Dynamics.constraint_values)
+    constraint_values_one = _handed_over(Dynamics.constraint_values_one)
+    in_region = _handed_over(Dynamics.in_region)
+    in_region_one = _handed_over(Dynamics.in_region_one)
+    transition_rows = _handed_over(Dynamics.transition_rows)
+    next_state = _handed_over(Dynamics.next_state)
+    next_mode = _handed_over(Dynamics.next_mode)
+    sample_next_mode = _handed_over(Dynamics.sample_next_mode)
+    sample_noise = _handed_over(Dynamics.sample_noise)
+    step = _handed_over(Dynamics.step)
+    stage_cost = _handed_over(Dynamics.stage_cost)
+    transition = _handed_over(Dynamics.transition)
+    exact_transition = _handed_over(Dynamics.exact_transition)
 
     @overload
     def sample_mode0(self, rng: np.random.Generator, size: None = None) -> int: ...
@@ -364,89 +236,6 @@ class SDJLSModel:
         if size is None:
             return int(draw_categorical(self.mode0, rng.random()))
         return draw_categorical(self.mode0, rng.random(size))
-
-    def step(
-        self,
-        x: np.ndarray,
-        mode: int | np.ndarray,
-        u: np.ndarray,
-        k: int | np.ndarray,
-        w: np.ndarray,
-        uniform: np.ndarray | float,
-        inside: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """One transition ``(x_k, theta_k) -> (x_{k+1}, theta_{k+1})`` with given randomness.
-
-        The next mode uses the region test on ``x_k`` at time ``k`` (eq. eq:p_tran). Deterministic
-        given ``w`` and ``uniform``, so that callers can replay the same noise. ``inside``, the
-        region test of ``x`` at ``k``, may be passed when the caller already has it.
-
-        Returns
-        -------
-        x_next : (..., n)
-        mode_next : (...) int64
-        """
-        return self.dynamics.step(x, mode, u, k, w, uniform, inside)
-
-    def stage_cost(self, x: np.ndarray, mode: int | np.ndarray, u: np.ndarray) -> np.ndarray:
-        """``x' Q_theta x + u' R_theta u``; shape ``(...)``."""
-        return self.dynamics.stage_cost(x, mode, u)
-
-    @overload
-    def transition(
-        self,
-        x: np.ndarray,
-        mode: int,
-        u: np.ndarray,
-        k: int,
-        w: np.ndarray,
-        uniform: float,
-        inside: bool | None = None,
-    ) -> OneTransition: ...
-    @overload
-    def transition(
-        self,
-        x: np.ndarray,
-        mode: np.ndarray | np.integer[Any],
-        u: np.ndarray,
-        k: int | np.ndarray,
-        w: np.ndarray,
-        uniform: float | np.ndarray,
-        inside: np.ndarray | None = None,
-    ) -> BatchTransition: ...
-    def transition(
-        self,
-        x: np.ndarray,
-        mode: Any,
-        u: np.ndarray,
-        k: Any,
-        w: np.ndarray,
-        uniform: Any,
-        inside: Any = None,
-    ) -> Transition:
-        """The whole step with given randomness: :meth:`step`, the :meth:`stage_cost` of
-        ``(x_k, u_k)`` and the :meth:`constraint_values` of ``x_{k+1}`` at ``k + 1``.
-
-        Both environments take their steps here (through :func:`sdjls_gym.functional.step`).
-        One state given with Python ints (``mode``, ``k``), a float ``uniform`` and float64
-        arrays takes a path with few numpy calls (see :mod:`sdjls_gym.dynamics`).
-
-        Returns
-        -------
-        Transition
-            ``(x, mode, stage_cost, constraint_values)``: ``(..., n)``, ``(...)`` int,
-            ``(...)`` float, ``(..., r)`` (an int and a float for one state).
-        """
-        return self.dynamics.transition(x, mode, u, k, w, uniform, inside)
-
-    def exact_transition(
-        self, x: np.ndarray, mode: int, u: np.ndarray, k: int, w: np.ndarray
-    ) -> tuple[np.ndarray, float, np.ndarray]:
-        """:meth:`transition`'s next state, stage cost and ``G x_next - H_{k+1}`` for one state,
-        each the exact value of its formula rounded once to float64 (beyond float64's range:
-        +-inf, never NaN): the answer of both environments to a step that overflows float64
-        (see :mod:`sdjls_gym.exact`). The next mode is not computed: it does not overflow."""
-        return self.dynamics.exact_transition(x, mode, u, k, w)
 
     # ------------------------------------------------------------------ (de)serialization
     def to_dict(self) -> dict[str, Any]:

@@ -200,9 +200,42 @@ def _check_names(name: str, value: Any, count: int) -> tuple[str, ...]:
     return names
 
 
-def validate_fields(f: dict[str, Any]) -> dict[str, Any]:  # noqa: C901 - a flat list of checks
+def validate_fields(f: dict[str, Any]) -> dict[str, Any]:
     """The validated, canonical fields of a model (float64 arrays with the mode axis, ints,
-    tuples of str) from the raw ones given to the constructor."""
+    tuples of str) from the raw ones given to the constructor, checked in the order of the
+    constructor's parameters (the first error is the one raised)."""
+    A, B, P_in = _system_matrices(f)
+    N, n, m = A.shape[0], A.shape[1], B.shape[-1]
+    E, W = _noise(f, A.shape)
+    P_out = as_float_array("P_out", f["P_out"])
+    _check_stochastic("P_in", P_in, N)
+    _check_stochastic("P_out", P_out, N)
+    G, H0, H_rate = _region(f, n)
+    Q = per_mode("Q", as_float_array("Q", f["Q"]), N, (n, n), "one n x n weight per mode")
+    _check_psd("Q", Q, strict=False)
+    R = per_mode("R", as_float_array("R", f["R"]), N, (m, m), "one m x m weight per mode")
+    _check_psd("R", R, strict=True)
+    x0 = as_float_array("x0", f["x0"])
+    if x0.shape != (n,):
+        raise InvalidModelError(f"x0 has shape {x0.shape}; expected ({n},)")
+    mode0 = _check_mode0(f["mode0"], N)
+    if f["mode_names"] is None:
+        mode_names = tuple(f"mode {i}" for i in range(N))
+    else:
+        mode_names = _check_names("mode_names", f["mode_names"], N)
+    state_names = None
+    if f["state_names"] is not None:
+        state_names = _check_names("state_names", f["state_names"], n)
+    return {
+        "A": A, "B": B, "E": E, "W": W, "P_in": P_in, "P_out": P_out, "G": G, "H0": H0,
+        "H_rate": H_rate, "Q": Q, "R": R, "x0": x0, "mode0": mode0, "mode_names": mode_names,
+        "state_names": state_names,
+    }  # fmt: skip
+
+
+def _system_matrices(f: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, B, P_in)``: ``A`` (N, n, n) and ``B`` (N, n, m) with their mode axis (N from
+    ``P_in`` when one ``A`` is given for every mode), ``P_in`` as given."""
     A = as_float_array("A", f["A"])
     P_in = as_float_array("P_in", f["P_in"])
     if A.ndim == 2 and A.shape[0] == A.shape[1] and A.shape[0] >= 1:
@@ -218,29 +251,33 @@ def validate_fields(f: dict[str, Any]) -> dict[str, Any]:  # noqa: C901 - a flat
             f"A has shape {A.shape}; expected (N, n, n): one square n x n matrix per mode, or "
             "(n, n) for the same matrix in every mode"
         )
-    N, n = A.shape[0], A.shape[1]
+    B = _per_mode_columns("B", f["B"], A.shape, "m", "one n x m input matrix per mode")
+    return A, B, P_in
 
-    B = as_float_array("B", f["B"])
-    if B.ndim not in (2, 3) or B.shape[-2] != n or B.shape[-1] < 1:
+
+def _per_mode_columns(
+    name: str, value: Any, A_shape: tuple[int, ...], k: str, what: str
+) -> np.ndarray:
+    """``B`` or ``E``: (N, n, k) with its mode axis, from (N, n, k) or (n, k), any ``k >= 1``."""
+    N, n = A_shape[0], A_shape[1]
+    M = as_float_array(name, value)
+    if M.ndim not in (2, 3) or M.shape[-2] != n or M.shape[-1] < 1:
         raise InvalidModelError(
-            f"B has shape {B.shape}; expected ({N}, {n}, m) or ({n}, m) to match A of shape "
-            f"{A.shape}"
+            f"{name} has shape {M.shape}; expected ({N}, {n}, {k}) or ({n}, {k}) to match A of "
+            f"shape {A_shape}"
         )
-    m = B.shape[-1]
-    B = per_mode("B", B, N, (n, m), "one n x m input matrix per mode")
+    return per_mode(name, M, N, (n, M.shape[-1]), what)
 
+
+def _noise(f: dict[str, Any], A_shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """``(E, W)``: ``E`` (N, n, p) with its mode axis (identities by default) and the
+    covariance ``W`` (p, p) (the identity by default), positive semidefinite."""
+    N, n = A_shape[0], A_shape[1]
     if f["E"] is None:
         E = np.broadcast_to(np.eye(n), (N, n, n)).copy()
     else:
-        E = as_float_array("E", f["E"])
-        if E.ndim not in (2, 3) or E.shape[-2] != n or E.shape[-1] < 1:
-            raise InvalidModelError(
-                f"E has shape {E.shape}; expected ({N}, {n}, p) or ({n}, p) to match A of "
-                f"shape {A.shape}"
-            )
-        E = per_mode("E", E, N, (n, E.shape[-1]), "one n x p noise matrix per mode")
+        E = _per_mode_columns("E", f["E"], A_shape, "p", "one n x p noise matrix per mode")
     p = E.shape[-1]
-
     if f["W"] is None:
         W = np.eye(p)
     else:
@@ -251,11 +288,11 @@ def validate_fields(f: dict[str, Any]) -> dict[str, Any]:  # noqa: C901 - a flat
                 "inputs (columns of E)"
             )
     _check_psd("W", W[None], strict=False)
+    return E, W
 
-    P_out = as_float_array("P_out", f["P_out"])
-    _check_stochastic("P_in", P_in, N)
-    _check_stochastic("P_out", P_out, N)
 
+def _region(f: dict[str, Any], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(G, H0, H_rate)`` of the region ``G x <= H0 + k H_rate`` (``H_rate`` 0 by default)."""
     G = as_float_array("G", f["G"])
     if G.ndim != 2 or G.shape[1] != n or G.shape[0] < 1:
         raise InvalidModelError(
@@ -272,33 +309,10 @@ def validate_fields(f: dict[str, Any]) -> dict[str, Any]:  # noqa: C901 - a flat
     if H0.shape != (r,):
         raise InvalidModelError(f"H0 has shape {H0.shape}; expected ({r},), one entry per row of G")
     if f["H_rate"] is None:
-        H_rate = np.zeros(r)
-    else:
-        H_rate = as_float_array("H_rate", f["H_rate"])
-        if H_rate.shape != (r,):
-            raise InvalidModelError(
-                f"H_rate has shape {H_rate.shape}; expected ({r},), one entry per row of G"
-            )
-
-    Q = per_mode("Q", as_float_array("Q", f["Q"]), N, (n, n), "one n x n weight per mode")
-    _check_psd("Q", Q, strict=False)
-    R = per_mode("R", as_float_array("R", f["R"]), N, (m, m), "one m x m weight per mode")
-    _check_psd("R", R, strict=True)
-
-    x0 = as_float_array("x0", f["x0"])
-    if x0.shape != (n,):
-        raise InvalidModelError(f"x0 has shape {x0.shape}; expected ({n},)")
-
-    mode0 = _check_mode0(f["mode0"], N)
-    if f["mode_names"] is None:
-        mode_names = tuple(f"mode {i}" for i in range(N))
-    else:
-        mode_names = _check_names("mode_names", f["mode_names"], N)
-    state_names = None
-    if f["state_names"] is not None:
-        state_names = _check_names("state_names", f["state_names"], n)
-    return {
-        "A": A, "B": B, "E": E, "W": W, "P_in": P_in, "P_out": P_out, "G": G, "H0": H0,
-        "H_rate": H_rate, "Q": Q, "R": R, "x0": x0, "mode0": mode0, "mode_names": mode_names,
-        "state_names": state_names,
-    }  # fmt: skip
+        return G, H0, np.zeros(r)
+    H_rate = as_float_array("H_rate", f["H_rate"])
+    if H_rate.shape != (r,):
+        raise InvalidModelError(
+            f"H_rate has shape {H_rate.shape}; expected ({r},), one entry per row of G"
+        )
+    return G, H0, H_rate

@@ -17,6 +17,7 @@ system only: ``gym.make("SDJLS-Solar-v0", model=...)`` with another model is a `
 
 from __future__ import annotations
 
+import inspect
 from typing import Any
 
 import gymnasium
@@ -54,6 +55,10 @@ def check_random_kwargs(kwargs: dict[str, Any]) -> None:
         )
 
 
+#: The environment's own arguments that the Random task's entry points pass on.
+_ENV_ARGUMENTS = ("divergence_bound", "render_mode", "observe")
+
+
 def make_random_env(
     n: int = 3,
     m: int = 1,
@@ -71,35 +76,38 @@ def make_random_env(
     ``env_kwargs`` may hold ``divergence_bound``, ``render_mode`` and ``observe``; ``seed`` is
     refused (``system_seed`` chooses the system, ``reset(seed=...)`` the noise).
     """
-    names = ("divergence_bound", "render_mode", "observe")
-    extra = {key: env_kwargs.pop(key) for key in names if key in env_kwargs}
-    check_random_kwargs(env_kwargs)
+    extra = _env_arguments(env_kwargs, _ENV_ARGUMENTS)
     task = _random.random_task(n, m, N, r, system_seed, spectral_radius=spectral_radius)
     return make_env(model=task.model, horizon=horizon, action_bound=action_bound, **extra)
 
 
-def make_random_vector_env(
-    num_envs: int = 1,
-    n: int = 3,
-    m: int = 1,
-    N: int = 2,
-    r: int = 2,
-    system_seed: int = 0,
-    spectral_radius: float = 1.2,
-    horizon: int = _random.HORIZON,
-    action_bound: float = _random.ACTION_BOUND,
-    **env_kwargs: Any,
-) -> SDJLSVectorEnv:
-    """The vector entry point of ``SDJLS-Random-v0``: an ``SDJLSVectorEnv`` of
-    :func:`~sdjls_gym.systems.random_task` (``env_kwargs``: ``divergence_bound``,
-    ``max_episode_steps``, ``render_mode``, ``observe``)."""
-    names = ("divergence_bound", "max_episode_steps", "render_mode", "observe")
-    extra = {key: env_kwargs.pop(key) for key in names if key in env_kwargs}
-    check_random_kwargs(env_kwargs)
-    task = _random.random_task(n, m, N, r, system_seed, spectral_radius=spectral_radius)
-    return SDJLSVectorEnv(
-        num_envs=num_envs, model=task.model, horizon=horizon, action_bound=action_bound, **extra
+def make_random_vector_env(num_envs: int = 1, **kwargs: Any) -> SDJLSVectorEnv:
+    """The vector entry point of ``SDJLS-Random-v0``: an ``SDJLSVectorEnv`` of ``num_envs``
+    environments of the system :func:`make_random_env` builds from the same arguments
+    (``kwargs``: its parameters, and ``max_episode_steps`` besides the environment's own)."""
+    arguments = inspect.signature(make_random_env).bind(**kwargs)
+    arguments.apply_defaults()
+    a = arguments.arguments
+    extra = _env_arguments(a["env_kwargs"], (*_ENV_ARGUMENTS, "max_episode_steps"))
+    task = _random.random_task(
+        a["n"], a["m"], a["N"], a["r"], a["system_seed"], spectral_radius=a["spectral_radius"]
     )
+    return SDJLSVectorEnv(
+        num_envs=num_envs,
+        model=task.model,
+        horizon=a["horizon"],
+        action_bound=a["action_bound"],
+        **extra,
+    )
+
+
+def _env_arguments(env_kwargs: dict[str, Any], names: tuple[str, ...]) -> dict[str, Any]:
+    """The entries of ``env_kwargs`` named in ``names``; anything else refused
+    (:func:`check_random_kwargs`)."""
+    rest = dict(env_kwargs)
+    extra = {key: rest.pop(key) for key in names if key in rest}
+    check_random_kwargs(rest)
+    return extra
 
 
 def register_ids() -> None:

@@ -354,6 +354,21 @@ def check_array(
         ``max_abs`` in magnitude.
     """
     suffix = f" ({what})" if what else ""
+    value = _real_entries(name, value, suffix)
+    try:
+        with np.errstate(over="ignore"):  # a longdouble beyond float64: inf, reported below
+            arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"{name} = {describe(value)} could not be read as an array of numbers ({exc}){suffix}"
+        ) from None
+    _check_values(name, arr, shape, finite, max_abs, suffix)
+    return arr
+
+
+def _real_entries(name: str, value: Any, suffix: str) -> Any:
+    """``value`` if its entries may be real numbers (an object array of them: as float64),
+    else :func:`check_array`'s error (ragged input is left to the conversion)."""
     if isinstance(value, (str, bytes)) or value is None:
         raise TypeError(
             f"{name} = {describe(value)} is {a_type(value)}; expected an array of numbers{suffix}"
@@ -399,13 +414,18 @@ def check_array(
                 f"{name} = {describe(value)} has {entry_kind} entries; expected an array of real "
                 f"numbers{suffix}"
             )
-    try:
-        with np.errstate(over="ignore"):  # a longdouble beyond float64: inf, reported below
-            arr = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(
-            f"{name} = {describe(value)} could not be read as an array of numbers ({exc}){suffix}"
-        ) from None
+    return value
+
+
+def _check_values(
+    name: str,
+    arr: np.ndarray,
+    shape: tuple[int | None, ...] | None,
+    finite: bool,
+    max_abs: float | None,
+    suffix: str,
+) -> None:
+    """The shape, finiteness and size rules of :func:`check_array` on the float64 ``arr``."""
     if shape is not None and (
         arr.ndim != len(shape)
         or any(s is not None and a != s for a, s in zip(arr.shape, shape, strict=True))
@@ -429,7 +449,6 @@ def check_array(
             f"{name} has an entry {arr[bad]:.6g} at index {bad}; entries must be at most "
             f"{max_abs:g} in magnitude{suffix}"
         )
-    return arr
 
 
 def _objects_as_float(name: str, raw: np.ndarray, suffix: str) -> np.ndarray:

@@ -14,6 +14,7 @@ from sdjls_gym.env import (
     action_space,
     check_divergence_bound,
     check_model_x0,
+    check_seed,
     own_spec,
     parse_reset_options,
     resolve_model,
@@ -191,9 +192,7 @@ class SDJLSVectorEnv(VectorEnv):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        if seed is not None:  # Gymnasium takes a bool as a seed and refuses a numpy int
-            seed = check_int("seed", seed, low=0, high=None)
-        super().reset(seed=seed)
+        super().reset(seed=check_seed(seed))
         x0, mode0 = parse_reset_options(self.model, options, self.divergence_bound)
         B = self.num_envs
         self._x = np.broadcast_to(self.model.x0 if x0 is None else x0, (B, self.model.n)).copy()

@@ -7,7 +7,9 @@
   (``random_problem``) and two checks of an answer (``paper_cost``, ``assert_feasible``);
 * ``raises_naming``: the one way the tests check an error (its type, the argument's name and
   the offending value, never the whole sentence), and ``no_solver`` / ``raised_by_library``
-  for the error catalogues (``test_errors_*.py``).
+  for the error catalogues (``test_errors_*.py``);
+* the tables the README and the documentation copy from the committed reports
+  (``COPIED_TABLES``, ``uncopied_rows``).
 
 Test modules import the plain functions (``from conftest import raises_naming``).
 
@@ -416,8 +418,12 @@ def raised_by_library(excinfo: pytest.ExceptionInfo, dirs=("sdjls_gym", "control
 
 
 def refused(error, name, value, call, dirs=("sdjls_gym", "controllers")) -> pytest.ExceptionInfo:
-    """``call()`` raises ``error`` naming ``name`` and showing ``value`` (:func:`raises_naming`),
-    with no warning on the way, from a check in the project's own code (``dirs``)."""
+    """``call()`` raises ``error`` naming ``name`` and showing ``value`` (:func:`raises_naming`:
+    not the sentence around them), with no warning on the way, from a check in the project's own
+    code (``dirs``: the innermost traceback frame is there, not deep inside numpy, scipy or
+    cvxpy). The error catalogues (``test_errors_*.py``) check every case with it, under the
+    :func:`no_solver` trap (``osqp.OSQP.solve`` and ``cvxpy.Problem.solve`` replaced: no solver
+    may start before the error)."""
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no warning on the way to the error either
         with raises_naming(error, name, value) as excinfo:
@@ -436,3 +442,35 @@ try:
     _hypothesis_providers._get_local_constants = lambda: _hypothesis_providers._local_constants
 except (ImportError, AttributeError):  # another Hypothesis version: nothing to pin
     pass
+
+
+# ----------------------------------------------------------------------------- copied tables
+#: The sections of the README and of ``docs/benchmarks.md`` whose tables are copies of a
+#: committed report's: ``(title, report, rows the README shows at least, rows the docs show)``.
+COPIED_TABLES = (
+    ("Reproducing the paper (section 6)", "results/paper/REPORT.md", 8, 8),
+    ("Receding horizon against reinforcement learning", "results/rl/REPORT.md", 10, 20),
+    ("Speed", "results/speed/SPEED.md", 6, 14),
+    ("The suite, scored as one benchmark", "results/suite/REPORT.md", 8, 12),
+    ("Learn the model, then control", "results/identify/REPORT.md", 8, 8),
+)
+
+
+def section(text: str, title: str) -> str:
+    """The Markdown ``text`` from the ``## title`` heading to the next ``## `` heading."""
+    match = re.search(rf"^## {re.escape(title)}\n(.*?)(?=^## |\Z)", text, flags=re.M | re.S)
+    assert match, f"no section '## {title}'"
+    return match.group(1)
+
+
+def uncopied_rows(page: str, title: str, report: Path, min_rows: int) -> list[str]:
+    """The table rows of the section ``title`` of the Markdown ``page`` that are not rows of
+    ``report``, after checking that the section shows at least ``min_rows``."""
+
+    def rows(text: str) -> list[str]:
+        return [line.strip() for line in text.splitlines() if line.strip().startswith("|")]
+
+    shown = rows(section(page, title))
+    assert len(shown) >= min_rows, f"'{title}' shows {len(shown)} table rows"
+    report_rows = set(rows(report.read_text(encoding="utf-8")))
+    return [row for row in shown if row not in report_rows]

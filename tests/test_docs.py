@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import COPIED_TABLES, uncopied_rows
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -186,30 +187,12 @@ def test_docs_python_examples_run_and_print_what_they_say(block, tmp_path, monke
             assert line.split() == tokens
 
 
-def _section(text: str, title: str) -> str:
-    match = re.search(rf"^## {re.escape(title)}\n(.*?)(?=^## |\Z)", text, flags=re.M | re.S)
-    assert match, f"no section '## {title}'"
-    return match.group(1)
-
-
 @pytest.mark.parametrize(
-    ("title", "report", "min_rows"),
-    [
-        ("Reproducing the paper (section 6)", "results/paper/REPORT.md", 8),
-        ("Receding horizon against reinforcement learning", "results/rl/REPORT.md", 20),
-        ("Speed", "results/speed/SPEED.md", 14),
-        ("The suite, scored as one benchmark", "results/suite/REPORT.md", 12),
-        ("Learn the model, then control", "results/identify/REPORT.md", 8),
-    ],
+    ("title", "report", "min_rows"), [(t[0], t[1], t[3]) for t in COPIED_TABLES]
 )
 def test_benchmark_tables_are_copied_from_the_committed_reports(title, report, min_rows):
-    text = _section((DOCS / "benchmarks.md").read_text(encoding="utf-8"), title)
-    rows = [line.strip() for line in text.splitlines() if line.strip().startswith("|")]
-    assert len(rows) >= min_rows, f"'{title}' shows {len(rows)} table rows"
-    report_rows = {
-        line.strip() for line in (ROOT / report).read_text(encoding="utf-8").splitlines()
-    }
-    missing = [row for row in rows if row not in report_rows]
+    page = (DOCS / "benchmarks.md").read_text(encoding="utf-8")
+    missing = uncopied_rows(page, title, ROOT / report, min_rows)
     assert not missing, f"rows not in {report} (re-copy them from it): {missing[:3]}"
 
 

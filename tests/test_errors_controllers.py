@@ -1,15 +1,9 @@
 """Bad input gives a clear error before any work: the catalogue of the controllers' checks.
 
+Each case is checked by ``conftest.refused`` (and the ``no_solver`` trap).
+
 The receding-horizon controllers (construction, ``act``, ``act_batch``), the scenario tree, the
 chance constraints, the baselines and the LMI functions.
-
-Each case gives the input, the exception type, the argument's name and the offending value
-(``conftest.raises_naming``: not the sentence around them), and checks that
-
-* the exception is raised by this project's own code (the innermost traceback frame is in
-  ``sdjls_gym/`` or ``controllers/``), not from deep inside numpy, scipy or cvxpy;
-* no warning is issued on the way, and no solver was started: ``osqp.OSQP.solve`` and
-  ``cvxpy.Problem.solve`` are replaced by a trap (``conftest.no_solver``) for the case.
 """
 
 from __future__ import annotations

@@ -1,16 +1,10 @@
 """Bad input gives a clear error before any work: the catalogue of the environments' checks.
 
+Each case is checked by ``conftest.refused`` (and the ``no_solver`` trap).
+
 ``SDJLSEnv`` (construction, ``reset`` options, actions, ``step`` after the end),
 ``SDJLSVectorEnv`` and the wrappers; then a rejected action leaves the environment untouched,
 and finite actions out of bounds are clipped, not refused.
-
-Each case gives the input, the exception type, the argument's name and the offending value
-(``conftest.raises_naming``: not the sentence around them), and checks that
-
-* the exception is raised by this project's own code (the innermost traceback frame is in
-  ``sdjls_gym/`` or ``controllers/``), not from deep inside numpy, scipy or cvxpy;
-* no warning is issued on the way, and no solver was started: ``osqp.OSQP.solve`` and
-  ``cvxpy.Problem.solve`` are replaced by a trap (``conftest.no_solver``) for the case.
 """
 
 from __future__ import annotations

@@ -1,16 +1,10 @@
 """Bad input gives a clear error before any work: the catalogue of the model's checks.
 
+Each case is checked by ``conftest.refused`` (and the ``no_solver`` trap).
+
 The model (``SDJLSModel``, its band ``H(k)``) and the model files (``load_model``,
 ``save_model``). The environments' cases are in ``test_errors_env.py``, the controllers' in
 ``test_errors_controllers.py``.
-
-Each case gives the input, the exception type, the argument's name and the offending value
-(``conftest.raises_naming``: not the sentence around them), and checks that
-
-* the exception is raised by this project's own code (the innermost traceback frame is in
-  ``sdjls_gym/`` or ``controllers/``), not from deep inside numpy, scipy or cvxpy;
-* no warning is issued on the way, and no solver was started: ``osqp.OSQP.solve`` and
-  ``cvxpy.Problem.solve`` are replaced by a trap (``conftest.no_solver``) for the case.
 """
 
 from __future__ import annotations
@@ -100,6 +94,12 @@ def case(call, error, name, value, id):
     return pytest.param(call, error, name, value, id=id)
 
 
+def matrix_case(field, matrix, id):
+    """``field`` (a weight or the noise covariance) given as one bad 2 x 2 ``matrix``: refused,
+    naming ``field[0]`` and showing the matrix."""
+    return case(lambda c: model(c, **{field: matrix}), M, f"{field}[0]", np.array(matrix), id)
+
+
 M = InvalidModelError
 T = InvalidModelTypeError  # both an InvalidModelError and a TypeError
 ARRAY_FIELDS = ["A", "B", "E", "W", "P_in", "P_out", "G", "H0", "H_rate", "Q", "R", "x0", "mode0"]
@@ -171,13 +171,7 @@ CASES = [
         "P_in-row-sum",
     ),
     # ---- model: weights and noise covariance
-    case(
-        lambda c: model(c, Q=[[1.0, 0.5], [0.0, 1.0]]),
-        M,
-        "Q[0]",
-        np.array([[1.0, 0.5], [0.0, 1.0]]),
-        "Q-asym",
-    ),
+    matrix_case("Q", [[1.0, 0.5], [0.0, 1.0]], "Q-asym"),
     case(
         lambda c: model(c, Q=[np.eye(2), np.diag([1.0, -1.0]), np.eye(2)]),
         M,
@@ -185,20 +179,8 @@ CASES = [
         np.diag([1.0, -1.0]),
         "Q-not-psd",
     ),
-    case(
-        lambda c: model(c, W=[[1.0, 0.0], [1.0, 1.0]]),
-        M,
-        "W[0]",
-        np.array([[1.0, 0.0], [1.0, 1.0]]),
-        "W-asym",
-    ),
-    case(
-        lambda c: model(c, W=[[1.0, 2.0], [2.0, 1.0]]),
-        M,
-        "W[0]",
-        np.array([[1.0, 2.0], [2.0, 1.0]]),
-        "W-not-psd",
-    ),
+    matrix_case("W", [[1.0, 0.0], [1.0, 1.0]], "W-asym"),
+    matrix_case("W", [[1.0, 2.0], [2.0, 1.0]], "W-not-psd"),
     case(
         lambda c: model(c, R=[[[1.0]], [[0.0]], [[1.3]]]), M, "R[1]", np.zeros((1, 1)), "R-singular"
     ),

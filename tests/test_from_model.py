@@ -2,7 +2,7 @@
 
 ``RecedingHorizonController.from_model(model, xi=...)`` (and the scenario tree's) synthesizes
 ``K`` by Proposition 2 and takes the MJLS LQ value matrices as ``Psi``: the recipe the suite's
-task modules state for their committed data (``sdjls_gym/systems/*.py``), which is what these
+tasks state for their committed data (``sdjls_gym.systems``), which is what these
 tests hold it against.
 """
 
@@ -10,16 +10,20 @@ from __future__ import annotations
 
 import inspect
 import logging
+import typing
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from controllers import (
+    BeliefRecedingHorizonController,
     RecedingHorizonController,
     ScenarioTreeController,
     UnconstrainedRecedingHorizonController,
 )
 from controllers.design import design_from_model
+from controllers.horizon import HorizonKwargs, RecedingHorizonBase
 from sdjls_gym import SDJLSModel
 from sdjls_gym.errors import LMIInfeasibleError
 from sdjls_gym.systems import TASKS
@@ -104,7 +108,12 @@ def test_a_bad_rule_names_psi():
 
 @pytest.mark.parametrize(
     "cls",
-    [RecedingHorizonController, UnconstrainedRecedingHorizonController, ScenarioTreeController],
+    [
+        RecedingHorizonController,
+        UnconstrainedRecedingHorizonController,
+        ScenarioTreeController,
+        BeliefRecedingHorizonController,
+    ],
 )
 def test_the_constructors_name_every_setting_with_its_default(cls):
     params = inspect.signature(cls).parameters
@@ -114,3 +123,46 @@ def test_the_constructors_name_every_setting_with_its_default(cls):
         assert params[name].annotation is not inspect.Parameter.empty, name
     assert params["Psi"].default is inspect.Parameter.empty  # required
     assert params["alpha"].default == 1000.0 and params["solver"].default == "daqp"
+
+
+def test_the_typed_settings_are_the_base_constructors():
+    """``HorizonKwargs`` (the subclasses' ``**settings``) has the names and types of
+    ``RecedingHorizonBase.__init__``'s keyword settings."""
+    hints = typing.get_type_hints(RecedingHorizonBase.__init__)
+    params = inspect.signature(RecedingHorizonBase.__init__).parameters.values()
+    settings = [p.name for p in params if p.kind is p.KEYWORD_ONLY]
+    assert settings == list(SETTINGS)
+    assert typing.get_type_hints(HorizonKwargs) == {name: hints[name] for name in settings}
+
+
+WRONG_CALLS = """
+import numpy as np
+from controllers import BeliefRecedingHorizonController, ScenarioTreeController
+from sdjls_gym.systems.macro import PAPER_K, macro
+
+ScenarioTreeController(macro(), PAPER_K, Psi=np.eye(2), xi=0.9, alpha="1000")
+BeliefRecedingHorizonController(macro(), PAPER_K, Psi=np.eye(2), xi=0.9, alpah=1.0)
+ScenarioTreeController(macro(), PAPER_K, steps=2, xi=0.9)
+ScenarioTreeController(macro(), PAPER_K, Psi=np.eye(2), xi=0.9, steps=2)
+"""
+
+
+@pytest.mark.slow
+def test_a_type_checker_checks_every_setting_of_a_subclass(tmp_path):
+    """mypy sees a wrong type, a misspelt name and a missing ``Psi`` in the calls of the
+    constructors that take ``**settings: Unpack[HorizonKwargs]`` (the project's configuration and
+    cache: a few seconds after ``mypy sdjls_gym controllers benchmarks``)."""
+    api = pytest.importorskip("mypy.api")
+    root = Path(__file__).resolve().parents[1]
+    snippet = tmp_path / "calls.py"
+    snippet.write_text(WRONG_CALLS, encoding="utf-8")
+    out, _, _ = api.run([
+        "--config-file", str(root / "pyproject.toml"),
+        "--cache-dir", str(root / ".mypy_cache"),
+        "--no-error-summary", "--hide-error-context", str(snippet),
+    ])  # fmt: skip
+    errors = [line.split(": error: ")[1] for line in out.splitlines() if ": error: " in line]
+    lines = [int(line.split(":")[1]) for line in out.splitlines() if ": error: " in line]
+    assert lines == [6, 7, 8], out
+    assert '"alpha"' in errors[0] and '"str"' in errors[0] and '"float"' in errors[0]
+    assert '"alpah"' in errors[1] and '"Psi"' in errors[2]

@@ -18,24 +18,11 @@ from functools import cache
 import numpy as np
 import pytest
 
+from benchmarks.identify.learner import EXPLORATION  # (std, mean) per task: the wing's own
 from controllers import ExplorationPolicy, IdentificationInfo, InsufficientDataError, identify
 from sdjls_gym import SDJLSModel, SDJLSVectorEnv
 from sdjls_gym.systems import TASKS
 
-#: The stated exploration per task: ``u = K_theta x + mean + std * eps`` with the task's
-#: pre-stabilizing gains K; (std, mean). The std is a fraction of the action bound: large enough
-#: to excite B (Solar's gains are deadbeat, so its state carries little of u without noise),
-#: small enough that VTOL's state still visits its small box. Macro's gains are deadbeat too,
-#: and drive the income out of its rising band 2 + k/2 <= x(2) <= 5 + k/2: the offset 8 puts
-#: x(2) ~ 8 + noise, inside the band in mid-episode, so the jumps from inside are seen.
-EXPLORATION = {
-    "SDJLS-Macro-v0": (4.0, 8.0),  # 0.02 of the bound 200
-    "SDJLS-Solar-v0": (20.0, 0.0),  # 0.2 of 100
-    "SDJLS-VTOL-v0": (0.3, 0.0),  # 0.01 of 30
-    "SDJLS-ThreeState-v0": (0.5, 0.0),  # 0.05 of 10
-    "SDJLS-Degradation-v0": (0.25, 0.0),  # 0.05 of 5
-    "SDJLS-Random-v0": (2.0, 0.0),  # 0.02 of 100
-}
 EPISODES = 400
 
 

@@ -6,14 +6,12 @@ import numpy as np
 import pytest
 from conftest import UNSHOWN, raises_naming
 
-from controllers.lmi import (
+from controllers import (
     GainSynthesisResult,
-    check_proposition2,
-    synthesize_gains,
-)
-from controllers.mean_square import (
     MeanSquareCertificate,
+    check_proposition2,
     second_moment_spectral_radius,
+    synthesize_gains,
     verify_mean_square_bound,
 )
 from sdjls_gym import SDJLSModel

@@ -138,24 +138,19 @@ def test_next_mode_frequencies_match_the_transition_rows(paper, paper_kwargs):
             assert np.all(np.abs(freq - p) <= 5 * se), (mode, freq, p)
 
 
-def _zero_entry_model():
-    P_in = [[0.0, 0.5, 0.5], [0.5, 0.0, 0.5], [0.5, 0.5, 0.0]]
-    P_out = [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.6, 0.4, 0.0]]
-    return SDJLSModel(
-        A=np.ones((3, 1, 1)),
-        B=[[1.0]],
-        P_in=P_in,
-        P_out=P_out,
-        G=[[1.0]],
-        H0=[0.0],
-        Q=[[1.0]],
-        R=[[1.0]],
-        x0=[0.0],
-    )
+def _chain_model(P_in, P_out) -> SDJLSModel:
+    """A model of one state whose transition matrices are what matters: ``x`` in C1 for
+    ``x <= 0``, in C2 above."""
+    N = len(P_in)
+    return SDJLSModel(A=np.ones((N, 1, 1)), B=[[1.0]], P_in=P_in, P_out=P_out, G=[[1.0]],
+                      H0=[0.0], Q=[[1.0]], R=[[1.0]], x0=[0.0])  # fmt: skip
 
 
 def test_zero_probability_mode_is_never_drawn():
-    model = _zero_entry_model()
+    model = _chain_model(
+        [[0.0, 0.5, 0.5], [0.5, 0.0, 0.5], [0.5, 0.5, 0.0]],
+        [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.6, 0.4, 0.0]],
+    )
     rng = np.random.default_rng(3)
     for x in ([-1.0], [1.0]):  # in C1 (P_in) and in C2 (P_out)
         xs = np.broadcast_to(np.array(x), (DRAWS, 1))
@@ -179,17 +174,7 @@ _LARGEST_UNIFORM = float(np.nextafter(1.0, 0.0))  # 1 - 2**-53, a possible Gener
 )
 def test_zero_probability_mode_at_the_edges_of_the_uniform(row, uniform, forbidden):
     P = np.array([row] * 4)
-    model = SDJLSModel(
-        A=np.ones((4, 1, 1)),
-        B=[[1.0]],
-        P_in=P,
-        P_out=P,
-        G=[[1.0]],
-        H0=[0.0],
-        Q=[[1.0]],
-        R=[[1.0]],
-        x0=[0.0],
-    )
+    model = _chain_model(P, P)
     assert int(model.next_mode(np.array([0.0]), 0, 0, uniform)) != forbidden
 
 

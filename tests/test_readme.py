@@ -12,37 +12,15 @@ import re
 from pathlib import Path
 
 import pytest
+from conftest import COPIED_TABLES, section, uncopied_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text(encoding="utf-8")
 
 
-def _section(title: str) -> str:
-    """The README text from the ``## title`` heading to the next ``## `` heading."""
-    match = re.search(rf"^## {re.escape(title)}\n(.*?)(?=^## |\Z)", README, flags=re.M | re.S)
-    assert match, f"README has no section '## {title}'"
-    return match.group(1)
-
-
-def _table_rows(text: str) -> list[str]:
-    return [line.strip() for line in text.splitlines() if line.strip().startswith("|")]
-
-
-@pytest.mark.parametrize(
-    ("title", "report", "min_rows"),
-    [
-        ("Reproducing the paper (section 6)", "results/paper/REPORT.md", 8),
-        ("Receding horizon against reinforcement learning", "results/rl/REPORT.md", 10),
-        ("Speed", "results/speed/SPEED.md", 6),
-        ("The suite, scored as one benchmark", "results/suite/REPORT.md", 8),
-        ("Learn the model, then control", "results/identify/REPORT.md", 8),
-    ],
-)
+@pytest.mark.parametrize(("title", "report", "min_rows"), [t[:3] for t in COPIED_TABLES])
 def test_readme_tables_are_copied_from_the_committed_reports(title, report, min_rows):
-    rows = _table_rows(_section(title))
-    assert len(rows) >= min_rows, f"README section '{title}' shows {len(rows)} table rows"
-    report_rows = set(_table_rows((ROOT / report).read_text(encoding="utf-8")))
-    missing = [row for row in rows if row not in report_rows]
+    missing = uncopied_rows(README, title, ROOT / report, min_rows)
     assert not missing, f"README rows not in {report} (re-copy them from it): {missing[:3]}"
 
 
@@ -86,10 +64,8 @@ def test_readme_is_short_and_wrapped():
 
 def _conclusions(report: str) -> list[str]:
     """The bullet sentences of a report's "## Conclusions" section, whitespace folded."""
-    text = (ROOT / report).read_text(encoding="utf-8")
-    match = re.search(r"^## Conclusions\n(.*?)(?=^## |\Z)", text, flags=re.M | re.S)
-    assert match, f"{report} has no '## Conclusions' section"
-    return [" ".join(b.split()) for b in re.findall(r"^- (.*?)(?=^- |\Z)", match.group(1),
+    text = section((ROOT / report).read_text(encoding="utf-8"), "Conclusions")
+    return [" ".join(b.split()) for b in re.findall(r"^- (.*?)(?=^- |\Z)", text,
                                                      flags=re.M | re.S)]  # fmt: skip
 
 
@@ -97,8 +73,8 @@ def test_the_readmes_conclusions_are_the_reports_own_sentences():
     """The conclusions the README states about the RL comparisons are copied from the reports,
     where code writes them from the numbers (benchmarks/rl/claims.py): a sentence typed by hand,
     or left over from an earlier scoring, fails here."""
-    section = _section("Receding horizon against reinforcement learning")
-    match = re.search(r"^Conclusions[^\n]*:\n\n(.*?)(?=\n\n[^-]|\Z)", section, flags=re.M | re.S)
+    rl = section(README, "Receding horizon against reinforcement learning")
+    match = re.search(r"^Conclusions[^\n]*:\n\n(.*?)(?=\n\n[^-]|\Z)", rl, flags=re.M | re.S)
     assert match, "README's RL section has no 'Conclusions ...:' list"
     bullets = [" ".join(b.split()) for b in re.findall(r"^- (.*?)(?=^- |\Z)", match.group(1),
                                                        flags=re.M | re.S)]  # fmt: skip

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import random_sdjls
 from exact_p3 import exact_p3
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -63,24 +64,10 @@ def check_answer(ctrl, x, mode, k, info):
 
 
 def random_system(rng: np.random.Generator, m: int) -> tuple[SDJLSModel, np.ndarray, np.ndarray]:
-    N, n, p, r = 2, 2, 3, int(rng.integers(1, 4))
-    L = rng.normal(size=(p, p))
-    M = rng.normal(size=(N, m, m))
+    """A random system of two modes and two states (``conftest.random_sdjls``), gains, ``Psi``."""
+    N, n = 2, 2
+    model = random_sdjls(rng, N, n, m, 3, int(rng.integers(1, 4)))
     S = rng.normal(size=(N, n, n))
-    model = SDJLSModel(
-        A=rng.normal(size=(N, n, n)) * 0.7,
-        B=rng.normal(size=(N, n, m)),
-        E=rng.normal(size=(N, n, p)),
-        W=L @ L.T + 0.2 * np.eye(p),
-        P_in=rng.dirichlet(np.ones(N), size=N),
-        P_out=rng.dirichlet(np.ones(N), size=N),
-        G=rng.normal(size=(r, n)),
-        H0=rng.uniform(0.5, 3.0, size=r),
-        H_rate=rng.uniform(-0.1, 0.1, size=r),
-        Q=np.eye(n),
-        R=M @ M.transpose(0, 2, 1) + 0.3 * np.eye(m),
-        x0=np.zeros(n),
-    )
     return model, rng.normal(size=(N, m, n)), S @ S.transpose(0, 2, 1) + 0.5 * np.eye(n)
 
 

@@ -301,6 +301,17 @@ def global_rng_uses(path: Path) -> list[str]:
     """Every use of numpy's legacy global generator or of Python's ``random`` module in a file:
     ``np.random.seed(...)``, ``np.random.normal(...)``, ``RandomState``, ``import random``, ..."""
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    random_names, found = _random_imports(tree)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute):
+            owner = ast.unparse(node.value)
+            if owner in random_names and node.attr not in ALLOWED:
+                found.append(f"line {node.lineno}: {owner}.{node.attr}")
+    return found
+
+
+def _random_imports(tree: ast.AST) -> tuple[set[str], list[str]]:
+    """The names ``numpy.random`` goes by in a module, and its imports of the global generators."""
     numpy_names, random_names, found = {"numpy"}, {"numpy.random"}, []
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
@@ -319,13 +330,7 @@ def global_rng_uses(path: Path) -> list[str]:
                 random_names.update(a.asname or a.name for a in node.names if a.name == "random")
             elif node.module == "numpy.random" and names - ALLOWED:
                 found.append(f"line {node.lineno}: from numpy.random import {sorted(names)}")
-    random_names |= {f"{name}.random" for name in numpy_names}
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Attribute):
-            owner = ast.unparse(node.value)
-            if owner in random_names and node.attr not in ALLOWED:
-                found.append(f"line {node.lineno}: {owner}.{node.attr}")
-    return found
+    return random_names | {f"{name}.random" for name in numpy_names}, found
 
 
 def test_no_global_random_generator_in_the_sources():

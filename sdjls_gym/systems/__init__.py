@@ -7,6 +7,14 @@
 * ``TASKS``: env id -> :class:`Task` (the model, horizon, action bound, pre-stabilizing gains
   ``K`` and the keyword arguments ``rhc`` of the receding-horizon controllers) for every id of
   ``sdjls_gym.SUITE``; ``TASKS["SDJLS-Random-v0"]`` is :func:`random_task` with its defaults.
+
+The published tasks' receding-horizon controllers follow one recipe (each module gives its
+bound on ``nu``): individual chance constraints at ``xi = 0.9``, ``alpha = 1000``; ``Psi_i`` is
+the solution ``X_i`` of the coupled Riccati equations of the MJLS LQ problem with ``P_in``
+(``MJLSLQRController(model, "in").X``) to 4 significant digits, and ``K`` the solution of
+Proposition 2 by ``controllers.synthesize_gains(model)`` (Clarabel) to 4 decimals.
+``tests/test_suite_tasks.py`` checks both against a fresh computation and certifies ``K`` with
+Proposition 1; ``RecedingHorizonController.from_model`` follows the same recipe.
 """
 
 from sdjls_gym.systems import degradation as _degradation

@@ -44,10 +44,7 @@ Horizon 30 steps; action bound ``|u| <= 5``.
 
 ## Receding-horizon controller (``RHC``)
 
-Individual chance constraints at ``xi = 0.9``, ``alpha = 1000``, ``|nu| <= 5``; ``Psi_i`` is
-the coupled-Riccati solution ``X_i`` of the MJLS LQ problem with ``P_in`` to 4 significant
-digits; ``K`` from ``controllers.synthesize_gains(degradation())`` to 4 decimals (checked in
-tests/test_suite_tasks.py).
+The suite's recipe (:mod:`sdjls_gym.systems`), with ``|nu| <= 5``.
 
 ## Version History
 

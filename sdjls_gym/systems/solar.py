@@ -11,11 +11,11 @@ feedwater flow correction, and the mode the insolation: 0 sunny, 1 cloudy.
 
 ## Source, and what is taken from it
 
-From the source (as quoted in issue 30): ``A = (0.8353, 0.9646)``, ``B = (0.0915, 0.0982)``,
-``P_in = [[0.9767, 0.0233], [0.0435, 0.9565]]``, ``Q = 0.0355``, ``R = 1``.
-**Not verified**: no public copy of the paper or of the book's example could be found with
-the project's search tools (code, documentation and web-page corpora searched for the numbers
-0.8353, 0.9646, 0.9767 and for the example's name); the numbers are as reported in the issue.
+From the source, as quoted in the project's request for the suite: ``A = (0.8353, 0.9646)``,
+``B = (0.0915, 0.0982)``, ``P_in = [[0.9767, 0.0233], [0.0435, 0.9565]]``, ``Q = 0.0355``,
+``R = 1``. **Not verified**: no public copy of the paper or of the book's example could be found
+(searched for the numbers 0.8353, 0.9646, 0.9767 and for the example's name); the numbers are
+as quoted.
 
 Added by this project: the noise, the region, ``P_out``, ``x0``, horizon, action bound and the
 controller's data below.
@@ -46,12 +46,7 @@ Horizon 50 steps; action bound ``|u| <= 100``.
 
 ## Receding-horizon controller (``RHC``)
 
-Individual chance constraints at ``xi = 0.9``, ``alpha = 1000``, ``|nu| <= 50``;
-``Psi_i`` is the solution ``X_i`` of the coupled Riccati equations of the MJLS LQ problem with
-``P_in`` (``MJLSLQRController(solar(), "in").X``) to 4 significant digits; ``K`` is the
-solution of Proposition 2 by ``controllers.synthesize_gains(solar())`` (Clarabel) to 4
-decimals (tests/test_suite_tasks.py checks both against a fresh computation and certifies
-``K`` with Proposition 1).
+The suite's recipe (:mod:`sdjls_gym.systems`), with ``|nu| <= 50``.
 
 ## Version History
 
@@ -71,8 +66,8 @@ HORIZON = 50
 ACTION_BOUND = 100.0
 SOURCE = (
     "Sworder and Rogers, IEEE TAC 28(10), 1983; example of Costa, Fragoso and Marques, "
-    "Discrete-Time Markov Jump Linear Systems, Springer 2005 (numbers as quoted in issue 30, "
-    "not verified against a public copy)"
+    "Discrete-Time Markov Jump Linear Systems, Springer 2005 (numbers as quoted in the "
+    "project's request for the suite, not verified against a public copy)"
 )
 
 #: Pre-stabilizing gains from Proposition 2 (``synthesize_gains(solar())``), (N, m, n).

@@ -46,10 +46,7 @@ Horizon 50 steps; action bound ``|u| <= 10``.
 
 ## Receding-horizon controller (``RHC``)
 
-Individual chance constraints at ``xi = 0.9``, ``alpha = 1000``, ``|nu| <= 10``; ``Psi_i`` is
-the coupled-Riccati solution ``X_i`` of the MJLS LQ problem with ``P_in`` to 4 significant
-digits; ``K`` from ``controllers.synthesize_gains(three_state())`` to 4 decimals (checked in
-tests/test_suite_tasks.py).
+The suite's recipe (:mod:`sdjls_gym.systems`), with ``|nu| <= 10``.
 
 ## Version History
 

@@ -24,9 +24,9 @@ longitudinal cyclic pitch]``; modes 0, 1, 2 are the airspeeds 135 (nominal), 60 
 * The airspeed-dependent entries ``a32 in (0.3681, 0.0664, 0.5047)``,
   ``a34 in (1.4200, 0.1198, 2.5460)``, ``b21 in (3.5446, 0.9775, 5.1120)`` and the
   transition-rate matrix ``Lambda = [[-0.0907, 0.0671, 0.0236], [0.0671, -0.0671, 0],
-  [0.0236, 0, -0.0236]]`` (1/s) of de Farias et al. are as quoted in issue 30. **Not
-  verified**: no public copy was found with the project's search tools; the 135-knot entries
-  agree with the verified nominal matrices above.
+  [0.0236, 0, -0.0236]]`` (1/s) of de Farias et al. are as quoted in the project's request
+  for the suite. **Not verified**: no public copy was found; the 135-knot entries agree with
+  the verified nominal matrices above.
 
 ## Discretization
 
@@ -64,11 +64,7 @@ Horizon 60 steps (30 s); action bound ``|u_i| <= 30``.
 
 ## Receding-horizon controller (``RHC``)
 
-Individual chance constraints at ``xi = 0.9``, ``alpha = 1000``, ``|nu_i| <= 20``; ``Psi_i``
-is the coupled-Riccati solution ``X_i`` of the MJLS LQ problem with ``P_in``
-(``MJLSLQRController(vtol(), "in").X``) to 4 significant digits; ``K`` is the solution of
-Proposition 2 by ``controllers.synthesize_gains(vtol())`` to 4 decimals (checked in
-tests/test_suite_tasks.py).
+The suite's recipe (:mod:`sdjls_gym.systems`), with ``|nu_i| <= 20``.
 
 ## Version History
 
@@ -103,7 +99,7 @@ ACTION_BOUND = 30.0
 SAMPLING_TIME = 0.5
 SOURCE = (
     "de Farias, Geromel, do Val and Costa, IEEE TAC 45(5), 2000 (airspeed entries and rates as "
-    "quoted in issue 30, not verified); nominal A, B verified against "
+    "quoted in the project's request for the suite, not verified); nominal A, B verified against "
     "github.com/lennyQL/linearizebmi demo/solvebmi_examples/example_hinf.m"
 )
 
