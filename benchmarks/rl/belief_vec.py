@@ -13,6 +13,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from benchmarks.rl.belief_env import filter_rows, probabilities
@@ -41,10 +42,12 @@ class VecBeliefObservation(VecEnvWrapper):
         with np.errstate(divide="ignore"):
             self.log_prior = np.log(self.mode_filter.initial_belief())
         box = venv.observation_space
+        if not isinstance(box, spaces.Box):
+            raise TypeError(f"VecBeliefObservation needs a Box observation space, got {box}")
         N = model.N
-        low = np.concatenate([box.low, np.zeros(N)]).astype(np.float32)  # type: ignore[union-attr]
-        high = np.concatenate([box.high, np.ones(N)]).astype(np.float32)  # type: ignore[union-attr]
-        space = type(box)(low, high, dtype=np.float32)  # a Box, as BeliefObservation's
+        low = np.concatenate([box.low, np.zeros(N)]).astype(np.float32)
+        high = np.concatenate([box.high, np.ones(N)]).astype(np.float32)
+        space = spaces.Box(low, high, dtype=np.float32)  # as BeliefObservation's
         super().__init__(venv, observation_space=space)
         B = venv.num_envs
         self._log = np.tile(self.log_prior, (B, 1))

@@ -442,9 +442,10 @@ def main(argv: list[str] | None = None) -> Summary | dict[str, Any] | None:
 
 
 def hidden_argv(opts: Options, run_dir: Path) -> list[str]:
-    """``python -m benchmarks.hidden``'s options for the runs of ``opts``."""
+    """``python -m benchmarks.hidden``'s options for the runs of ``opts`` (its evaluation
+    seeds are its own constant, ``benchmarks.hidden.EVAL_SEEDS``: ``--seed`` is not passed)."""
     argv = ["--runs", str(run_dir), "--out", str(opts.out), "--episodes", str(opts.eval_episodes),
-            "--seed", str(opts.seed), "--seeds", str(opts.seeds), "--tasks", *filled("tasks", opts.tasks),
+            "--seeds", str(opts.seeds), "--tasks", *filled("tasks", opts.tasks),
             "--configs", *filled("configs", opts.configs)]  # fmt: skip
     if opts.timesteps is not None:
         argv += ["--timesteps", str(opts.timesteps)]
