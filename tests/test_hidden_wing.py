@@ -192,6 +192,12 @@ def test_the_conclusions_follow_from_hand_made_numbers():
     overall = overall_sentences(per_task)
     assert overall[0].endswith("on A.") and "B" in overall[1] and BELIEF in overall[1]
     assert overall_sentences({"B": kept})[0].startswith("On every task")
+    # bounded but outside the curve: costlier and riskier than the oracle (10 / 8 = x1.25)
+    oracle = ConfigSummary(ORACLE, "oracle", 1, 8.0, 0.05, 0.0, 1, 0.0, 1, 100)
+    riskier = [oracle, _summary(CE, "controller", None, 1)]
+    text = " ".join(overall_sentences({"C": riskier}))
+    assert "C: no bounded design has a gap" in text and "x1.25" in text
+    assert "costlier and riskier" in " ".join(task_sentences("C", riskier))
 
 
 def test_the_summary_names_the_evaluation_seeds(quick):

@@ -17,8 +17,8 @@ from benchmarks.hidden.summary import (
     ConfigSummary,
     DesignAcross,
     config_summaries,
-    gap_text,
     overall_sentences,
+    price_text,
     task_sentences,
     unbounded_tasks,
 )
@@ -45,11 +45,13 @@ def summary_table(results: Sequence[TaskResult]) -> list[str]:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
-        for s in config_summaries(r):
+        summaries = config_summaries(r)
+        oracle = summaries[0]
+        for s in summaries:
             seeds = "-" if s.kind != "agent" else str(s.seeds)
             bounded = ("yes" if s.bounded else "no") if s.kind != "agent" else (
                 f"{s.bounded_seeds} of {s.seeds}")  # fmt: skip
-            gap = gap_text(s.gap) + (f" ({s.gap_seeds} seeds)" if s.kind == "agent" and
+            gap = price_text(s, oracle) + (f" ({s.gap_seeds} seeds)" if s.kind == "agent" and
                                      s.gap is not None and s.gap_seeds < s.seeds else "")  # fmt: skip
             lines.append(f"| {r.env_id} | {s.configuration} | {seeds} | {s.cost_mean:.4g} | "
                          f"{s.violation:.3f} | {s.diverged:g} of {s.episodes} | {bounded} | "

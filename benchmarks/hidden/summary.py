@@ -31,6 +31,7 @@ __all__ = [
     "config_summaries",
     "gap_text",
     "overall_sentences",
+    "price_text",
     "task_sentences",
     "unbounded_tasks",
 ]
@@ -151,6 +152,23 @@ def gap_text(gap: float | None) -> str:
     return "no gap" if gap is None else f"{gap:+.1f}%"
 
 
+def price_text(s: ConfigSummary, oracle: ConfigSummary) -> str:
+    """The price of the hidden mode of design ``s`` in words: its gap to the oracle's curve
+    (:func:`gap_text`); without one, why, against the oracle at the task's xi: diverged
+    episodes, or both costlier and riskier than the oracle (the cost ratio), or outside the
+    curve's range (riskier or safer than every efficient level) at a lower cost."""
+    if s.gap is not None:
+        return gap_text(s.gap)
+    if s.diverged > 0:
+        return "no gap: episodes diverged"
+    where = f"violation {s.violation:.3f} against {oracle.violation:.3f}"
+    if s.cost_mean >= oracle.cost_mean and s.violation >= oracle.violation:
+        ratio = s.cost_mean / oracle.cost_mean if oracle.cost_mean > 0 else float("inf")
+        return f"no gap: costlier and riskier than the oracle (cost x{ratio:.2f}, {where})"
+    side = "riskier" if s.violation > oracle.violation else "safer"
+    return f"no gap: {side} than the oracle's curve reaches ({where})"
+
+
 def bounded_designs(summaries: Sequence[ConfigSummary]) -> tuple[list[str], list[str]]:
     """The designs other than the oracle that kept every evaluation episode bounded (agents:
     on every kept seed), and those that did not."""
@@ -195,7 +213,8 @@ def task_sentences(env_id: str, summaries: Sequence[ConfigSummary]) -> list[str]
     parts = []
     for s in priced:
         seeds = f" (median of {s.gap_seeds} of {s.seeds} seeds)" if s.kind == "agent" else ""
-        parts.append(f"{s.configuration} {gap_text(s.gap)}{seeds if s.gap is not None else ''}")
+        parts.append(f"{s.configuration} {price_text(s, oracle)}"
+                     f"{seeds if s.gap is not None else ''}")  # fmt: skip
     lines.append("The price of not seeing the mode, the cost above the oracle's curve at equal "
                  f"risk: {'; '.join(parts)}.")  # fmt: skip
     cheapest = [by[c] for c in bounded if by[c].gap is not None]
@@ -220,10 +239,15 @@ def overall_sentences(per_task: Mapping[str, Sequence[ConfigSummary]]) -> list[s
              if lost else "On every task some design kept every episode bounded with the mode "
              "hidden."]  # fmt: skip
     for task, summaries in per_task.items():
-        bounded = [s for s in summaries if s.configuration in bounded_designs(summaries)[0]
-                   and s.gap is not None]  # fmt: skip
-        if bounded:
-            best = min(bounded, key=lambda s: float(s.gap))  # type: ignore[arg-type]
+        oracle = next(s for s in summaries if s.kind == "oracle")
+        bounded = [s for s in summaries if s.configuration in bounded_designs(summaries)[0]]
+        priced = [s for s in bounded if s.gap is not None]
+        if priced:
+            best = min(priced, key=lambda s: float(s.gap))  # type: ignore[arg-type]
             lines.append(f"{task}: the smallest price of a bounded design is "
                          f"{gap_text(best.gap)} ({best.configuration}).")  # fmt: skip
+        elif bounded:
+            lines.append(f"{task}: no bounded design has a gap to the oracle's curve; "
+                         + "; ".join(f"{s.configuration}: {price_text(s, oracle)}"
+                                     for s in bounded) + ".")  # fmt: skip
     return lines
