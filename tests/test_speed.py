@@ -149,3 +149,19 @@ def test_the_independent_floor_gives_the_controllers_inputs(env_id):
         u = ctrl.act(xi, int(mi), int(ki))[0]
         scale = max(1.0, float(np.max(np.abs(u))), float(np.max(np.abs(xi))))
         assert np.allclose(floor.solve(xi, int(mi), int(ki))[0], u, rtol=0, atol=1e-6 * scale)
+
+
+def test_the_hidden_mode_rows(quick):
+    """Issue 48: the belief controller's act() against the mode controller's on each quick task,
+    the filter's step, and the belief controller at a certain belief giving P3's answer."""
+    from benchmarks.speed.hidden import QUICK_TASKS
+
+    out, result = quick
+    rows = result["hidden"]["tasks"]
+    assert [row["task"] for row in rows] == list(QUICK_TASKS)
+    for row in rows:
+        for key in ("belief_act_us", "mode_act_us", "belief_vs_mode", "filter_step_us",
+                    "filter_step_batch_per_row_us"):  # fmt: skip
+            assert 0.0 < row[key] < float("inf"), (key, row)
+        assert row["max_abs_diff_u_certain_belief_vs_mode"] <= 1e-6, row
+    assert "belief / mode" in (out / "SPEED.md").read_text()

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from scipy.stats import trim_mean
 
-from benchmarks.core.stats import CurveGap
 from benchmarks.core.frontier import WORST_GAP
+from benchmarks.core.stats import CurveGap
 from benchmarks.rl import compare as compare_rl
 from benchmarks.rl import tuned_report
 

@@ -1,6 +1,6 @@
 """Receding-horizon controllers against stable-baselines3 agents, on the tasks of the suite.
 
-Run ``python -m benchmarks.compare_rl --help`` for the options. Two presets (``--preset``):
+Run ``python -m benchmarks.compare_rl --help`` for the options. Three presets (``--preset``):
 
 * ``suite`` (the default): on every task of ``sdjls_gym.SUITE`` (``--tasks``), the five
   configurations of :data:`benchmarks.rl.hyperparams.SUITE_CONFIGS` (PPO on the reward alone,
@@ -13,7 +13,14 @@ Run ``python -m benchmarks.compare_rl --help`` for the options. Two presets (``-
   :func:`~benchmarks.rl.hyperparams.timesteps`, scored with the model-based controllers
   (:data:`MODEL_BASED_CURVES`, :data:`SINGLE_CONTROLLERS`) by
   :func:`benchmarks.evaluate.evaluate` on the same ``--eval-episodes`` episodes (common random
-  numbers).
+  numbers);
+* ``hidden`` (issue 48): every task with the mode hidden (``observe="state"``), PPO on the
+  state-only observation, sb3-contrib's recurrent PPO and PPO fed the mode filter's belief,
+  each on the reward alone and Lagrangian (:data:`benchmarks.rl.hyperparams.HIDDEN_CONFIGS`,
+  named ``ppo_state_reward``, ``recurrent_ppo_state_lagrangian``, ``ppo_belief_reward``, ...),
+  5 seeds, the budgets of :data:`~benchmarks.rl.hyperparams.HIDDEN_TIMESTEPS`, into
+  ``results/hidden``; scored by the hidden wing (``python -m benchmarks.hidden``) against the
+  oracle (the task's RHC seeing the mode) and the model-based hidden-mode controllers.
 
 Each training environment is :func:`benchmarks.rl.envs.make_train_env` of its task and variant.
 ``--train-only`` trains and keeps the runs and stops before any scoring; ``--score-only`` trains
@@ -37,7 +44,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -50,13 +56,24 @@ from benchmarks.core.evaluate import REFERENCE_XIS, check_evaluation, evaluate
 from benchmarks.core.files import stable_floats, write_atomic
 from benchmarks.core.logs import log
 from benchmarks.core.montecarlo import rollout
-from benchmarks.core.reference import multistep_rhc, paper_rhc
 from benchmarks.core.stats import curve_status, interval_check
 from benchmarks.core.versions import package_versions
 from benchmarks.rl import hyperparams as HP
 from benchmarks.rl.backends import BACKENDS, train_all
-from benchmarks.rl.envs import MACRO, comparison_env_kwargs
+from benchmarks.rl.envs import (
+    AGENT_ALGOS,
+    MACRO,
+    OBSERVATIONS,
+    comparison_env_kwargs,
+    config_name,
+    parse_config,
+)
 from benchmarks.rl.figures import make_figures
+from benchmarks.rl.macro_controllers import (
+    MODEL_BASED_CURVES,
+    SINGLE_CONTROLLERS,
+    empty_band_share,
+)
 from benchmarks.rl.report import (
     ControllerResult,
     RunResult,
@@ -82,14 +99,8 @@ from benchmarks.rl.train import (
     run_specs,
 )
 from benchmarks.rl.tune_summary import read_summary
-from controllers import (
-    LinearFeedbackController,
-    MJLSLQRController,
-    UnconstrainedRecedingHorizonController,
-    tightened_set_empty,
-)
 from sdjls_gym import SUITE
-from sdjls_gym.systems.macro import HORIZON, PAPER_K, PAPER_RHC, macro
+from sdjls_gym.systems.macro import HORIZON, PAPER_RHC, macro
 
 XI = PAPER_RHC["xi"]
 XI_SWEEP = REFERENCE_XIS
@@ -110,79 +121,19 @@ PRESETS: dict[str, dict[str, Any]] = {
         "budgets": "macro",
         "out": Path("results/rl"),
     },
+    "hidden": {
+        "tasks": list(SUITE),
+        "configs": [config_name(*c) for c in HP.HIDDEN_CONFIGS],
+        "seeds": HP.HIDDEN_SEEDS,
+        "budgets": "hidden",
+        "out": Path("results/hidden"),
+    },
 }
 DEFAULT_OUT = PRESETS["suite"]["out"]
-#: Every ``--configs`` value: ``<algo>_<variant>``.
-CONFIGS = tuple(f"{a}_{v}" for a in ALGOS for v in VARIANTS)
-
-
-# ----------------------------------------------------------------------------- controllers
-@dataclass(frozen=True)
-class ModelBasedCurve:
-    """A model-based controller over a sweep of its level ``xi``: one point per level, named
-    ``"<family> xi=<xi>"``. The first entry of :data:`MODEL_BASED_CURVES` is the reference that
-    every controller's paired gap is measured against (:data:`benchmarks.evaluate.REFERENCE_XIS`).
-    """
-
-    family: str
-    build: Callable[[Any, float], Any]  # (model, xi) -> controller
-    xis: tuple[float, ...] = XI_SWEEP
-    constraint: str | None = None  # for the share of steps with an empty tightened band
-    color: str = "k"
-    #: the levels scored with ``--quick`` (default: all of ``xis``), for a slow controller
-    quick_xis: tuple[float, ...] | None = None
-    #: whether every other controller's cost is also compared with this curve, paired over the
-    #: episodes at the controller's own violation frequency (:func:`benchmarks.rl.report.against_curve`)
-    compared_against: bool = False
-
-    def levels(self, quick: bool) -> tuple[float, ...]:
-        """The levels ``xi`` scored (:attr:`quick_xis` with ``--quick``)."""
-        return self.quick_xis if quick and self.quick_xis is not None else self.xis
-
-
-#: The model-based curves of the comparison; add a row to add a curve.
-MODEL_BASED_CURVES: tuple[ModelBasedCurve, ...] = (
-    ModelBasedCurve(
-        "RHC individual",
-        lambda m, xi: paper_rhc(m, xi, "individual"),
-        constraint="individual",
-        color="k",
-    ),  # fmt: skip
-    ModelBasedCurve(
-        "RHC joint", lambda m, xi: paper_rhc(m, xi, "joint"), constraint="joint", color="0.45"
-    ),  # fmt: skip
-    # the multi-step controller (issue 21): a fully branched scenario tree of 3 stages; the
-    # root's chance constraint is P3's, so the tightened band is the one-step curve's
-    ModelBasedCurve(
-        "RHC 3-step",
-        lambda m, xi: multistep_rhc(m, xi, 3, "individual"),
-        constraint="individual",
-        color="C4",
-        quick_xis=(0.5, 0.85, 0.95),
-        compared_against=True,
-    ),  # fmt: skip
-)
-
-#: The model-based controllers without a level: ``(name, family, build(model))``.
-SINGLE_CONTROLLERS: tuple[tuple[str, str, Callable[[Any], Any]], ...] = (
-    (
-        "RHC unconstrained",
-        "RHC unconstrained",
-        lambda m: UnconstrainedRecedingHorizonController(
-            m,
-            PAPER_K,
-            Psi=PAPER_RHC["Psi"],
-            alpha=PAPER_RHC["alpha"],
-            nu_bound=PAPER_RHC["nu_bound"],
-            horizon=HORIZON,
-        ),  # fmt: skip
-    ),
-    (
-        "Linear feedback (nu = 0)",
-        "Linear feedback",
-        lambda m: LinearFeedbackController(m, PAPER_K, horizon=HORIZON),
-    ),  # fmt: skip
-    ("MJLS LQR", "MJLS LQR", lambda m: MJLSLQRController(m, "average", horizon=HORIZON)),
+#: Every ``--configs`` value: ``<algo>_<variant>`` (the mode observed) and
+#: ``<algo>_<observation>_<variant>`` (the mode hidden; the recurrent PPO only so).
+CONFIGS = tuple(f"{a}_{v}" for a in ALGOS for v in VARIANTS) + tuple(
+    config_name(a, v, o) for o in OBSERVATIONS[1:] for a in AGENT_ALGOS for v in VARIANTS
 )
 
 
@@ -194,8 +145,10 @@ class Options:
         metadata={
             "help": "defaults of --tasks, --configs, --seeds, the budgets and --out: 'suite' "
             "(every task, the 5 configurations of rl_hyperparams.SUITE_CONFIGS, 5 seeds, "
-            "results/rl_suite) or 'macro' (the comparison of results/rl: the macro task, 3 "
-            "algorithms x 6 variants, 3 seeds)",
+            "results/rl_suite), 'macro' (the comparison of results/rl: the macro task, 3 "
+            "algorithms x 6 variants, 3 seeds) or 'hidden' (every task with the mode hidden: "
+            "the 6 configurations of rl_hyperparams.HIDDEN_CONFIGS, 5 seeds, results/hidden, "
+            "scored by python -m benchmarks.hidden)",
             "choices": tuple(PRESETS),
         },
     )
@@ -313,7 +266,11 @@ class Options:
 
     def config_pairs(self) -> list[tuple[str, str]]:
         """The ``(algo, variant)`` pairs of :attr:`configs`."""
-        return [tuple(c.split("_", 1)) for c in self.configs or []]  # type: ignore[misc]
+        return [parse_config(c)[:2] for c in self.configs or []]
+
+    def config_keys(self) -> list[tuple[str, str, str]]:
+        """The ``(algo, variant, observation)`` of :attr:`configs`."""
+        return [parse_config(c) for c in self.configs or []]
 
 
 def parse_args(argv: list[str] | None = None) -> Options:
@@ -426,7 +383,7 @@ def filled(name: str, value: _T | None) -> _T:
 def specs_of(opts: Options) -> list[Any]:
     """The runs of ``opts`` (:func:`benchmarks.rl.train.run_specs`)."""
     studies = tuned_studies(opts.tuned)
-    return run_specs(opts.config_pairs(), filled("seeds", opts.seeds), opts.timesteps, opts.quick,
+    return run_specs(opts.config_keys(), filled("seeds", opts.seeds), opts.timesteps, opts.quick,
                      filled("tasks", opts.tasks), PRESETS[opts.preset]["budgets"],
                      {key: o for key, (o, _) in studies.items()},
                      {key: steps for key, (_, steps) in studies.items()})  # fmt: skip
@@ -436,15 +393,6 @@ def specs_of(opts: Options) -> list[Any]:
 def evaluation_seeds(opts: Options) -> tuple[int, ...]:
     """The evaluation's noise seeds: ``--seed``, ``--seed + 1``, ... (``--eval-seeds`` of them)."""
     return tuple(range(opts.seed, opts.seed + opts.eval_seeds))
-
-
-def empty_band_share(model: Any, xi: float, constraint: str) -> float:
-    """Share of the (mode, next time) pairs of an episode at which the tightened band
-    ``{y : G y <= H_{k+1} - t}`` is empty (:func:`controllers.tightened_set_empty`): there the
-    QP is feasible only through its slack, whatever the state."""
-    return float(
-        np.mean([tightened_set_empty(model, xi, k, constraint) for k in range(1, HORIZON + 1)])
-    )
 
 
 def score_model_based(model: Any, opts: Options) -> list[ControllerResult]:
@@ -507,12 +455,27 @@ def main(argv: list[str] | None = None) -> Summary | dict[str, Any] | None:
     if opts.train_only:
         log(f"--train-only: {len(trained)} run(s) kept in {run_dir}; no scoring")
         return None
+    if any(o != "mode" for _, _, o in opts.config_keys()):  # the mode hidden: its own wing
+        from benchmarks.hidden import main as hidden_main
+
+        return hidden_main(hidden_argv(opts, run_dir))
     if opts.tasks != [MACRO]:
         return report_suite(specs, trained, run_dir, opts, argv, log)
     if None in trained:
         missing = ", ".join(s.name for s, r in zip(specs, trained, strict=True) if r is None)
         raise SystemExit(f"--score-only: the macro comparison needs every run; missing: {missing}")
     return report_macro(specs, trained, run_dir, opts, argv)
+
+
+def hidden_argv(opts: Options, run_dir: Path) -> list[str]:
+    """``python -m benchmarks.hidden``'s options for the runs of ``opts`` (its evaluation
+    seeds are its own constant, ``benchmarks.hidden.EVAL_SEEDS``: ``--seed`` is not passed)."""
+    argv = ["--runs", str(run_dir), "--out", str(opts.out), "--episodes", str(opts.eval_episodes),
+            "--seeds", str(opts.seeds), "--tasks", *filled("tasks", opts.tasks),
+            "--configs", *filled("configs", opts.configs)]  # fmt: skip
+    if opts.timesteps is not None:
+        argv += ["--timesteps", str(opts.timesteps)]
+    return argv + (["--quick"] if opts.quick else [])
 
 
 def report_macro(specs: list[Any], trained: list[Any], run_dir: Path, opts: Options,

@@ -22,6 +22,7 @@ import numpy as np
 from gymnasium.wrappers import RescaleAction
 
 from benchmarks.rl import hyperparams as HP
+from benchmarks.rl.belief_env import BeliefObservation
 from sdjls_gym.systems import TASKS, Task, random_task
 from sdjls_gym.validation import check_choice, check_positive
 from sdjls_gym.wrappers import (
@@ -34,12 +35,18 @@ from sdjls_gym.wrappers import (
 
 __all__ = [
     "ACTION_KINDS",
+    "AGENT_ALGOS",
     "MACRO",
+    "OBSERVATIONS",
     "TaskSettings",
     "VARIANTS",
     "comparison_env_kwargs",
+    "config_name",
     "derive_scales",
     "env_from_config",
+    "observation_config",
+    "observation_of",
+    "parse_config",
     "raw_scales",
     "get_task",
     "make_train_env",
@@ -55,6 +62,12 @@ MACRO = "SDJLS-Macro-v0"
 VARIANTS = ("reward", *(f"beta{b:g}" for b in HP.BETAS), "residual", "lagrangian")
 #: ``"u"``: the agent chooses ``u``; ``"residual"``: the offset ``nu`` of ``u = K_theta x + nu``.
 ACTION_KINDS = ("u", "residual")
+#: Every algorithm a run may train (the recurrent PPO is sb3-contrib's, for the hidden mode).
+AGENT_ALGOS = ("ppo", "sac", "td3", "recurrent_ppo")
+#: What an agent observes: the mode (``"mode"``, the default), the state alone (``"state"``: the
+#: environment made with ``observe="state"``), or the state with the mode filter's belief
+#: appended (``"belief"``, :class:`benchmarks.rl.belief_env.BeliefObservation`).
+OBSERVATIONS = ("mode", "state", "belief")
 #: The reward scale the penalties of :mod:`benchmarks.rl.hyperparams` are written for (the macro
 #: task's); on another task every penalty is multiplied by its reward scale over this one.
 PENALTY_REFERENCE_SCALE = 100.0
@@ -232,6 +245,50 @@ def task_settings(task: str | Task, env_kwargs: Mapping[str, Any] | None = None)
     )
 
 
+# ----------------------------------------------------------------------------- configurations
+def config_name(algo: str, variant: str, observation: str = "mode") -> str:
+    """A configuration's name: ``<algo>_<variant>`` with the mode observed,
+    ``<algo>_<observation>_<variant>`` otherwise (``"ppo_belief_reward"``,
+    ``"recurrent_ppo_state_lagrangian"``): a run of the hidden setting is never named as one of
+    the mode observed."""
+    observation = check_choice("observation", observation, OBSERVATIONS)
+    return f"{algo}_{variant}" if observation == "mode" else f"{algo}_{observation}_{variant}"
+
+
+def parse_config(name: str) -> tuple[str, str, str]:
+    """``(algo, variant, observation)`` of a configuration's name (:func:`config_name`)."""
+    for algo in sorted(AGENT_ALGOS, key=len, reverse=True):
+        if not name.startswith(algo + "_"):
+            continue
+        rest, observation = name[len(algo) + 1 :], "mode"
+        for other in OBSERVATIONS[1:]:
+            if rest.startswith(other + "_"):
+                rest, observation = rest[len(other) + 1 :], other
+        if rest in VARIANTS:
+            return algo, rest, observation
+    raise ValueError(
+        f"configuration = {name!r}; expected <algo>[_<observation>]_<variant> with algo in "
+        f"{AGENT_ALGOS}, observation in {OBSERVATIONS[1:]} and variant in {VARIANTS}"
+    )
+
+
+def observation_config(observation: str) -> dict[str, Any]:
+    """What a run's configuration records of its observation: nothing with the mode observed
+    (the runs kept before the hidden setting keep their fingerprints), ``observe = "state"``
+    with the mode hidden, and ``features = ["belief"]`` with the belief appended."""
+    observation = check_choice("observation", observation, OBSERVATIONS)
+    if observation == "mode":
+        return {}
+    return {"observe": "state", **({"features": ["belief"]} if observation == "belief" else {})}
+
+
+def observation_of(config: Mapping[str, Any]) -> str:
+    """The observation (:data:`OBSERVATIONS`) a run's recorded configuration describes."""
+    if "belief" in config.get("features", ()):
+        return "belief"
+    return "state" if config.get("observe", "mode") == "state" else "mode"
+
+
 # ----------------------------------------------------------------------------- variants
 def comparison_env_kwargs(task: str | Task) -> dict[str, Any]:
     """The environment every controller and agent of the comparison is scored on: the task's own
@@ -270,6 +327,7 @@ def wrap_train_env(
     nu_bound: float = HP.RESIDUAL_NU_BOUND,
     u_bound: float | None = None,
     env_kwargs: Mapping[str, Any] | None = None,
+    observation: str = "mode",
 ) -> gym.Env:
     """``gym.make(env_id, **env_kwargs)`` wrapped for training one agent, from explicit values
     (what a run's configuration records; :func:`make_train_env` takes them from the task).
@@ -278,15 +336,20 @@ def wrap_train_env(
     environment made with ``action_bound=u_bound`` (agents acting on ``u``; None keeps the
     registered bound), ``RescaleAction`` to ``[-1, 1]``, ``ViolationPenalty(beta)`` (unless
     ``beta`` is None), ``ScaleObservationReward(**env_hp)``, ``TerminateOutside`` (when
-    ``env_hp`` has ``terminate_bound``), ``FiniteHorizon``.
+    ``env_hp`` has ``terminate_bound``), ``FiniteHorizon``, and with ``observation="belief"``
+    :class:`~benchmarks.rl.belief_env.BeliefObservation`; ``observation`` other than ``"mode"``
+    makes the environment with ``observe="state"`` (the mode hidden).
     """
     action_kind = check_choice("action_kind", action_kind, ACTION_KINDS)
+    observation = check_choice("observation", observation, OBSERVATIONS)
     if u_bound is not None:
         u_bound = check_positive("u_bound", u_bound, "the agent's bound on |u|")
     env_hp = dict(env_hp)
     kwargs = dict(env_kwargs or {})
     if action_kind == "u" and u_bound is not None:
         kwargs["action_bound"] = u_bound
+    if observation != "mode":
+        kwargs["observe"] = "state"
     env = gym.make(env_id, **kwargs)
     if action_kind == "residual":
         if K is None:
@@ -303,14 +366,18 @@ def wrap_train_env(
     env = ScaleObservationReward(env, **env_hp)
     if bound is not None:
         env = TerminateOutside(env, bound)
-    return FiniteHorizon(env)
+    env = FiniteHorizon(env)
+    return BeliefObservation(env) if observation == "belief" else env
 
 
 def make_train_env(
-    task: Any = MACRO, variant: Any = "residual", *args: Any, **kwargs: Any
-) -> gym.Env:
+    task: Any = MACRO, variant: Any = "residual", *args: Any, observation: str = "mode",
+    **kwargs: Any,
+) -> gym.Env:  # fmt: skip
     """The environment an agent of the comparison trains on: ``task`` (a suite env id or a
-    :class:`~sdjls_gym.systems.Task`) in ``variant`` (:data:`VARIANTS`).
+    :class:`~sdjls_gym.systems.Task`) in ``variant`` (:data:`VARIANTS`), observing
+    ``observation`` (:data:`OBSERVATIONS`: ``"state"`` hides the mode, ``"belief"`` appends the
+    mode filter's belief to the state-only observation).
 
     Observation ``[clip(x / x_scale, +-10), one-hot mode, k / T]``; action in ``[-1, 1]``, read as
     ``u`` in ``[-u_bound, u_bound]`` or, for ``"residual"``, as ``nu`` in ``[-nu_bound,
@@ -349,7 +416,7 @@ def make_train_env(
     kind, beta, _ = variant_setup(variant, settings)
     return wrap_train_env(
         t.env_id, kind, beta, settings.env_hp(), t.K if kind == "residual" else None,
-        settings.nu_bound, settings.u_bound if kind == "u" else None, t.env_kwargs,
+        settings.nu_bound, settings.u_bound if kind == "u" else None, t.env_kwargs, observation,
     )  # fmt: skip
 
 
@@ -381,4 +448,5 @@ def env_from_config(config: dict[str, Any], variant: str) -> gym.Env:
     return wrap_train_env(
         task.env_id, kind, beta, config["env"], task.K if kind == "residual" else None,
         config["residual_nu_bound"], config.get("u_bound"), task.env_kwargs,
+        observation_of(config),
     )  # fmt: skip

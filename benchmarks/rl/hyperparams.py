@@ -152,7 +152,25 @@ TD3: dict[str, Any] = {
     "policy_kwargs": {"net_arch": _NET},
 }
 
-HYPERPARAMS: dict[str, dict[str, Any]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
+#: sb3-contrib's ``RecurrentPPO`` (``MlpLstmPolicy``) of the hidden comparison: PPO's entries,
+#: with an LSTM of 64 units (actor and critic each; sb3-contrib's default 256 cost 4 times as
+#: much per step) and minibatches of 1024 steps (1.8 CPU ms per step at 256, 0.9 at 1024).
+RECURRENT_PPO: dict[str, Any] = {
+    **PPO,
+    "batch_size": 1024,
+    "policy_kwargs": {**PPO["policy_kwargs"], "lstm_hidden_size": 64, "n_lstm_layers": 1},
+}
+
+HYPERPARAMS: dict[str, dict[str, Any]] = {
+    "ppo": PPO,
+    "sac": SAC,
+    "td3": TD3,
+    "recurrent_ppo": RECURRENT_PPO,
+}
+
+#: The algorithm whose entry of ``LAGRANGIAN["period"]`` an algorithm's dual ascent uses (the
+#: recurrent PPO collects the rollouts of PPO: 8 x 256 steps).
+DUAL_PERIOD_OF: dict[str, str] = {"recurrent_ppo": "ppo"}
 
 #: Per-variant changes to :data:`HYPERPARAMS` (the entries here replace the algorithm's). SAC
 #: beta10000: the learning rate falls linearly from 1e-3 to 0 (``"lin_1e-3"``, rl-zoo3's notation,
@@ -210,7 +228,12 @@ def hyperparams(algo: str, variant: str) -> dict[str, Any]:
 
 #: Default training budget (env steps) per run and algorithm; :data:`TIMESTEPS_VARIANT` raises
 #: it for some variants.
-TIMESTEPS: dict[str, int] = {"ppo": 2_500_000, "sac": 60_000, "td3": 100_000}
+TIMESTEPS: dict[str, int] = {
+    "ppo": 2_500_000,
+    "sac": 60_000,
+    "td3": 100_000,
+    "recurrent_ppo": 300_000,
+}
 
 #: Larger budgets for the (algorithm, variant) pairs whose learning curves still moved at the
 #: per-algorithm budget, by the report's flatness test (:func:`benchmarks.core.stats.curve_status`);
@@ -275,10 +298,51 @@ def suite_timesteps(task: str, algo: str, variant: str) -> int:
     return SUITE_TIMESTEPS_TASK.get((task, algo, variant), default)
 
 
+#: The hidden comparison (issue 48): per task, with the mode hidden (``observe="state"``), PPO
+#: on the state-only observation, sb3-contrib's recurrent PPO on it, and PPO with the mode
+#: filter's belief appended (``"belief"``), each on the reward alone and Lagrangian:
+#: ``(algo, variant, observation)``; :data:`HIDDEN_SEEDS` seeds each.
+HIDDEN_CONFIGS: tuple[tuple[str, str, str], ...] = (
+    ("ppo", "reward", "state"),
+    ("ppo", "lagrangian", "state"),
+    ("recurrent_ppo", "reward", "state"),
+    ("recurrent_ppo", "lagrangian", "state"),
+    ("ppo", "reward", "belief"),
+    ("ppo", "lagrangian", "belief"),
+)
+HIDDEN_SEEDS = 5
+
+#: Budgets (env steps per run) of the hidden comparison, by ``(algo, observation)``, the same on
+#: every task and for both variants: the whole preset (6 tasks x 6 configurations x 5 seeds)
+#: must fit in 8 CPU-hours of training. Per-step costs measured first (CPU ms per step of
+#: 20k-step Lagrangian trainings, one torch thread, two at once on the 2-core machine shared at
+#: load 3-7): PPO on the state-only observation 0.27 (VTOL), PPO with the belief 0.39 (VTOL;
+#: the filter steps the 8 environments at once, :mod:`benchmarks.rl.belief_vec`; 0.77 with one
+#: filter step per environment), the recurrent PPO 0.73 (macro) to 1.08 (VTOL). Both PPO kinds
+#: get 300k steps, the recurrent PPO half of that (about twice the CPU of a PPO run): about
+#: 60 x 300k x 0.27 + 60 x 300k x 0.39 + 60 x 150k x 0.95 ms = 5.5 CPU-hours. What was tried
+#: and what it gave: ``results/hidden/HISTORY.md``.
+HIDDEN_TIMESTEPS: dict[tuple[str, str], int] = {
+    ("ppo", "state"): 300_000,
+    ("ppo", "belief"): 300_000,
+    ("recurrent_ppo", "state"): 150_000,
+}
+
+
+def hidden_timesteps(algo: str, observation: str) -> int:
+    """Budget of one run of the hidden comparison (:data:`HIDDEN_TIMESTEPS`)."""
+    return HIDDEN_TIMESTEPS[(algo, observation)]
+
+
 #: Rough training speeds (env steps/s, one torch thread, two trainings in parallel on the
 #: 2-core machine). Only the order of the trainings uses them: the longest start first, so that
 #: the workers finish close together.
-STEPS_PER_SECOND: dict[str, float] = {"ppo": 8000.0, "sac": 310.0, "td3": 600.0}
+STEPS_PER_SECOND: dict[str, float] = {
+    "ppo": 8000.0,
+    "sac": 310.0,
+    "td3": 600.0,
+    "recurrent_ppo": 1100.0,
+}
 
 
 def timesteps(algo: str, variant: str) -> int:

@@ -16,26 +16,43 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from benchmarks.core.evaluate import Score, check_evaluation, evaluate
 from benchmarks.core.policies import RawEnvPolicy
-from benchmarks.rl.envs import MACRO, task_settings
-from benchmarks.rl.train import (
-    ALGOS,
+from benchmarks.rl import hyperparams as HP
+from benchmarks.rl.belief_env import BeliefAgentPolicy
+from benchmarks.rl.envs import (
+    AGENT_ALGOS,
+    MACRO,
     VARIANTS,
-    RunRecord,
-    RunSpec,
-    config_fingerprint,
-    kept_run_path,
-    policy_from_config,
-    policy_path,
-    run_path,
+    config_name,
+    observation_of,
+    parse_config,
+    task_settings,
 )
+from benchmarks.rl.records import RunRecord
+from benchmarks.rl.run_files import kept_run_path, policy_from_config, policy_path, run_path
+from benchmarks.rl.spec import RunSpec, config_fingerprint, run_specs
+from sdjls_gym import SUITE
 from sdjls_gym.errors import InvalidRunError
 
-__all__ = ["check_kept_runs", "load_agent", "read_run", "run_env", "score_run"]
+__all__ = [
+    "HIDDEN_CONFIG_NAMES",
+    "KeptRun",
+    "check_kept_runs",
+    "hidden_runs",
+    "load_agent",
+    "read_run",
+    "run_env",
+    "score_run",
+]
+
+#: The names of the hidden comparison's configurations (:data:`HP.HIDDEN_CONFIGS`).
+HIDDEN_CONFIG_NAMES: tuple[str, ...] = tuple(config_name(*c) for c in HP.HIDDEN_CONFIGS)
 
 
 def _json_path(run_path: str | Path) -> Path:
@@ -74,10 +91,11 @@ def _record(path: Path) -> RunRecord:
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise InvalidRunError(f"is not a run record ({type(exc).__name__}: {exc})") from None
     config = record.config
-    if record.algo not in ALGOS or record.variant not in VARIANTS or not isinstance(config, dict):
+    if (record.algo not in AGENT_ALGOS or record.variant not in VARIANTS
+            or not isinstance(config, dict)):  # fmt: skip
         raise InvalidRunError(
             f"records algorithm {record.algo!r}, variant {record.variant!r}; expected one of "
-            f"{ALGOS} and {VARIANTS} with a configuration"
+            f"{AGENT_ALGOS} and {VARIANTS} with a configuration"
         )
     # what the fingerprint covers: the configuration; the record's own fields must agree with it
     fingerprint = config_fingerprint(config)
@@ -92,13 +110,14 @@ def _record(path: Path) -> RunRecord:
                 f"{field} = {getattr(record, field)!r} recorded, {config.get(field)!r} in its "
                 "configuration: the record was edited"
             )
-    if record.name != f"{record.algo}_{record.variant}_s{record.seed}" or path.stem not in (
+    named = config_name(record.algo, record.variant, observation_of(config))
+    if record.name != f"{named}_s{record.seed}" or path.stem not in (
         record.name,
         f"{record.name}-{record.fingerprint}",
     ):
         raise InvalidRunError(
             f"name = {record.name!r}, fingerprint {record.fingerprint!r}: they do not name the "
-            f"file {path.name!r} (<algo>_<variant>_s<seed>-<fingerprint>.json): a renamed or "
+            f"file {path.name!r} (<configuration>_s<seed>-<fingerprint>.json): a renamed or "
             "edited record"
         )
     if "task" in config and not re.fullmatch(r"[0-9a-f]{16}", str(config.get("task_digest"))):
@@ -143,14 +162,17 @@ def run_env(run_path: str | Path) -> tuple[str, dict[str, Any]]:
     """``(env_id, env_kwargs)`` of the raw environment the run at ``run_path`` is scored on: its
     task (a run kept before the suite: the macro task) with the comparison's action bound, the
     one every controller and agent of the comparison acts within
-    (:func:`benchmarks.rl.envs.comparison_env_kwargs`)."""
+    (:func:`benchmarks.rl.envs.comparison_env_kwargs`); a run trained with the mode hidden: with
+    ``observe="state"``."""
     record = read_run(run_path)
     env_id = record.config.get("task", MACRO)
     kwargs = dict(record.config.get("env_kwargs", {}))
+    if observation_of(record.config) != "mode":
+        kwargs["observe"] = "state"
     return env_id, {**kwargs, "action_bound": task_settings(env_id, kwargs).u_bound}
 
 
-def load_agent(run_path: str | Path) -> RawEnvPolicy:
+def load_agent(run_path: str | Path) -> RawEnvPolicy | BeliefAgentPolicy:
     """The agent of the kept run at ``run_path``, acting on its raw environment.
 
     Rebuilt from the configuration the run recorded (its algorithm's policy network, its
@@ -164,9 +186,13 @@ def load_agent(run_path: str | Path) -> RawEnvPolicy:
 
     Returns
     -------
-    RawEnvPolicy
+    RawEnvPolicy or BeliefAgentPolicy
         ``act_batch(x, mode, k)`` / ``predict(obs)`` in units of ``u``, for
-        :func:`benchmarks.evaluate.evaluate` with :func:`run_env`'s ``env_id`` and ``env_kwargs``.
+        :func:`benchmarks.evaluate.evaluate` with :func:`run_env`'s ``env_id`` and ``env_kwargs``
+        (an agent trained with the mode hidden never reads it; a recurrent one keeps its LSTM
+        state across an episode). An agent fed the mode filter's belief is a
+        :class:`~benchmarks.rl.belief_env.BeliefAgentPolicy`: ``act_hidden(x, k, u_applied)``,
+        with the filter kept per episode.
 
     Raises
     ------
@@ -226,3 +252,47 @@ def score_run(run_path: Any, *, episodes: int = 1000, seed: int | tuple[int, ...
     env_id, env_kwargs = run_env(run_path)
     return evaluate(load_agent(run_path), episodes=episodes, seed=seed, env_id=env_id,
                     env_kwargs=env_kwargs)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class KeptRun:
+    """One run a comparison asks for: its task, configuration name (``ppo_belief_reward``),
+    seed and budget, and its kept record (None: not trained yet)."""
+
+    task: str
+    configuration: str
+    seed: int
+    timesteps: int
+    path: Path | None
+
+
+def hidden_runs(
+    run_dir: str | Path,
+    *,
+    tasks: Sequence[str] | None = None,
+    configs: Sequence[str] | None = None,
+    seeds: int | None = None,
+    timesteps: int | None = None,
+    quick: bool = False,
+) -> list[KeptRun]:
+    """The runs of the hidden comparison (``python -m benchmarks.compare_rl --preset hidden``)
+    and where each is kept under ``run_dir`` (None: missing), task by task.
+
+    Defaults: every task of the suite, :data:`HIDDEN_CONFIG_NAMES`, :data:`HP.HIDDEN_SEEDS`
+    seeds and the hidden budgets; ``timesteps`` replaces every budget and ``quick`` makes them
+    the smoke test's, as the comparison's options do (the runs are found by the fingerprint of
+    their whole configuration). Each kept run is loaded once (:func:`check_kept_runs`).
+
+    Raises
+    ------
+    InvalidRunError
+        A kept run that does not load (tampered with, truncated), naming its file.
+    ValueError
+        A configuration name that is not ``<algo>[_<observation>]_<variant>``.
+    """
+    keys = [parse_config(c) for c in (configs or HIDDEN_CONFIG_NAMES)]
+    specs = run_specs(keys, HP.HIDDEN_SEEDS if seeds is None else seeds, timesteps, quick,
+                      list(tasks or SUITE), budgets="hidden")  # fmt: skip
+    paths = check_kept_runs(specs, Path(run_dir))
+    return [KeptRun(s.task, s.configuration, s.seed, s.timesteps, p)
+            for s, p in zip(specs, paths, strict=True)]  # fmt: skip

@@ -25,7 +25,9 @@ in alternating rounds, a ratio the median of the rounds' ratios; :func:`paired_t
 5. scaling of one-step ``act`` and ``act_batch`` with m, r, n and N (:data:`SCALING_SIZES`) on
    closed-loop states of random tasks, each row against the DAQP floor of the same P3, and of
    the batched Monte Carlo with the number of trajectories;
-6. the peak memory (RSS) of the largest Monte Carlo.
+6. the peak memory (RSS) of the largest Monte Carlo;
+7. the mode hidden (:mod:`benchmarks.speed.hidden`): the belief controller's ``act`` against
+   the mode controller's on every task, and the mode filter's step.
 
 It reads no private attribute of the controllers (``path_counts``, ``reset_path_counts`` and
 ``set_warm_start`` are their public hooks). It writes ``speed.json`` and ``SPEED.md`` to
@@ -53,6 +55,7 @@ from benchmarks.core.cli import output_folder
 from benchmarks.core.commands import prog
 from benchmarks.core.files import write_atomic
 from benchmarks.core.versions import package_versions
+from benchmarks.speed.hidden import measure_hidden
 from benchmarks.speed.references import CvxpyParametric, DaqpFloor, P3Data
 from benchmarks.speed.report import TARGETS, write_markdown
 from benchmarks.speed.timing import (
@@ -490,6 +493,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     res["tree"]["large"] = measure_large_tree(opts, res["act"]["act_us"])
     print("scaling ...", flush=True)
     res["scaling"] = measure_scaling(opts)
+    print("the mode hidden ...", flush=True)
+    res["hidden"] = measure_hidden(opts)
     write_atomic(opts.out / "speed.json", json.dumps(res, indent=1) + "\n")
     md = write_markdown(res, res["command"])
     write_atomic(opts.out / "SPEED.md", md)

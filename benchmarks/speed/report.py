@@ -186,4 +186,32 @@ def write_markdown(res: dict[str, Any], cmd: str) -> str:
         "",
         f"Peak memory (RSS) of the process, largest Monte Carlo included: {s['peak_rss_mb']:.0f} MB.",
     ]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + hidden_lines(res.get("hidden"))) + "\n"
+
+
+def hidden_lines(h: dict[str, Any] | None) -> list[str]:
+    """The hidden mode's table (:mod:`benchmarks.speed.hidden`); none in an older run."""
+    if not h:
+        return []
+    lines = [
+        "",
+        "The mode hidden (issue 48): one decision of the belief controller "
+        "(`BeliefRecedingHorizonController.act(x, belief, k)`) against the task's "
+        "`RecedingHorizonController.act(x, mode, k)`, in alternating rounds on the states of the "
+        "belief controller's closed loop with the mode hidden (each with its belief and its true "
+        "mode), and one step of the mode filter (`ModeFilter.step_batch`), on one row and per "
+        "row of a batch of those states:",
+        "",
+        "| task | states | belief act() | mode act() | belief / mode | target | met "
+        "| filter step, one row | filter step per row, batched |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in h["tasks"]:
+        met = "yes" if row["belief_vs_mode"] <= h["target"] else "**no**"
+        lines.append(
+            f"| {row['task']} | {row['states']} | {row['belief_act_us']:.1f} us | "
+            f"{row['mode_act_us']:.1f} us | {row['belief_vs_mode']:.2f}x | <= {h['target']:g}x | "
+            f"{met} | {row['filter_step_us']:.1f} us | "
+            f"{row['filter_step_batch_per_row_us']:.2f} us |"
+        )
+    return lines

@@ -1,0 +1,5 @@
+"""``python -m benchmarks.hidden``."""
+
+from benchmarks.hidden.cli import main
+
+main()

@@ -1,0 +1,211 @@
+"""The hidden setting's files: ``summary.json``, ``summary.csv`` and ``REPORT.md``, its tables
+made by code and its sentences generated from the numbers (:mod:`benchmarks.hidden.summary`)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from benchmarks.core.files import stable_floats, write_atomic
+from benchmarks.hidden.score import EVAL_SEEDS, DesignScore, TaskResult
+from benchmarks.hidden.summary import (
+    ConfigSummary,
+    DesignAcross,
+    config_summaries,
+    overall_sentences,
+    price_text,
+    task_sentences,
+    unbounded_tasks,
+)
+
+__all__ = ["summary_json", "write_outputs"]
+
+
+def _fmt(value: float | None, spec: str = ".4g") -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def _filter(s: ConfigSummary) -> str:
+    if s.filter_top_share is None:
+        return "-"
+    return f"{s.filter_top_share:.3f} / {_fmt(s.filter_true_probability, '.3f')}"
+
+
+def summary_table(results: Sequence[TaskResult]) -> list[str]:
+    """One row per task and design: the oracle, the controllers, each agent configuration
+    (medians over its kept seeds)."""
+    lines = [
+        "| task | design | seeds | mean episode cost | violation frequency | diverged episodes "
+        "| bounded | gap to the oracle's curve | filter: likeliest mode right / p(true mode) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in results:
+        summaries = config_summaries(r)
+        oracle = summaries[0]
+        for s in summaries:
+            seeds = "-" if s.kind != "agent" else str(s.seeds)
+            bounded = ("yes" if s.bounded else "no") if s.kind != "agent" else (
+                f"{s.bounded_seeds} of {s.seeds}")  # fmt: skip
+            gap = price_text(s, oracle) + (f" ({s.gap_seeds} seeds)" if s.kind == "agent" and
+                                     s.gap is not None and s.gap_seeds < s.seeds else "")  # fmt: skip
+            lines.append(f"| {r.env_id} | {s.configuration} | {seeds} | {s.cost_mean:.4g} | "
+                         f"{s.violation:.3f} | {s.diverged:g} of {s.episodes} | {bounded} | "
+                         f"{gap} | {_filter(s)} |")  # fmt: skip
+    return lines
+
+
+def _gap_ci(d: DesignScore) -> str:
+    if d.gap is None:
+        return f"none: {d.gap_reason}"
+    ci = "" if d.gap_ci95 is None else f" ({d.gap_ci95[0]:+.1f} to {d.gap_ci95[1]:+.1f})"
+    return f"{d.gap:+.1f}%{ci}"
+
+
+def design_table(r: TaskResult) -> list[str]:
+    """Every design of one task, each seed of each agent on its own row."""
+    lines = [
+        "| design | mean episode cost (95% CI) | median | violation (95% Wilson) | diverged | "
+        "gap to the oracle's curve, % (95% CI) | oracle's xi at that risk | filter: likeliest "
+        "mode right / p(true mode) | decision time (us) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for d in r.designs:
+        f = "-" if d.filter is None else (
+            f"{d.filter.top_share:.3f} / {d.filter.true_probability:.3f}")  # fmt: skip
+        t = "-" if d.decision_time_s is None else f"{1e6 * d.decision_time_s:.1f}"
+        lines.append(
+            f"| {d.name} | {d.cost_mean:.4g} ({d.cost_ci95[0]:.4g} to {d.cost_ci95[1]:.4g}) | "
+            f"{d.cost_median:.4g} | {d.violation:.3f} ({d.violation_wilson95[0]:.3f}-"
+            f"{d.violation_wilson95[1]:.3f}) | {d.diverged} | {_gap_ci(d)} | "
+            f"{_fmt(d.xi_equivalent, '.3f')} | {f} | {t} |"
+        )
+    return lines
+
+
+def across_table(across: Sequence[DesignAcross]) -> list[str]:
+    lines = [
+        "| design | seeds x tasks | IQM of the gaps, % (95% CI) | P(gap < 0) (95% CI) | left out |",
+        "|---|---|---|---|---|",
+    ]
+    for a in across:
+        g = a.aggregate
+        if g is None:
+            lines.append(f"| {a.configuration} | none | - | - | {'<br>'.join(a.left_out)} |")
+            continue
+        size = f"{len(a.seeds) or 1} x {len(a.tasks)}"
+        lo, hi = g.iqm_gap_ci95
+        plo, phi = g.probability_of_improvement_ci95
+        lines.append(f"| {a.configuration} | {size} | {g.iqm_gap:+.1f} ({lo:+.1f} to {hi:+.1f}) "
+                     f"| {g.probability_of_improvement:.2f} ({plo:.2f} to {phi:.2f}) | "
+                     f"{'<br>'.join(a.left_out) or '-'} |")  # fmt: skip
+    return lines
+
+
+def summary_json(results: Sequence[TaskResult], across: Sequence[DesignAcross],
+                 meta: dict[str, Any]) -> dict[str, Any]:  # fmt: skip
+    """Everything the report states, as plain JSON."""
+    per_task = {r.env_id: config_summaries(r) for r in results}
+    return {
+        **meta,
+        "evaluation_seeds": list(EVAL_SEEDS),
+        "unbounded_tasks": unbounded_tasks(per_task),
+        "conclusions": overall_sentences(per_task),
+        "tasks": {
+            r.env_id: {
+                "xi": r.xi,
+                "episodes": r.episodes,
+                "oracle_curve": r.curve,
+                "designs": [asdict(d) for d in r.designs],
+                "summaries": [asdict(s) for s in per_task[r.env_id]],
+                "missing": r.missing,
+                "conclusions": task_sentences(r.env_id, per_task[r.env_id]),
+            }
+            for r in results
+        },
+        "across_tasks": {a.configuration: a.to_json() for a in across},
+    }
+
+
+def write_csv(path: Path, results: Sequence[TaskResult]) -> None:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["task", "name", "kind", "configuration", "seed", "episodes", "cost_mean",
+                "cost_median", "violation", "diverged", "gap_percent", "gap_ci95_low",
+                "gap_ci95_high", "gap_reason", "filter_top_share", "filter_true_probability"])  # fmt: skip
+    for r in results:
+        for d in r.designs:
+            ci = d.gap_ci95 or (None, None)
+            f = d.filter
+            w.writerow(stable_floats([r.env_id, d.name, d.kind, d.configuration, d.seed,
+                                      d.episodes, d.cost_mean, d.cost_median, d.violation,
+                                      d.diverged, d.gap, ci[0], ci[1], d.gap_reason,
+                                      None if f is None else f.top_share,
+                                      None if f is None else f.true_probability]))  # fmt: skip
+    write_atomic(path, buf.getvalue())
+
+
+def write_outputs(out: Path, results: Sequence[TaskResult], across: Sequence[DesignAcross],
+                  meta: dict[str, Any], figures: dict[str, list[str]]) -> dict[str, Any]:  # fmt: skip
+    """``summary.json``, ``summary.csv`` and ``REPORT.md`` in ``out``, each atomically;
+    ``figures``: file names by task (and ``"across"``). Returns the summary."""
+    summary = summary_json(results, across, meta)
+    summary["figures"] = figures
+    write_atomic(out / "summary.json",
+                 json.dumps(stable_floats(json.loads(json.dumps(summary))), indent=1) + "\n")  # fmt: skip
+    write_csv(out / "summary.csv", results)
+    runs = meta["runs"]
+    lines = [
+        "# The mode hidden: what not seeing it costs",
+        "",
+        f"Generated by `{meta['command']}`; numbers in `summary.json` and `summary.csv`. Every "
+        'design acts on the environment made with `observe="state"` (it sees `x_k` and `k`, '
+        "never `θ_k`) and is scored by `benchmarks.evaluate.evaluate` on the same "
+        f"{results[0].episodes if results else 0} episodes per task (noise seed(s) "
+        f"{', '.join(map(str, EVAL_SEEDS))}, common random numbers). The *oracle* is the task's "
+        "one-step RHC seeing the true mode at the task's xi; its sweep over xi is the reference "
+        "curve, so a design's gap to it at the design's own violation frequency, paired over "
+        "the episodes, in % of the curve's cost, is the price of not seeing the mode at equal "
+        "risk. A design keeps the system *bounded* when none of its episodes diverged. The "
+        "filter's accuracy (designs deciding from the mode filter) is over the decisions at "
+        "k >= 1 of the episodes not diverged: the share whose most probable mode is the true "
+        "one / the mean probability of the true mode. Agents: "
+        f"{runs['kept']} of {runs['expected']} runs kept"
+        + (f", trained in {runs['train_cpu_h']:.2f} CPU-hours" if runs.get("train_cpu_h") else "")
+        + f"; scoring took {meta['scoring_cpu_min']:.1f} CPU-min.",
+        "",
+        "## Conclusions",
+        "",
+        *[f"- {line}" for line in summary["conclusions"]],
+        "",
+        "## The price of the hidden mode, per task",
+        "",
+        "Agents: medians over their kept seeds (the gap over the seeds that have one).",
+        "",
+        *summary_table(results),
+        "",
+        "## Across tasks (rliable)",
+        "",
+        "Per design, rliable's interquartile mean of its gaps to the oracle's curves over the "
+        "(seeds x tasks) table, with a 95% stratified-bootstrap interval, and the probability "
+        "that its gap is negative (cheaper than the oracle at equal risk). A task where a kept "
+        "seed has no gap (an episode diverged, a violation frequency outside the curve's "
+        "range) is left out whole.",
+        "",
+        *across_table(across),
+        "",
+        *[f"![{name}]({name})\n" for name in figures.get("across", [])],
+    ]
+    for r in results:
+        lines += [f"## {r.env_id}", "",
+                  *[f"- {s}" for s in summary["tasks"][r.env_id]["conclusions"]], ""]  # fmt: skip
+        if r.missing:
+            lines += ["Missing runs: " + "; ".join(
+                f"{c} seed(s) {', '.join(map(str, s))}" for c, s in r.missing.items()) + ".", ""]  # fmt: skip
+        lines += [*design_table(r), "", *[f"![{n}]({n})\n" for n in figures.get(r.env_id, [])]]
+    write_atomic(out / "REPORT.md", "\n".join(lines) + "\n")
+    return summary

@@ -1,0 +1,294 @@
+"""Every design of the hidden setting scored on one task, on the same evaluation episodes.
+
+With the mode hidden (``env_kwargs={"observe": "state"}``), on a task of the suite:
+
+* the *oracle*: the task's receding-horizon controller seeing the true mode, at the task's ``xi``
+  (the reference curve's point there); its sweep over ``xi`` is the reference
+  curve (:func:`benchmarks.core.reference.reference_curve`), so a design's gap to the curve at
+  its own violation frequency (:attr:`benchmarks.core.evaluate.Score.curve_gap`) is the price
+  of not seeing the mode at equal risk;
+* *certainty equivalence*: the same controller given the mode filter's most probable mode
+  (``HiddenModePolicy(RecedingHorizonController(...))``);
+* the *belief RHC*: problem P3 on the filter's belief
+  (``HiddenModePolicy(BeliefRecedingHorizonController(...))``);
+* every kept agent of the hidden comparison (``benchmarks.rl``'s ``hidden_runs`` and
+  ``load_agent``).
+
+Each is scored by :func:`benchmarks.core.evaluate.evaluate` on :data:`EVAL_SEEDS`; a design
+*keeps the system bounded* when none of its evaluation episodes diverged. For the designs that
+decide from the filter (certainty equivalence, the belief RHC, the agents fed the belief) the
+filter's accuracy is measured on the same episodes (:func:`filter_accuracy`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from benchmarks.core.environment import resolve_env
+from benchmarks.core.evaluate import Score, evaluate
+from benchmarks.core.montecarlo import Rollouts, rollout
+from benchmarks.core.reference import ReferenceCurve, reference_curve
+from benchmarks.core.stats import mean_ci, wilson
+from controllers import (
+    BeliefRecedingHorizonController,
+    HiddenModePolicy,
+    ModeFilter,
+    RecedingHorizonController,
+)
+from sdjls_gym.errors import ImpossibleObservationError
+from sdjls_gym.systems import TASKS
+
+__all__ = [
+    "CONTROLLERS",
+    "EVAL_SEEDS",
+    "HIDDEN",
+    "ORACLE",
+    "DesignScore",
+    "FilterAccuracy",
+    "TaskResult",
+    "filter_accuracy",
+    "score_task",
+]
+
+#: The noise seeds of the evaluation episodes, one constant for every design. The committed
+#: scoring is meant to pool (0, 1, 2) once ``benchmarks.core.evaluate.evaluate`` takes a tuple
+#: of seeds: change it here (the filter's accuracy and the oracle's row pool the same seeds).
+EVAL_SEEDS: tuple[int, ...] = (0,)
+#: The environment's keyword arguments of the hidden setting.
+HIDDEN: dict[str, Any] = {"observe": "state"}
+#: The names of the model-based designs.
+ORACLE = "oracle (RHC seeing the mode)"
+CE = "certainty equivalence"
+BELIEF = "belief RHC"
+CONTROLLERS = (CE, BELIEF)
+
+
+@dataclass(frozen=True)
+class FilterAccuracy:
+    """The mode filter along a design's evaluation episodes, at its decisions ``k = 1 .. T-1``
+    (at ``k = 0`` the belief is the model's known ``mode0``) of the episodes not yet diverged.
+
+    ``top_share``: share of those steps whose most probable mode (ties: the smallest index) is
+    the true one; ``true_probability``: the mean probability the belief gives the true mode."""
+
+    steps: int
+    top_share: float
+    true_probability: float
+
+
+@dataclass(frozen=True)
+class DesignScore:
+    """One design on one task: ``kind`` is ``"oracle"``, ``"controller"`` or ``"agent"``
+    (``configuration`` its configuration's name, ``seed`` its training seed).
+
+    ``gap`` is the cost minus the oracle's curve at the design's violation frequency, paired over
+    the episodes, in % of the curve's cost (``gap_ci95`` its 95% bootstrap interval), None with
+    ``gap_reason`` when there is none (a diverged episode, a violation frequency outside the
+    curve's range)."""
+
+    name: str
+    kind: str
+    configuration: str
+    seed: int | None
+    episodes: int
+    cost_mean: float
+    cost_ci95: tuple[float, float]
+    cost_median: float
+    violation: float
+    violation_wilson95: tuple[float, float]
+    diverged: int
+    gap: float | None
+    gap_ci95: tuple[float, float] | None
+    gap_reason: str | None
+    xi_equivalent: float | None = None  # the oracle's level that violates as often
+    filter: FilterAccuracy | None = None
+    decision_time_s: float | None = None  # per state, batched
+    scoring_cpu_s: float = 0.0
+
+    @property
+    def bounded(self) -> bool:
+        """No evaluation episode diverged."""
+        return self.diverged == 0
+
+
+@dataclass
+class TaskResult:
+    """One task: its level ``xi``, the oracle's curve (points pooled over the seeds), every
+    design, and the agent runs asked for but not kept (configuration -> seeds)."""
+
+    env_id: str
+    xi: float
+    episodes: int
+    seeds: tuple[int, ...]
+    curve: list[dict[str, Any]]
+    designs: list[DesignScore]
+    missing: dict[str, list[int]] = field(default_factory=dict)
+
+    def of(self, kind: str) -> list[DesignScore]:
+        return [d for d in self.designs if d.kind == kind]
+
+
+# ----------------------------------------------------------------------------- the filter
+def _step_rows(mode_filter: ModeFilter, log_belief: np.ndarray, x: np.ndarray, u: np.ndarray,
+               x_next: np.ndarray, k: int) -> np.ndarray:  # fmt: skip
+    """One filter step of every row; a row no mode can explain goes back to the prior."""
+    try:
+        return mode_filter.step_batch(log_belief, x, u, x_next, k, log=True)
+    except ImpossibleObservationError:
+        pass
+    out = np.empty_like(log_belief)
+    with np.errstate(divide="ignore"):
+        prior = np.log(mode_filter.initial_belief())
+    for i in range(len(x)):  # rare
+        try:
+            out[i] = mode_filter.step_batch(log_belief[i : i + 1], x[i : i + 1], u[i : i + 1],
+                                            x_next[i : i + 1], k, log=True)[0]  # fmt: skip
+        except ImpossibleObservationError:
+            out[i] = prior
+    return out
+
+
+def filter_accuracy(model: Any, rollouts: Sequence[Rollouts]) -> FilterAccuracy:
+    """:class:`FilterAccuracy` of :class:`controllers.ModeFilter` run on the states and applied
+    inputs of ``rollouts`` (the filter a hidden-mode policy keeps, re-run here with the true
+    modes beside it), pooled over the rollouts."""
+    mode_filter = ModeFilter(model)
+    with np.errstate(divide="ignore"):
+        prior = np.log(mode_filter.initial_belief())
+    hits = probability = 0.0
+    steps = 0
+    for ro in rollouts:
+        runs, T = ro.ended.shape
+        log = np.tile(prior, (runs, 1))
+        for k in range(T):
+            live = ~ro.ended[:, k] & np.all(np.isfinite(ro.x[:, k]), axis=1)
+            if k > 0:
+                belief = np.exp(log - log.max(axis=1, keepdims=True))
+                belief /= belief.sum(axis=1, keepdims=True)
+                true = ro.mode[:, k]
+                hits += float(np.sum((np.argmax(belief, axis=1) == true)[live]))
+                probability += float(np.sum(belief[np.arange(runs), true][live]))
+                steps += int(live.sum())
+            if k + 1 < T:
+                go = live & np.all(np.isfinite(ro.x[:, k + 1]), axis=1)
+                if go.any():
+                    log[go] = _step_rows(mode_filter, log[go], ro.x[go, k], ro.u[go, k],
+                                         ro.x[go, k + 1], k)  # fmt: skip
+    if steps == 0:
+        return FilterAccuracy(0, float("nan"), float("nan"))
+    return FilterAccuracy(steps, hits / steps, probability / steps)
+
+
+# ----------------------------------------------------------------------------- scoring
+def _evaluate(policy: Any, env_id: str, episodes: int) -> Score:
+    """:func:`evaluate` with the mode hidden on :data:`EVAL_SEEDS` (one seed: an int, as the
+    core takes it today)."""
+    seed: Any = EVAL_SEEDS[0] if len(EVAL_SEEDS) == 1 else EVAL_SEEDS
+    return evaluate(policy, episodes=episodes, seed=seed, env_id=env_id,
+                    env_kwargs={**TASKS[env_id].env_kwargs, **HIDDEN})  # fmt: skip
+
+
+def _rollouts(env_id: str, policy: Any, episodes: int) -> list[Rollouts]:
+    """``policy``'s rollouts on the evaluation episodes (the same as :func:`_evaluate`'s)."""
+    s = resolve_env(env_id, {**TASKS[env_id].env_kwargs, **HIDDEN})
+    return [rollout(s.model, policy, episodes, s.horizon, seed, s.action_bound, None,
+                    s.divergence_bound) for seed in EVAL_SEEDS]  # fmt: skip
+
+
+def design_score(name: str, kind: str, configuration: str, seed: int | None, score: Score,
+                 accuracy: FilterAccuracy | None = None, cpu_s: float = 0.0) -> DesignScore:  # fmt: skip
+    """A :class:`DesignScore` of an evaluation's :class:`Score`."""
+    g = score.curve_gap
+    gap = None if g is None else g.relative
+    return DesignScore(
+        name=name, kind=kind, configuration=configuration, seed=seed, episodes=score.episodes,
+        cost_mean=score.cost_mean, cost_ci95=score.cost_ci95, cost_median=score.cost_median,
+        violation=score.violation, violation_wilson95=score.violation_wilson95,
+        diverged=score.diverged, gap=gap, gap_ci95=None if g is None else g.relative_ci95,
+        gap_reason=score.curve_gap_reason if gap is None else None,
+        xi_equivalent=None if g is None else g.xi, filter=accuracy,
+        decision_time_s=score.decision_time_batched_s, scoring_cpu_s=cpu_s,
+    )  # fmt: skip
+
+
+def _curves(env_id: str, episodes: int) -> list[ReferenceCurve]:
+    task = TASKS[env_id]
+    s = resolve_env(env_id, {**task.env_kwargs, **HIDDEN})
+    return [reference_curve(task, episodes, seed, horizon=s.horizon, action_bound=s.action_bound,
+                            divergence_bound=s.divergence_bound) for seed in EVAL_SEEDS]  # fmt: skip
+
+
+def _pooled_point(curves: list[ReferenceCurve], i: int) -> dict[str, Any]:
+    """Point ``i`` of the curves of every seed, its episodes pooled (as ``ReferenceCurve.point``
+    states it)."""
+    costs = np.concatenate([c.costs[i] for c in curves])
+    shares = np.concatenate([c.violations[i] for c in curves])
+    steps = curves[0].steps
+    mean, lo, hi = mean_ci(costs, floor=0.0)
+    count = int(round(float(shares.sum()) * steps))
+    wlo, whi = wilson(count, len(shares) * steps)
+    return {"xi": curves[0].xis[i], "cost_mean": mean, "cost_ci95": (lo, hi),
+            "cost_median": float(np.median(costs)), "violation": count / (len(shares) * steps),
+            "violation_wilson95": (wlo, whi), "diverged": int(sum(c.diverged[i] for c in curves))}  # fmt: skip
+
+
+def _oracle(env_id: str, curves: list[ReferenceCurve], xi: float) -> DesignScore:
+    """The oracle's row: the curve's point at the task's ``xi`` (its gap is 0 by definition)."""
+    p = _pooled_point(curves, curves[0].xis.index(xi))
+    return DesignScore(
+        name=ORACLE, kind="oracle", configuration=ORACLE, seed=None,
+        episodes=curves[0].episodes * len(curves), cost_mean=p["cost_mean"],
+        cost_ci95=p["cost_ci95"], cost_median=p["cost_median"], violation=p["violation"],
+        violation_wilson95=p["violation_wilson95"], diverged=p["diverged"], gap=0.0,
+        gap_ci95=(0.0, 0.0), gap_reason=None, xi_equivalent=xi,
+    )  # fmt: skip
+
+
+def controllers(env_id: str) -> dict[str, HiddenModePolicy]:
+    """The model-based designs of the hidden setting on ``env_id``, by name."""
+    task = TASKS[env_id]
+    rhc = RecedingHorizonController(task.model, task.K, horizon=task.horizon, **task.rhc)
+    belief = BeliefRecedingHorizonController(task.model, task.K, horizon=task.horizon, **task.rhc)
+    return {CE: HiddenModePolicy(rhc), BELIEF: HiddenModePolicy(belief)}
+
+
+def score_task(env_id: str, runs: Sequence[Any], episodes: int, log: Any = None) -> TaskResult:
+    """Every design of the hidden setting on ``env_id`` (see the module), the agents of
+    ``runs`` (``benchmarks.rl.KeptRun`` of this task; those without a path are missing)."""
+    task = TASKS[env_id]
+    xi = float(task.rhc["xi"])
+    curves = _curves(env_id, episodes)
+    designs = [_oracle(env_id, curves, xi)]
+    for name, policy in controllers(env_id).items():
+        c0 = time.process_time()
+        score = _evaluate(policy, env_id, episodes)
+        accuracy = filter_accuracy(task.model, _rollouts(env_id, policy, episodes))
+        designs.append(design_score(name, "controller", name, None, score, accuracy,
+                                    time.process_time() - c0))  # fmt: skip
+        if log is not None:
+            log(f"{env_id}: {name}: cost {score.cost_mean:.4g}, violation "
+                f"{score.violation:.3f}, diverged {score.diverged}")  # fmt: skip
+    missing: dict[str, list[int]] = {}
+    kept = [r for r in runs if r.path is not None]
+    for r in runs:
+        if r.path is None:
+            missing.setdefault(r.configuration, []).append(r.seed)
+    if kept:
+        from benchmarks.rl import load_agent, parse_config
+
+        for r in kept:
+            c0 = time.process_time()
+            agent = load_agent(r.path)
+            score = _evaluate(agent, env_id, episodes)
+            fed = parse_config(r.configuration)[2] == "belief"  # decides from the filter
+            seen = filter_accuracy(task.model, _rollouts(env_id, agent, episodes)) if fed else None
+            designs.append(design_score(f"{r.configuration} s{r.seed}", "agent", r.configuration,
+                                        r.seed, score, seen, time.process_time() - c0))  # fmt: skip
+    points = [_pooled_point(curves, i) for i in range(len(curves[0].xis))]
+    return TaskResult(env_id, xi, episodes * len(EVAL_SEEDS), EVAL_SEEDS, points, designs,
+                      missing)  # fmt: skip
