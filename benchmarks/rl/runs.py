@@ -167,9 +167,10 @@ def run_env(run_path: str | Path) -> tuple[str, dict[str, Any]]:
     record = read_run(run_path)
     env_id = record.config.get("task", MACRO)
     kwargs = dict(record.config.get("env_kwargs", {}))
+    kwargs["action_bound"] = task_settings(env_id, kwargs).u_bound
     if observation_of(record.config) != "mode":
         kwargs["observe"] = "state"
-    return env_id, {**kwargs, "action_bound": task_settings(env_id, kwargs).u_bound}
+    return env_id, kwargs
 
 
 def load_agent(run_path: str | Path) -> RawEnvPolicy | BeliefAgentPolicy:
