@@ -108,6 +108,6 @@ def test_readme_test_times_say_what_was_measured():
     section = re.search(r"^## Quickstart\n(.*?)(?=^## )", readme, flags=re.M | re.S).group(1)
     text = " ".join(section.split())
     assert "a few minutes" not in text and "under two minutes" not in text
-    assert re.search(r"\d+ s for `python -m pytest -q` \(\d+ tests\)", text)
-    assert re.search(r'`python -m pytest -q -m "not slow"` took \d+ s \(\d+ tests', text)
+    assert re.search(r"\d+ s for `python -m pytest -q -n 2` \(\d+ tests\)", text)
+    assert re.search(r'`python -m pytest -q -n 2 -m "not slow"` took \d+ s \(\d+ tests', text)
     assert "load average" in text
