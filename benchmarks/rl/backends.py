@@ -152,6 +152,47 @@ def _run_ray(
 
 
 # ---------------------------------------------------------------------------- entry point
+def _split_kept(
+    specs: list[RunSpec], run_dir: Path, retrain: bool
+) -> tuple[dict[str, RunRecord], list[RunSpec]]:
+    """The records kept in ``run_dir`` (by :attr:`RunSpec.label`) and the runs left to train,
+    in the order they are handed out: seed by seed (the first seed of every configuration is a
+    pilot that finishes first), and within a seed longest first (by estimated training time), so
+    that the workers finish close together."""
+    kept_records: dict[str, RunRecord] = {}
+    todo = []
+    for spec in specs:
+        kept = None if retrain else load_run(run_dir, spec)
+        if kept is None:
+            todo.append(spec)
+        else:
+            kept_records[spec.label] = kept
+    todo.sort(key=lambda s: (s.seed, -s.timesteps / HP.STEPS_PER_SECOND[s.algo]))
+    return kept_records, todo
+
+
+def _dispatch(
+    todo: list[RunSpec],
+    backend: str,
+    workers: int,
+    address: str | None,
+    finished: Callable,
+    on_progress: Callable,
+    log: Callable[[str], None],
+) -> None:
+    """Train ``todo`` on ``backend``, handing every finished training to ``finished``."""
+    if not todo:
+        return
+    if backend == "ray":
+        _run_ray(todo, workers, address, finished, log)
+    elif workers == 1 or len(todo) == 1:
+        for spec in todo:
+            log(f"[train] {spec.label} ({spec.timesteps} steps)")
+            finished(spec, *train_run(spec, on_progress))
+    else:
+        _run_processes(todo, workers, finished, on_progress, log)
+
+
 def train_all(
     specs: list[RunSpec],
     run_dir: Path,
@@ -173,18 +214,7 @@ def train_all(
     if backend == "ray":
         _import_ray()  # the message naming the extra, before any work
     run_dir.mkdir(parents=True, exist_ok=True)
-    results: dict[str, RunRecord] = {}  # by RunSpec.label (the name with its task)
-    todo = []
-    for spec in specs:
-        kept = None if retrain else load_run(run_dir, spec)
-        if kept is None:
-            todo.append(spec)
-        else:
-            results[spec.label] = kept
-    # seed by seed (the first seed of every configuration is a pilot that finishes first), and
-    # within a seed longest first (by estimated training time), so that the workers finish close
-    # together
-    todo.sort(key=lambda s: (s.seed, -s.timesteps / HP.STEPS_PER_SECOND[s.algo]))
+    results, todo = _split_kept(specs, run_dir, retrain)  # results by RunSpec.label
     if results:
         log(f"reusing {len(results)} finished run(s) from {run_dir} (--retrain to train again)")
     bar = tqdm(total=sum(s.timesteps for s in todo), desc="training", unit="step",
@@ -208,16 +238,7 @@ def train_all(
         )
 
     t0 = time.perf_counter()
-    if not todo:
-        pass
-    elif backend == "ray":
-        _run_ray(todo, workers, address, finished, log)
-    elif workers == 1 or len(todo) == 1:
-        for spec in todo:
-            log(f"[train] {spec.label} ({spec.timesteps} steps)")
-            finished(spec, *train_run(spec, on_progress))
-    else:
-        _run_processes(todo, workers, finished, on_progress, log)
+    _dispatch(todo, backend, workers, address, finished, on_progress, log)
     bar.close()
     if todo:
         log(f"trained {len(todo)} run(s) in {time.perf_counter() - t0:.0f} s ({backend})")

@@ -287,6 +287,24 @@ def parse_args(argv: list[str] | None = None) -> Options:
         opts.eval_episodes = 200
     if opts.quick and "--eval-seeds" not in given:
         opts.eval_seeds = 1
+    _resolve_configs(parser, opts, preset)
+    _check_numbers(parser, opts)
+    _check_modes(parser, opts)
+    _check_preset_output(parser, opts, preset)
+    opts.out = output_folder(parser, "--out", opts.out, quick=opts.quick, default=preset["out"],
+                             script="compare_rl")  # fmt: skip
+    if opts.score_only:  # every kept run loads before a minute of scoring
+        try:
+            check_kept_runs(specs_of(opts), opts.out / "runs")
+        except (TypeError, ValueError) as exc:
+            parser.error(f"--score-only: {' '.join(str(exc).split())}")
+    return opts
+
+
+def _resolve_configs(parser: argparse.ArgumentParser, opts: Options, preset: dict) -> None:
+    """Fill in :attr:`Options.configs` (from ``--configs``, or every ``--algos`` in every
+    ``--variants``, or the preset's), the algorithms and variants they name, the tasks and the
+    seeds."""
     if opts.configs is not None and (opts.algos is not None or opts.variants is not None):
         parser.error("--configs with --algos/--variants: give the configurations one way")
     if opts.algos is not None or opts.variants is not None:
@@ -299,12 +317,17 @@ def parse_args(argv: list[str] | None = None) -> Options:
     opts.tasks = list(dict.fromkeys(opts.tasks or preset["tasks"]))
     if opts.seeds is None:
         opts.seeds = preset["seeds"]
+
+
+def _check_numbers(parser: argparse.ArgumentParser, opts: Options) -> None:
+    """The counts positive, and the evaluation within :func:`evaluate`'s own limits, before
+    hours of training."""
     for name in ("seeds", "workers"):
         if getattr(opts, name) < 1:
             parser.error(f"--{name} = {getattr(opts, name)}; expected a positive integer")
     if opts.eval_seeds < 1:
         parser.error(f"--eval-seeds = {opts.eval_seeds}; expected a positive integer")
-    try:  # evaluate()'s own limits, before hours of training
+    try:
         check_evaluation(opts.eval_episodes, opts.seed)  # --seed itself, then every seed's
         check_evaluation(opts.eval_episodes, evaluation_seeds(opts))
     except ValueError as exc:
@@ -312,6 +335,10 @@ def parse_args(argv: list[str] | None = None) -> Options:
         parser.error(text.replace("seed = ", "--seed = ", 1))
     if opts.timesteps is not None and opts.timesteps < 1:
         parser.error(f"--timesteps = {opts.timesteps}; expected a positive integer")
+
+
+def _check_modes(parser: argparse.ArgumentParser, opts: Options) -> None:
+    """The backend's options, the modes that exclude each other, the tuned studies readable."""
     if opts.address is not None and opts.backend != "ray":
         parser.error(f"--address = {opts.address!r} needs --backend ray")
     if opts.score_only and (opts.train_only or opts.retrain):
@@ -320,7 +347,11 @@ def parse_args(argv: list[str] | None = None) -> Options:
         tuned_studies(opts.tuned)
     except ValueError as exc:
         parser.error(str(exc))
-    # a report written into the preset's folder replaces its committed report of all the runs
+
+
+def _check_preset_output(parser: argparse.ArgumentParser, opts: Options, preset: dict) -> None:
+    """A report written into the preset's folder replaces its committed report of all the runs:
+    only the preset's own runs may write it."""
     into_preset = not (opts.train_only or opts.quick) and opts.out is None
     if opts.tuned and into_preset:  # the tuned runs' report in place of the default runs'
         parser.error(
@@ -329,8 +360,9 @@ def parse_args(argv: list[str] | None = None) -> Options:
             "python -m benchmarks.tuned_report, or give --out"
         )
     partial = [flag for flag, differs in (
-        ("--tasks", set(opts.tasks) != set(preset["tasks"])),
-        ("--configs (or --algos/--variants)", set(opts.configs) != set(preset["configs"])),
+        ("--tasks", set(filled("tasks", opts.tasks)) != set(preset["tasks"])),
+        ("--configs (or --algos/--variants)",
+         set(filled("configs", opts.configs)) != set(preset["configs"])),
         ("--seeds", opts.seeds != preset["seeds"]),
         ("--timesteps", opts.timesteps is not None),
     ) if differs]  # fmt: skip
@@ -343,14 +375,6 @@ def parse_args(argv: list[str] | None = None) -> Options:
     if opts.score_only and opts.quick and opts.out is None:
         parser.error("--score-only --quick needs --out, the folder of the quick runs to score "
                      "(each --quick run writes into a new temporary folder)")  # fmt: skip
-    opts.out = output_folder(parser, "--out", opts.out, quick=opts.quick, default=preset["out"],
-                             script="compare_rl")  # fmt: skip
-    if opts.score_only:  # every kept run loads before a minute of scoring
-        try:
-            check_kept_runs(specs_of(opts), opts.out / "runs")
-        except (TypeError, ValueError) as exc:
-            parser.error(f"--score-only: {' '.join(str(exc).split())}")
-    return opts
 
 
 def tuned_studies(paths: list[Path] | None) -> dict[tuple[str, str, str], tuple[tuple, int]]:
