@@ -67,8 +67,8 @@ class Options:
     )  # fmt: skip
     episodes: int | None = field(
         default=None,
-        metadata={"help": "evaluation episodes per design and task and evaluation seed "
-                  f"(seeds {EVAL_SEEDS}); default 1000, 50 with --quick"},
+        metadata={"help": "evaluation episodes per design, task and noise seed (the seeds "
+                  f"{EVAL_SEEDS}, their episodes pooled); default 1000, 50 with --quick"},
     )  # fmt: skip
     quick: bool = field(
         default=False,
@@ -92,7 +92,7 @@ def parse_args(argv: list[str] | None = None) -> Options:
     if opts.episodes is None:
         opts.episodes = 50 if opts.quick else 1000
     try:
-        check_evaluation(opts.episodes, EVAL_SEEDS[0])
+        check_evaluation(opts.episodes, EVAL_SEEDS)
     except ValueError as exc:
         parser.error(str(exc).replace("episodes = ", "--episodes = ", 1))
     for name in ("seeds", "timesteps"):
@@ -152,7 +152,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     for task in opts.tasks:
         mine = [r for r in runs if r.task == task]
         log(f"scoring {task}: the oracle, 2 controllers, {sum(r.path is not None for r in mine)}"
-            f" of {len(mine)} agent run(s) kept, {opts.episodes} episodes")  # fmt: skip
+            f" of {len(mine)} agent run(s) kept, {opts.episodes} episodes x {len(EVAL_SEEDS)} "
+            "noise seeds")  # fmt: skip
         results.append(score_task(task, mine, int(opts.episodes or 0), log))
     configs = list(dict.fromkeys(r.configuration for r in runs))
     across = across_tasks(results, configs, QUICK_RESAMPLES if opts.quick else AGGREGATE_RESAMPLES)

@@ -3,10 +3,13 @@
 With the mode hidden (``env_kwargs={"observe": "state"}``), on a task of the suite:
 
 * the *oracle*: the task's receding-horizon controller seeing the true mode, at the task's ``xi``
-  (the reference curve's point there); its sweep over ``xi`` is the reference
-  curve (:func:`benchmarks.core.reference.reference_curve`), so a design's gap to the curve at
-  its own violation frequency (:attr:`benchmarks.core.evaluate.Score.curve_gap`) is the price
-  of not seeing the mode at equal risk;
+  (the reference curve's point there); its sweep over ``xi`` is the reference curve
+  (:func:`benchmarks.core.frontier.reference_curve`, on the episodes of every seed of
+  :data:`EVAL_SEEDS` pooled), so a design's gap to the curve at its own violation frequency
+  (:attr:`benchmarks.core.evaluate.Score.curve_gap`) is the price of not seeing the mode at
+  equal risk, and its *bounded gap* (:attr:`benchmarks.core.evaluate.Score.bounded_gap`) the
+  score every run has (every run counts: +100 for a diverged run or one riskier than the
+  curve);
 * *certainty equivalence*: the same controller given the mode filter's most probable mode
   (``HiddenModePolicy(RecedingHorizonController(...))``);
 * the *belief RHC*: problem P3 on the filter's belief
@@ -14,10 +17,11 @@ With the mode hidden (``env_kwargs={"observe": "state"}``), on a task of the sui
 * every kept agent of the hidden comparison (``benchmarks.rl``'s ``hidden_runs`` and
   ``load_agent``).
 
-Each is scored by :func:`benchmarks.core.evaluate.evaluate` on :data:`EVAL_SEEDS`; a design
-*keeps the system bounded* when none of its evaluation episodes diverged. For the designs that
-decide from the filter (certainty equivalence, the belief RHC, the agents fed the belief) the
-filter's accuracy is measured on the same episodes (:func:`filter_accuracy`).
+Each is scored by :func:`benchmarks.core.evaluate.evaluate` on the episodes of every seed of
+:data:`EVAL_SEEDS` (pooled); a design *keeps the system bounded* when none of its evaluation
+episodes diverged. For the designs that decide from the filter (certainty equivalence, the
+belief RHC, the agents fed the belief) the filter's accuracy is measured on the same episodes
+(:func:`filter_accuracy`).
 """
 
 from __future__ import annotations
@@ -31,9 +35,8 @@ import numpy as np
 
 from benchmarks.core.environment import resolve_env
 from benchmarks.core.evaluate import Score, evaluate
+from benchmarks.core.frontier import ReferenceCurve, reference_curve
 from benchmarks.core.montecarlo import Rollouts, rollout
-from benchmarks.core.reference import ReferenceCurve, reference_curve
-from benchmarks.core.stats import mean_ci, wilson
 from controllers import (
     BeliefRecedingHorizonController,
     HiddenModePolicy,
@@ -55,10 +58,10 @@ __all__ = [
     "score_task",
 ]
 
-#: The noise seeds of the evaluation episodes, one constant for every design. The committed
-#: scoring is meant to pool (0, 1, 2) once ``benchmarks.core.evaluate.evaluate`` takes a tuple
-#: of seeds: change it here (the filter's accuracy and the oracle's row pool the same seeds).
-EVAL_SEEDS: tuple[int, ...] = (0,)
+#: The noise seeds of the evaluation episodes, one constant for every design: the core pools
+#: their episodes (``benchmarks.core.evaluate.evaluate(seed=EVAL_SEEDS)``, the oracle's curve
+#: ``reference_curve(task, episodes, EVAL_SEEDS)``), and the filter's accuracy pools the same.
+EVAL_SEEDS: tuple[int, ...] = (0, 1, 2)
 #: The environment's keyword arguments of the hidden setting.
 HIDDEN: dict[str, Any] = {"observe": "state"}
 #: The names of the model-based designs.
@@ -86,10 +89,13 @@ class DesignScore:
     """One design on one task: ``kind`` is ``"oracle"``, ``"controller"`` or ``"agent"``
     (``configuration`` its configuration's name, ``seed`` its training seed).
 
-    ``gap`` is the cost minus the oracle's curve at the design's violation frequency, paired over
-    the episodes, in % of the curve's cost (``gap_ci95`` its 95% bootstrap interval), None with
-    ``gap_reason`` when there is none (a diverged episode, a violation frequency outside the
-    curve's range)."""
+    ``episodes`` counts every seed's. ``gap`` is the cost minus the oracle's curve at the
+    design's violation frequency, paired over the episodes, in % of the curve's cost
+    (``gap_ci95`` its 95% bootstrap interval), None with ``gap_reason`` when there is none (a
+    diverged episode, a violation frequency outside the curve's range). ``bounded_gap`` is the
+    score every run has (:func:`benchmarks.core.frontier.bounded_gap`, in ``[-100, 100]``) and
+    ``bounded_gap_rule`` the rule that gave it (``"gap"``, ``"diverged"``, ``"riskier than the
+    curve"``, ``"safer than the curve"``); the oracle's are 0 and ``"gap"``."""
 
     name: str
     kind: str
@@ -105,6 +111,8 @@ class DesignScore:
     gap: float | None
     gap_ci95: tuple[float, float] | None
     gap_reason: str | None
+    bounded_gap: float
+    bounded_gap_rule: str
     xi_equivalent: float | None = None  # the oracle's level that violates as often
     filter: FilterAccuracy | None = None
     decision_time_s: float | None = None  # per state, batched
@@ -118,8 +126,9 @@ class DesignScore:
 
 @dataclass
 class TaskResult:
-    """One task: its level ``xi``, the oracle's curve (points pooled over the seeds), every
-    design, and the agent runs asked for but not kept (configuration -> seeds)."""
+    """One task: its level ``xi``, the evaluation episodes (every seed's: ``episodes`` in all,
+    ``episodes // len(seeds)`` per seed), the oracle's curve (its points on those episodes),
+    every design, and the agent runs asked for but not kept (configuration -> seeds)."""
 
     env_id: str
     xi: float
@@ -186,10 +195,9 @@ def filter_accuracy(model: Any, rollouts: Sequence[Rollouts]) -> FilterAccuracy:
 
 # ----------------------------------------------------------------------------- scoring
 def _evaluate(policy: Any, env_id: str, episodes: int) -> Score:
-    """:func:`evaluate` with the mode hidden on :data:`EVAL_SEEDS` (one seed: an int, as the
-    core takes it today)."""
-    seed: Any = EVAL_SEEDS[0] if len(EVAL_SEEDS) == 1 else EVAL_SEEDS
-    return evaluate(policy, episodes=episodes, seed=seed, env_id=env_id,
+    """:func:`evaluate` with the mode hidden on ``episodes`` episodes of each seed of
+    :data:`EVAL_SEEDS`, pooled."""
+    return evaluate(policy, episodes=episodes, seed=EVAL_SEEDS, env_id=env_id,
                     env_kwargs={**TASKS[env_id].env_kwargs, **HIDDEN})  # fmt: skip
 
 
@@ -202,50 +210,46 @@ def _rollouts(env_id: str, policy: Any, episodes: int) -> list[Rollouts]:
 
 def design_score(name: str, kind: str, configuration: str, seed: int | None, score: Score,
                  accuracy: FilterAccuracy | None = None, cpu_s: float = 0.0) -> DesignScore:  # fmt: skip
-    """A :class:`DesignScore` of an evaluation's :class:`Score`."""
+    """A :class:`DesignScore` of an evaluation's :class:`Score` (on a task of the suite: it has
+    a bounded gap)."""
     g = score.curve_gap
     gap = None if g is None else g.relative
+    if score.bounded_gap is None or score.bounded_gap_rule is None:
+        raise ValueError(f"{name}: {score.env_id} has no reference curve, so no bounded gap")
     return DesignScore(
         name=name, kind=kind, configuration=configuration, seed=seed, episodes=score.episodes,
         cost_mean=score.cost_mean, cost_ci95=score.cost_ci95, cost_median=score.cost_median,
         violation=score.violation, violation_wilson95=score.violation_wilson95,
         diverged=score.diverged, gap=gap, gap_ci95=None if g is None else g.relative_ci95,
         gap_reason=score.curve_gap_reason if gap is None else None,
+        bounded_gap=float(score.bounded_gap), bounded_gap_rule=score.bounded_gap_rule,
         xi_equivalent=None if g is None else g.xi, filter=accuracy,
         decision_time_s=score.decision_time_batched_s, scoring_cpu_s=cpu_s,
     )  # fmt: skip
 
 
-def _curves(env_id: str, episodes: int) -> list[ReferenceCurve]:
+def _curve(env_id: str, episodes: int) -> ReferenceCurve:
+    """The oracle's curve on the evaluation episodes (``episodes`` of each seed of
+    :data:`EVAL_SEEDS`, pooled; the curve :func:`_evaluate` scores against), with the task's
+    ``xi`` among its levels."""
     task = TASKS[env_id]
     s = resolve_env(env_id, {**task.env_kwargs, **HIDDEN})
-    return [reference_curve(task, episodes, seed, horizon=s.horizon, action_bound=s.action_bound,
-                            divergence_bound=s.divergence_bound) for seed in EVAL_SEEDS]  # fmt: skip
+    curve = reference_curve(task, episodes, EVAL_SEEDS, horizon=s.horizon,
+                            action_bound=s.action_bound, divergence_bound=s.divergence_bound)  # fmt: skip
+    return curve.with_levels([float(task.rhc["xi"])])
 
 
-def _pooled_point(curves: list[ReferenceCurve], i: int) -> dict[str, Any]:
-    """Point ``i`` of the curves of every seed, its episodes pooled (as ``ReferenceCurve.point``
-    states it)."""
-    costs = np.concatenate([c.costs[i] for c in curves])
-    shares = np.concatenate([c.violations[i] for c in curves])
-    steps = curves[0].steps
-    mean, lo, hi = mean_ci(costs, floor=0.0)
-    count = int(round(float(shares.sum()) * steps))
-    wlo, whi = wilson(count, len(shares) * steps)
-    return {"xi": curves[0].xis[i], "cost_mean": mean, "cost_ci95": (lo, hi),
-            "cost_median": float(np.median(costs)), "violation": count / (len(shares) * steps),
-            "violation_wilson95": (wlo, whi), "diverged": int(sum(c.diverged[i] for c in curves))}  # fmt: skip
-
-
-def _oracle(env_id: str, curves: list[ReferenceCurve], xi: float) -> DesignScore:
-    """The oracle's row: the curve's point at the task's ``xi`` (its gap is 0 by definition)."""
-    p = _pooled_point(curves, curves[0].xis.index(xi))
+def _oracle(curve: ReferenceCurve, xi: float) -> DesignScore:
+    """The oracle's row: the curve's point at the task's ``xi`` (its gap and bounded gap are 0
+    by definition)."""
+    p = curve.point(curve.xis.index(xi))
     return DesignScore(
         name=ORACLE, kind="oracle", configuration=ORACLE, seed=None,
-        episodes=curves[0].episodes * len(curves), cost_mean=p["cost_mean"],
-        cost_ci95=p["cost_ci95"], cost_median=p["cost_median"], violation=p["violation"],
+        episodes=curve.costs.shape[1], cost_mean=p["cost_mean"], cost_ci95=p["cost_ci95"],
+        cost_median=p["cost_median"], violation=p["violation"],
         violation_wilson95=p["violation_wilson95"], diverged=p["diverged"], gap=0.0,
-        gap_ci95=(0.0, 0.0), gap_reason=None, xi_equivalent=xi,
+        gap_ci95=(0.0, 0.0), gap_reason=None, bounded_gap=0.0, bounded_gap_rule="gap",
+        xi_equivalent=xi,
     )  # fmt: skip
 
 
@@ -262,8 +266,8 @@ def score_task(env_id: str, runs: Sequence[Any], episodes: int, log: Any = None)
     ``runs`` (``benchmarks.rl.KeptRun`` of this task; those without a path are missing)."""
     task = TASKS[env_id]
     xi = float(task.rhc["xi"])
-    curves = _curves(env_id, episodes)
-    designs = [_oracle(env_id, curves, xi)]
+    curve = _curve(env_id, episodes)
+    designs = [_oracle(curve, xi)]
     for name, policy in controllers(env_id).items():
         c0 = time.process_time()
         score = _evaluate(policy, env_id, episodes)
@@ -272,7 +276,8 @@ def score_task(env_id: str, runs: Sequence[Any], episodes: int, log: Any = None)
                                     time.process_time() - c0))  # fmt: skip
         if log is not None:
             log(f"{env_id}: {name}: cost {score.cost_mean:.4g}, violation "
-                f"{score.violation:.3f}, diverged {score.diverged}")  # fmt: skip
+                f"{score.violation:.3f}, diverged {score.diverged}, bounded gap "
+                f"{score.bounded_gap:+.1f}% ({score.bounded_gap_rule})")  # fmt: skip
     missing: dict[str, list[int]] = {}
     kept = [r for r in runs if r.path is not None]
     for r in runs:
@@ -289,6 +294,5 @@ def score_task(env_id: str, runs: Sequence[Any], episodes: int, log: Any = None)
             seen = filter_accuracy(task.model, _rollouts(env_id, agent, episodes)) if fed else None
             designs.append(design_score(f"{r.configuration} s{r.seed}", "agent", r.configuration,
                                         r.seed, score, seen, time.process_time() - c0))  # fmt: skip
-    points = [_pooled_point(curves, i) for i in range(len(curves[0].xis))]
-    return TaskResult(env_id, xi, episodes * len(EVAL_SEEDS), EVAL_SEEDS, points, designs,
-                      missing)  # fmt: skip
+    points = [curve.point(i) for i in range(len(curve.xis))]
+    return TaskResult(env_id, xi, curve.costs.shape[1], curve.seeds, points, designs, missing)
