@@ -1,4 +1,4 @@
-"""The belief of the hidden mode as part of an agent's observation (issue 48).
+"""The belief of the hidden mode as part of an agent's observation.
 
 :class:`BeliefObservation` wraps a training environment made with ``observe="state"``: its
 observation ``[x, k / T]`` (scaled or not) gets the belief of ``theta_k`` appended,
@@ -165,6 +165,8 @@ class BeliefAgentPolicy:
     env : BeliefObservation
         The agent's training environment (outermost wrapper :class:`BeliefObservation`).
 
+    Notes
+    -----
     Not thread-safe: the beliefs of the episodes change at every call.
     """
 
