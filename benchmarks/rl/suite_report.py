@@ -58,7 +58,13 @@ from benchmarks.core.frontier import (
     tree_curve,
 )
 from benchmarks.core.montecarlo import rollouts
-from benchmarks.core.reference import QUICK_TREE, TREE_BY_TASK, TREE_STEPS, TREE_XIS
+from benchmarks.core.reference import (
+    QUICK_TREE,
+    TREE_BY_TASK,
+    TREE_EPISODES,
+    TREE_STEPS,
+    TREE_XIS,
+)
 from benchmarks.core.stats import CurveGap, CurveStatus, curve_status, efficient_points
 from benchmarks.rl.claims import (
     RunCounts,
@@ -236,18 +242,19 @@ def kept_runs(specs: list[RunSpec], run_dir: Path) -> list[RunRecord | None]:
     return [load_run(run_dir, s) for s in specs]
 
 
-def tree_plan(env_id: str, quick: bool) -> tuple[int | None, tuple[float, ...]]:
-    """Episodes and levels of a task's 3-step tree curve: ``(None, levels)`` for the evaluation
-    episodes themselves (every task but those of :data:`~benchmarks.core.reference.TREE_BY_TASK`),
-    at :data:`~benchmarks.core.reference.TREE_XIS` with :data:`TREE_EXTRA_XIS` and the task's own
-    ``xi``; ``quick``: the smoke test's plan."""
+def tree_plan(env_id: str, quick: bool) -> tuple[int, tuple[float, ...]]:
+    """Episodes per noise seed and levels of a task's 3-step tree curve:
+    :data:`~benchmarks.core.reference.TREE_EPISODES` at
+    :data:`~benchmarks.core.reference.TREE_XIS` with :data:`TREE_EXTRA_XIS` and the task's own
+    ``xi`` (the tasks of :data:`~benchmarks.core.reference.TREE_BY_TASK`: their own plan);
+    ``quick``: the smoke test's plan. The agents are rolled out again on the same episodes."""
     xi = float(TASKS[env_id].rhc["xi"])
     if quick:
         return QUICK_TREE[0], tuple(sorted({*QUICK_TREE[1], xi}))
     if env_id in TREE_BY_TASK:
         count, xis = TREE_BY_TASK[env_id]
         return count, tuple(sorted({*xis, xi}))
-    return None, tuple(sorted({*TREE_XIS, *TREE_EXTRA_XIS, xi}))
+    return TREE_EPISODES, tuple(sorted({*TREE_XIS, *TREE_EXTRA_XIS, xi}))
 
 
 def point_gap(cost_mean: float, violation: float, diverged: int,
@@ -286,8 +293,7 @@ def score_task(env_id: str, runs: list[tuple[RunSpec, RunRecord | None]], run_di
     xi = float(task.rhc["xi"])
     rhc = reference_curve(task, episodes, seed, **kw)
     t_eps, t_xis = tree_plan(env_id, quick)
-    same = t_eps is None
-    t_eps = episodes if t_eps is None else t_eps
+    same = t_eps == episodes
     if log is not None:
         log(f"{env_id}: the 3-step tree on {t_eps} episodes x {len(as_seeds(seed))} seed(s) at "
             f"xi {', '.join(f'{x:g}' for x in t_xis)}")  # fmt: skip

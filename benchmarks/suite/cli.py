@@ -43,7 +43,7 @@ class Options:
     tree_episodes: int | None = option(
         None,
         "references: episodes per seed of the 3-step tree curve on every task "
-        "(default: as --episodes, but benchmarks.core.reference.TREE_BY_TASK)",
+        "(default: benchmarks.core.reference.TREE_EPISODES, or TREE_BY_TASK's)",
     )
     quick: bool = option(
         False,

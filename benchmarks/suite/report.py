@@ -43,6 +43,7 @@ from benchmarks.core.frontier import as_seeds, gap_reason, reference_curve, tree
 from benchmarks.core.reference import (
     QUICK_TREE,
     TREE_BY_TASK,
+    TREE_EPISODES,
     TREE_STEPS,
     TREE_XIS,
     curve_xis,
@@ -312,7 +313,9 @@ def run_references(opts: Any, argv: list[str]) -> dict[str, Any]:
         xi = float(task.rhc["xi"])
         xis = tuple(sorted({*QUICK_XIS, xi})) if opts.quick else curve_xis(task)
         t_eps: int | None
-        t_eps, t_xis = QUICK_TREE if opts.quick else TREE_BY_TASK.get(env_id, (None, TREE_XIS))
+        t_eps, t_xis = (
+            QUICK_TREE if opts.quick else TREE_BY_TASK.get(env_id, (TREE_EPISODES, TREE_XIS))
+        )
         t_eps = opts.tree_episodes or t_eps
         plan.append((task, xis, t_eps, tuple(sorted({*t_xis, xi}))))
     steps = len(seeds) * sum(t.horizon * (3 * len(xis) + len(t_xis) + 2)
