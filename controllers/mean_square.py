@@ -352,22 +352,8 @@ def verify_mean_square_bound(
     alpha1, alpha2, beta, noise_term = _appendix_constants(model, At, Pv)
     q = 1.0 - (mu - kappa_v) / c2
     beta1 = c2 / c1
-    # beta * beta, not beta**2 (a float's ** raises OverflowError); never 0 * inf
-    offsets = delta_v * (alpha1 + beta * beta / kappa_v) if delta_v else 0.0
-    # q rounds to 1 when mu - kappa is below c2's last digit: an infinite bound, named below
-    beta2 = (noise_term + offsets) / (c1 * (1.0 - q)) if q < 1.0 else math.inf
-    if not math.isfinite(beta2):
-        given = [
-            f"{name} = {value!r}"
-            for name, value in (("nu_bound", nu_bound), ("delta", delta), ("kappa", kappa))
-            if value is not None
-        ]
-        raise ValueError(
-            f"the bound beta2 = (noise_term + delta (alpha1 + beta^2 / kappa)) / (c1 (1 - q)) "
-            f"overflows float64 with {', '.join(given) or 'the defaults'} (alpha1 = "
-            f"{alpha1:.3g}, beta = {beta:.3g}, kappa = {kappa_v:.3g}); expected a smaller "
-            "bound on nu (nu_bound, delta) or a larger kappa"
-        )
+    given = {"nu_bound": nu_bound, "delta": delta, "kappa": kappa}
+    beta2 = _beta2(noise_term, delta_v, alpha1, beta, kappa_v, c1, q, given)
     return MeanSquareCertificate(
         K=frozen(K),
         P=frozen(Pv),
@@ -388,6 +374,33 @@ def verify_mean_square_bound(
         status=status,
         solver=solver,
     )
+
+
+def _beta2(
+    noise_term: float,
+    delta: float,
+    alpha1: float,
+    beta: float,
+    kappa: float,
+    c1: float,
+    q: float,
+    given: dict[str, float | None],
+) -> float:
+    """Appendix A's ``beta2 = (noise_term + delta (alpha1 + beta^2 / kappa)) / (c1 (1 - q))``;
+    a ValueError naming the arguments ``given`` (by the caller) when it overflows float64."""
+    # beta * beta, not beta**2 (a float's ** raises OverflowError); never 0 * inf
+    offsets = delta * (alpha1 + beta * beta / kappa) if delta else 0.0
+    # q rounds to 1 when mu - kappa is below c2's last digit: an infinite bound, named below
+    beta2 = (noise_term + offsets) / (c1 * (1.0 - q)) if q < 1.0 else math.inf
+    if not math.isfinite(beta2):
+        named = [f"{name} = {value!r}" for name, value in given.items() if value is not None]
+        raise ValueError(
+            f"the bound beta2 = (noise_term + delta (alpha1 + beta^2 / kappa)) / (c1 (1 - q)) "
+            f"overflows float64 with {', '.join(named) or 'the defaults'} (alpha1 = "
+            f"{alpha1:.3g}, beta = {beta:.3g}, kappa = {kappa:.3g}); expected a smaller "
+            "bound on nu (nu_bound, delta) or a larger kappa"
+        )
+    return beta2
 
 
 def _offset_bound(nu_bound: float | None, delta: float | None, m: int) -> float:

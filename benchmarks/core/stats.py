@@ -224,6 +224,47 @@ def paired_curve_gap(
     the frequencies times the curve's slope as well as the cost's; pairing removes the episode-to-
     episode spread the controller and the curve share.
     """
+    costs, violations, c_cost, c_viol = _checked_curve_data(
+        costs, violations, curve_costs, curve_violations, curve_xis
+    )
+    keep = _kept_points(c_cost, c_viol)
+    c_cost, c_viol = c_cost[keep], c_viol[keep]
+    if curve_xis is not None:
+        curve_xis = [curve_xis[i] for i in keep]
+    E = costs.size
+    (gap,), (ref,), (v,), (order,), (j,), (w,) = _gaps(
+        np.full((1, E), 1.0 / E), costs, violations, c_cost, c_viol
+    )
+    point_vs = c_viol.mean(axis=1)
+    tol = 1e-12 * max(1.0, float(np.max(np.abs(point_vs))))  # v and point_vs round differently
+    if not point_vs.min() - tol <= v <= point_vs.max() + tol:
+        return None
+    xi = None
+    if curve_xis is not None:
+        xis = np.asarray(curve_xis, dtype=np.float64)[order]
+        xi = float(w * xis[j] + (1 - w) * xis[j + 1])
+    rng = np.random.default_rng(seed)
+    weights = rng.multinomial(E, np.full(E, 1.0 / E), size=resamples) / E
+    boot = _gaps(weights, costs, violations, c_cost, c_viol)[0]
+    lo, hi = np.percentile(boot, [2.5, 97.5])
+    relative = relative_ci = None
+    if ref > 0:  # costs are >= 0: only an all-zero curve fails this
+        relative = float(100.0 * gap / ref)
+        relative_ci = (float(100.0 * lo / ref), float(100.0 * hi / ref))
+    return CurveGap(
+        float(gap), (float(lo), float(hi)), float(ref), float(v), xi, relative, relative_ci
+    )
+
+
+def _checked_curve_data(
+    costs: np.ndarray,
+    violations: np.ndarray,
+    curve_costs: np.ndarray,
+    curve_violations: np.ndarray,
+    curve_xis: Sequence[float] | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`paired_curve_gap`'s arrays as float64, their shapes checked: the controller's (E,)
+    and the curve's (P, E), P >= 2, with P entries of ``curve_xis``."""
     costs = np.asarray(costs, dtype=np.float64)
     violations = np.asarray(violations, dtype=np.float64)
     if costs.shape != violations.shape or costs.ndim != 1 or costs.size < 2:
@@ -245,62 +286,50 @@ def paired_curve_gap(
         )
     if curve_xis is not None and len(curve_xis) != c_cost.shape[0]:
         raise ValueError(f"curve_xis has {len(curve_xis)} entries; expected {c_cost.shape[0]}")
+    return costs, violations, c_cost, c_viol
+
+
+def _kept_points(c_cost: np.ndarray, c_viol: np.ndarray) -> np.ndarray:
+    """The indices of the curve's efficient points (at least two entries)."""
     # in the curve's own order: the resamples sort by violation anyway, and exact ties there
     # (discrete frequencies) break by this order, as they did before points were dropped
     keep = np.sort(efficient_points(c_viol.mean(axis=1), c_cost.mean(axis=1)))
     if keep.size == 1:  # one point beats all others: the curve is that point (twice)
         keep = np.repeat(keep, 2)
-    c_cost, c_viol = c_cost[keep], c_viol[keep]
-    if curve_xis is not None:
-        curve_xis = [curve_xis[i] for i in keep]
+    return keep
 
-    def gaps(weights: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Gap, curve cost, frequency, and the interpolation (order, j, w) per row of episode
-        weights (B, E)."""
-        v = weights @ violations  # (B,)
-        xs, ys = weights @ c_viol.T, weights @ c_cost.T  # (B, P)
-        order = np.argsort(xs, axis=1, kind="stable")
-        xs, ys = np.take_along_axis(xs, order, 1), np.take_along_axis(ys, order, 1)
-        j = np.clip((xs < v[:, None]).sum(axis=1) - 1, 0, xs.shape[1] - 2)[:, None]
-        x0, x1 = np.take_along_axis(xs, j, 1)[:, 0], np.take_along_axis(xs, j + 1, 1)[:, 0]
-        y0, y1 = np.take_along_axis(ys, j, 1)[:, 0], np.take_along_axis(ys, j + 1, 1)[:, 0]
-        span = x1 - x0
-        w = np.where(span == 0, 1.0, (x1 - v) / np.where(span == 0, 1.0, span))
-        ref = w * y0 + (1 - w) * y1  # weight w on the lower point
-        mean = weights @ costs
-        gap = mean - ref
-        # A controller on the curve (a curve point itself) differs from it only by the order of
-        # its E-term sums and the interpolation's rounding, which depend on the CPU's kernels:
-        # within that bound the gap is a tie, exactly 0 (rliable's probability of improvement
-        # counts exact ties as 1/2)
-        bound = (
-            (2 * costs.size + 4)
-            * np.finfo(np.float64).eps
-            * (np.abs(mean) + np.abs(y0) + np.abs(y1))
-        )
-        gap = np.where(np.abs(gap) <= bound, 0.0, gap)
-        return gap, ref, v, order, j[:, 0], w
 
-    E = costs.size
-    (gap,), (ref,), (v,), (order,), (j,), (w,) = gaps(np.full((1, E), 1.0 / E))
-    point_vs = c_viol.mean(axis=1)
-    tol = 1e-12 * max(1.0, float(np.max(np.abs(point_vs))))  # v and point_vs round differently
-    if not point_vs.min() - tol <= v <= point_vs.max() + tol:
-        return None
-    xi = None
-    if curve_xis is not None:
-        xis = np.asarray(curve_xis, dtype=np.float64)[order]
-        xi = float(w * xis[j] + (1 - w) * xis[j + 1])
-    rng = np.random.default_rng(seed)
-    boot = gaps(rng.multinomial(E, np.full(E, 1.0 / E), size=resamples) / E)[0]
-    lo, hi = np.percentile(boot, [2.5, 97.5])
-    relative = relative_ci = None
-    if ref > 0:  # costs are >= 0: only an all-zero curve fails this
-        relative = float(100.0 * gap / ref)
-        relative_ci = (float(100.0 * lo / ref), float(100.0 * hi / ref))
-    return CurveGap(
-        float(gap), (float(lo), float(hi)), float(ref), float(v), xi, relative, relative_ci
+def _gaps(
+    weights: np.ndarray,
+    costs: np.ndarray,
+    violations: np.ndarray,
+    c_cost: np.ndarray,
+    c_viol: np.ndarray,
+) -> tuple[np.ndarray, ...]:
+    """Gap, curve cost, frequency, and the interpolation (order, j, w) per row of episode
+    weights (B, E), for the controller's ``costs``, ``violations`` (E,) and the curve's
+    ``c_cost``, ``c_viol`` (P, E)."""
+    v = weights @ violations  # (B,)
+    xs, ys = weights @ c_viol.T, weights @ c_cost.T  # (B, P)
+    order = np.argsort(xs, axis=1, kind="stable")
+    xs, ys = np.take_along_axis(xs, order, 1), np.take_along_axis(ys, order, 1)
+    j = np.clip((xs < v[:, None]).sum(axis=1) - 1, 0, xs.shape[1] - 2)[:, None]
+    x0, x1 = np.take_along_axis(xs, j, 1)[:, 0], np.take_along_axis(xs, j + 1, 1)[:, 0]
+    y0, y1 = np.take_along_axis(ys, j, 1)[:, 0], np.take_along_axis(ys, j + 1, 1)[:, 0]
+    span = x1 - x0
+    w = np.where(span == 0, 1.0, (x1 - v) / np.where(span == 0, 1.0, span))
+    ref = w * y0 + (1 - w) * y1  # weight w on the lower point
+    mean = weights @ costs
+    gap = mean - ref
+    # A controller on the curve (a curve point itself) differs from it only by the order of
+    # its E-term sums and the interpolation's rounding, which depend on the CPU's kernels:
+    # within that bound the gap is a tie, exactly 0 (rliable's probability of improvement
+    # counts exact ties as 1/2)
+    bound = (
+        (2 * costs.size + 4) * np.finfo(np.float64).eps * (np.abs(mean) + np.abs(y0) + np.abs(y1))
     )
+    gap = np.where(np.abs(gap) <= bound, 0.0, gap)
+    return gap, ref, v, order, j[:, 0], w
 
 
 def paired_difference(

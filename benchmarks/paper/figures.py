@@ -179,76 +179,105 @@ def make_figures(
     with plt.rc_context(style):
         sample = ro_fig["individual_0.85"]
         T = sample.x.shape[1] - 1
-        fig, ax = plt.subplots(figsize=(6, 3.4), layout="constrained")
-        ax.step(np.arange(T + 1), sample.mode[0] + 1, where="post", color="k")
-        ax.set_yticks([1, 2, 3], [f"{i + 1}: {nm}" for i, nm in enumerate(model.mode_names)])
-        _time_axis(ax)
-        ax.set_ylabel(r"mode $\theta_k$")
-        ax.set_title("A sample evolution of $\\theta_k$ (fig. ex_mode)")
-        ax.grid(alpha=0.3)
-        save(fig, "fig_mode.png")
-
-        fig, ax = plt.subplots(figsize=(6, 3.4), layout="constrained")
-        ax.plot(np.arange(T), sample.J[0], "o-", color="C1")
-        _time_axis(ax)
-        ax.set_ylabel("$J_k^*$")
-        ax.set_title("Optimal cost $J_k^*$ of the same sample (fig. ex_input)")
-        ax.grid(alpha=0.3)
-        save(fig, "fig_cost.png")
-
-        fig, axes = plt.subplots(1, 2, figsize=(10, 3.9), sharey=True, layout="constrained")
-        _incomes(
-            axes[0],
-            model,
-            ro_fig["individual_0.85"],
-            runs,
-            "Individual, $\\xi=0.85$ (fig. ex_stateMC)",
-        )
-        _incomes(
-            axes[1],
-            model,
-            ro_fig["joint_0.85"],
-            runs,
-            "Joint, $\\xi=0.85$ (fig. ex_state_joint)",
-            legend=False,
-            ylabel=False,
-        )
-        save(fig, "fig_income_individual_joint.png")
-
-        fig, axes = plt.subplots(1, 3, figsize=(10, 3.9), sharey=True, layout="constrained")
-        for i, (ax, xi) in enumerate(zip(axes, (0.95, 0.5, 0.3), strict=True)):
-            _incomes(
-                ax,
-                model,
-                ro_fig[f"individual_{xi}"],
-                runs,
-                f"$\\xi = {xi}$",
-                legend=i == 0,
-                ylabel=i == 0,
-            )
-        fig.suptitle("Individual constraints with different $\\xi$ (fig. eco_income_compare)")
-        save(fig, "fig_income_xi.png")
-
+        save(_mode_figure(model, sample, T), "fig_mode.png")
+        save(_cost_figure(sample, T), "fig_cost.png")
+        save(_income_figure(model, ro_fig, runs), "fig_income_individual_joint.png")
+        save(_income_xi_figure(model, ro_fig, runs), "fig_income_xi.png")
         fig = plt.figure(figsize=(11, 6), layout="constrained")
         _calibration(fig, calib, row_labels(model), T)
         save(fig, "fig_calibration.png")
-
-        fig, ax = plt.subplots(figsize=(6, 4), layout="constrained")
-        ks = np.arange(T + 1)
-        ax.semilogy(
-            ks, ms["empirical"], "o-", label=f"Monte Carlo $E\\|x_k\\|^2$ ({ms['runs']} runs)"
-        )
-        ax.semilogy(
-            ks,
-            ms["bound"],
-            "-",
-            color="C3",
-            label="Proposition 1 bound $\\beta_1\\|x_0\\|^2 q^k + \\beta_2$",
-        )
-        _time_axis(ax)
-        ax.set_ylabel("$E\\|x_k\\|^2$")
-        ax.set_title("Mean-square bound ($\\xi = 0.85$, individual)")
-        ax.legend(fontsize=9)
-        ax.grid(alpha=0.3, which="both")
-        save(fig, "fig_mean_square.png")
+        save(_mean_square_figure(ms, T), "fig_mean_square.png")
     return names
+
+
+def _mode_figure(model, sample: Rollouts, T: int) -> Any:
+    """A sample evolution of the mode (fig. ex_mode)."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.4), layout="constrained")
+    ax.step(np.arange(T + 1), sample.mode[0] + 1, where="post", color="k")
+    ax.set_yticks([1, 2, 3], [f"{i + 1}: {nm}" for i, nm in enumerate(model.mode_names)])
+    _time_axis(ax)
+    ax.set_ylabel(r"mode $\theta_k$")
+    ax.set_title("A sample evolution of $\\theta_k$ (fig. ex_mode)")
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def _cost_figure(sample: Rollouts, T: int) -> Any:
+    """The optimal cost of the same sample (fig. ex_input)."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.4), layout="constrained")
+    ax.plot(np.arange(T), sample.J[0], "o-", color="C1")
+    _time_axis(ax)
+    ax.set_ylabel("$J_k^*$")
+    ax.set_title("Optimal cost $J_k^*$ of the same sample (fig. ex_input)")
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def _income_figure(model, ro_fig: dict[str, Rollouts], runs: int) -> Any:
+    """Incomes under individual and joint constraints at xi = 0.85 (figs. ex_stateMC,
+    ex_state_joint)."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.9), sharey=True, layout="constrained")
+    _incomes(
+        axes[0],
+        model,
+        ro_fig["individual_0.85"],
+        runs,
+        "Individual, $\\xi=0.85$ (fig. ex_stateMC)",
+    )
+    _incomes(
+        axes[1],
+        model,
+        ro_fig["joint_0.85"],
+        runs,
+        "Joint, $\\xi=0.85$ (fig. ex_state_joint)",
+        legend=False,
+        ylabel=False,
+    )
+    return fig
+
+
+def _income_xi_figure(model, ro_fig: dict[str, Rollouts], runs: int) -> Any:
+    """Incomes under individual constraints at three xi (fig. eco_income_compare)."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(10, 3.9), sharey=True, layout="constrained")
+    for i, (ax, xi) in enumerate(zip(axes, (0.95, 0.5, 0.3), strict=True)):
+        _incomes(
+            ax,
+            model,
+            ro_fig[f"individual_{xi}"],
+            runs,
+            f"$\\xi = {xi}$",
+            legend=i == 0,
+            ylabel=i == 0,
+        )
+    fig.suptitle("Individual constraints with different $\\xi$ (fig. eco_income_compare)")
+    return fig
+
+
+def _mean_square_figure(ms: dict, T: int) -> Any:
+    """The Monte Carlo mean square against Proposition 1's bound."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4), layout="constrained")
+    ks = np.arange(T + 1)
+    ax.semilogy(ks, ms["empirical"], "o-", label=f"Monte Carlo $E\\|x_k\\|^2$ ({ms['runs']} runs)")
+    ax.semilogy(
+        ks,
+        ms["bound"],
+        "-",
+        color="C3",
+        label="Proposition 1 bound $\\beta_1\\|x_0\\|^2 q^k + \\beta_2$",
+    )
+    _time_axis(ax)
+    ax.set_ylabel("$E\\|x_k\\|^2$")
+    ax.set_title("Mean-square bound ($\\xi = 0.85$, individual)")
+    ax.legend(fontsize=9)
+    ax.grid(alpha=0.3, which="both")
+    return fig

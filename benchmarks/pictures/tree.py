@@ -103,8 +103,6 @@ def draw(task: Any, plan: Any, info: dict, out: Path) -> Path:
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
-    from sdjls_gym.render import single_state_bounds, state_labels
-
     model = task.model
     colors = matplotlib.color_sequences["tab10"]  # the colours of the tab10 colormap
     names = model.mode_names
@@ -112,8 +110,34 @@ def draw(task: Any, plan: Any, info: dict, out: Path) -> Path:
     fig, (ax_tree, ax_band) = plt.subplots(
         1, 2, figsize=(12.0, 5.2), gridspec_kw={"width_ratios": [1.0, 1.25]}
     )
+    _draw_tree(ax_tree, plan, colors)
+    handles = _draw_band(ax_band, model, plan, colors)
+    ax_band.set_title("the plan against the band", fontsize=10)
+    mode_handles = [
+        Line2D([], [], marker="o", ls="", mfc=colors[m % 10], mec="black", ms=8,
+               label=f"mode {m}: {names[m]}")
+        for m in range(model.N)
+    ]  # fmt: skip
+    fig.legend(handles=mode_handles, loc="lower left", ncol=model.N, fontsize=8, frameon=False,
+               bbox_to_anchor=(0.02, 0.0))  # fmt: skip
+    ax_band.legend(handles=handles, loc="upper left", fontsize=8)
+    x_text = ", ".join(f"{v:g}" for v in plan.mean[0])
+    nu = ", ".join(f"{v:.3g}" for v in np.atleast_1d(info["nu"]))
+    fig.suptitle(
+        f"{task.env_id}: ScenarioTreeController(steps={steps}, xi={task.rhc['xi']:g}) at "
+        f"x_k = ({x_text}), mode {int(plan.mode[0])} ({names[int(plan.mode[0])]}), k = {plan.k}: "
+        f"applied offset nu = {nu}, rho = {info['rho']:.3g}, status {info['status']!r}",
+        fontsize=10,
+    )
+    fig.tight_layout(rect=(0, 0.05, 1, 0.95))
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out
 
-    # the tree
+
+def _draw_tree(ax_tree: Any, plan: Any, colors: Any) -> None:
+    """The tree: a disc per node at its stage, its path probability beside it."""
+    steps = int(plan.stage.max()) + 1
     y = _tree_layout(plan)
     for i in range(1, plan.mode.size):
         p = int(plan.parent[i])
@@ -136,89 +160,79 @@ def draw(task: Any, plan: Any, info: dict, out: Path) -> Path:
     for side in ("left", "right", "top"):
         ax_tree.spines[side].set_visible(False)
 
-    # the plan against the band, for the first state that rows of G bound alone
+
+def _draw_band(ax_band: Any, model: Any, plan: Any, colors: Any) -> list[Any]:
+    """The plan against the band, for the first state that rows of ``G`` bound alone; the
+    legend's handles (none when no state is bounded alone)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    from sdjls_gym.render import single_state_bounds, state_labels
+
+    steps = int(plan.stage.max()) + 1
     times = plan.k + np.arange(steps + 1)
     bounds, _ = single_state_bounds(model, int(times[-1]))
     handles: list[Any] = []
-    if bounds:
-        b = bounds[0]
-        i_state = b.state
-        label = state_labels(model)[i_state]
-        lo = b.lower[times] if b.lower is not None else None
-        hi = b.upper[times] if b.upper is not None else None
-        if lo is not None and hi is not None:
-            ax_band.fill_between(times, lo, hi, step=None, color="tab:green", alpha=0.15, lw=0)
-            handles.append(plt.Rectangle((0, 0), 1, 1, color="tab:green", alpha=0.15))
-            handles[-1].set_label(f"band of {label}: G x <= H_k")
-        for edge in (lo, hi):
-            if edge is not None:
-                ax_band.plot(times, edge, color="tab:green", lw=1)
-        ax_band.scatter([plan.k], [plan.mean[0, i_state]], marker="s", color="black", zorder=4)
-        handles.append(
-            Line2D([], [], marker="s", color="black", ls="", label=f"x_k at the root ({label})")
-        )
-        # nodes of one stage side by side around k + t + 1
-        xs = np.zeros(plan.mode.size)
-        for t in range(steps):
-            members = np.flatnonzero(plan.stage == t)
-            spread = np.linspace(-0.3, 0.3, members.size) if members.size > 1 else np.zeros(1)
-            xs[members] = plan.k + t + 1 + spread
-        rows_lo = [j for j in b.rows if model.G[j, i_state] < 0]
-        rows_hi = [j for j in b.rows if model.G[j, i_state] > 0]
-        for i in range(plan.mode.size):
-            g_hi = [(model.H(times[plan.stage[i] + 1])[j] - plan.tightening[i, j]) / model.G[j, i_state] for j in rows_hi]  # fmt: skip
-            g_lo = [(model.H(times[plan.stage[i] + 1])[j] - plan.tightening[i, j]) / model.G[j, i_state] for j in rows_lo]  # fmt: skip
-            for value in ([min(g_hi)] if g_hi else []) + ([max(g_lo)] if g_lo else []):
-                ax_band.plot(
-                    [xs[i] - 0.1, xs[i] + 0.1], [value, value], color="tab:red", lw=1.5, zorder=5
-                )
-            ax_band.plot(
-                [xs[int(plan.parent[i])] if i else plan.k, xs[i]],
-                [plan.next_mean[int(plan.parent[i]), i_state] if i else plan.mean[0, i_state],
-                 plan.next_mean[i, i_state]],
-                color="0.75", lw=0.8, zorder=1,
-            )  # fmt: skip
-        ax_band.scatter(
-            xs, plan.next_mean[:, i_state], s=_disc_area(plan.probability, 400.0),
-            c=[colors[m % 10] for m in plan.mode], edgecolors="black", linewidths=0.6, zorder=3,
-        )  # fmt: skip
-        handles.append(
-            Line2D(
-                [],
-                [],
-                color="tab:red",
-                lw=1.2,
-                label="a node's tightened bound (chance constraint)",
-            )
-        )
-        handles.append(
-            Line2D([], [], marker="o", ls="", mfc="white", mec="black", ms=9,
-                   label="a node's planned next-state mean (area: path probability)")
-        )  # fmt: skip
-        ax_band.set_ylabel(label)
-        ax_band.set_xticks(times)
-        ax_band.set_xlabel("k")
-    ax_band.set_title("the plan against the band", fontsize=10)
-    mode_handles = [
-        Line2D([], [], marker="o", ls="", mfc=colors[m % 10], mec="black", ms=8,
-               label=f"mode {m}: {names[m]}")
-        for m in range(model.N)
-    ]  # fmt: skip
-    fig.legend(handles=mode_handles, loc="lower left", ncol=model.N, fontsize=8, frameon=False,
-               bbox_to_anchor=(0.02, 0.0))  # fmt: skip
-    ax_band.legend(handles=handles, loc="upper left", fontsize=8)
-    x_text = ", ".join(f"{v:g}" for v in plan.mean[0])
-    nu = ", ".join(f"{v:.3g}" for v in np.atleast_1d(info["nu"]))
-    fig.suptitle(
-        f"{task.env_id}: ScenarioTreeController(steps={steps}, xi={task.rhc['xi']:g}) at "
-        f"x_k = ({x_text}), mode {int(plan.mode[0])} ({names[int(plan.mode[0])]}), k = {plan.k}: "
-        f"applied offset nu = {nu}, rho = {info['rho']:.3g}, status {info['status']!r}",
-        fontsize=10,
+    if not bounds:
+        return handles
+    b = bounds[0]
+    i_state = b.state
+    label = state_labels(model)[i_state]
+    lo = b.lower[times] if b.lower is not None else None
+    hi = b.upper[times] if b.upper is not None else None
+    if lo is not None and hi is not None:
+        ax_band.fill_between(times, lo, hi, step=None, color="tab:green", alpha=0.15, lw=0)
+        handles.append(plt.Rectangle((0, 0), 1, 1, color="tab:green", alpha=0.15))
+        handles[-1].set_label(f"band of {label}: G x <= H_k")
+    for edge in (lo, hi):
+        if edge is not None:
+            ax_band.plot(times, edge, color="tab:green", lw=1)
+    ax_band.scatter([plan.k], [plan.mean[0, i_state]], marker="s", color="black", zorder=4)
+    handles.append(
+        Line2D([], [], marker="s", color="black", ls="", label=f"x_k at the root ({label})")
     )
-    fig.tight_layout(rect=(0, 0.05, 1, 0.95))
-    fig.savefig(out, dpi=100)
-    plt.close(fig)
-    return out
+    # nodes of one stage side by side around k + t + 1
+    xs = np.zeros(plan.mode.size)
+    for t in range(steps):
+        members = np.flatnonzero(plan.stage == t)
+        spread = np.linspace(-0.3, 0.3, members.size) if members.size > 1 else np.zeros(1)
+        xs[members] = plan.k + t + 1 + spread
+    rows_lo = [j for j in b.rows if model.G[j, i_state] < 0]
+    rows_hi = [j for j in b.rows if model.G[j, i_state] > 0]
+    for i in range(plan.mode.size):
+        g_hi = [(model.H(times[plan.stage[i] + 1])[j] - plan.tightening[i, j]) / model.G[j, i_state] for j in rows_hi]  # fmt: skip
+        g_lo = [(model.H(times[plan.stage[i] + 1])[j] - plan.tightening[i, j]) / model.G[j, i_state] for j in rows_lo]  # fmt: skip
+        for value in ([min(g_hi)] if g_hi else []) + ([max(g_lo)] if g_lo else []):
+            ax_band.plot(
+                [xs[i] - 0.1, xs[i] + 0.1], [value, value], color="tab:red", lw=1.5, zorder=5
+            )
+        ax_band.plot(
+            [xs[int(plan.parent[i])] if i else plan.k, xs[i]],
+            [plan.next_mean[int(plan.parent[i]), i_state] if i else plan.mean[0, i_state],
+             plan.next_mean[i, i_state]],
+            color="0.75", lw=0.8, zorder=1,
+        )  # fmt: skip
+    ax_band.scatter(
+        xs, plan.next_mean[:, i_state], s=_disc_area(plan.probability, 400.0),
+        c=[colors[m % 10] for m in plan.mode], edgecolors="black", linewidths=0.6, zorder=3,
+    )  # fmt: skip
+    handles.append(
+        Line2D(
+            [],
+            [],
+            color="tab:red",
+            lw=1.2,
+            label="a node's tightened bound (chance constraint)",
+        )
+    )
+    handles.append(
+        Line2D([], [], marker="o", ls="", mfc="white", mec="black", ms=9,
+               label="a node's planned next-state mean (area: path probability)")
+    )  # fmt: skip
+    ax_band.set_ylabel(label)
+    ax_band.set_xticks(times)
+    ax_band.set_xlabel("k")
+    return handles
 
 
 def main(argv: list[str] | None = None) -> Path:

@@ -2,8 +2,8 @@
 protocol against the receding-horizon controllers (``python -m benchmarks.compare_rl``,
 :mod:`.compare`), their training environments (:mod:`.envs`, :mod:`.train_envs`,
 :mod:`.hyperparams`), runs (:mod:`.train`, :mod:`.records`, :mod:`.runs`, :mod:`.backends`),
-reports (:mod:`.report`, :mod:`.figures`, :mod:`.suite_report`, :mod:`.suite_tables`,
-:mod:`.suite_figures`) and tuning (:mod:`.tune`, :mod:`.tune_summary`, :mod:`.tuned_report`).
+reports (:mod:`.report`, :mod:`.macro_report`, :mod:`.figures`, :mod:`.suite_report`,
+:mod:`.suite_tables`, :mod:`.suite_figures`) and tuning (:mod:`.tune`, :mod:`.tune_summary`, :mod:`.tuned_report`).
 
 Agents with the mode hidden (issue 48): :mod:`.belief_env` (the mode filter's belief in the
 observation), sb3-contrib's recurrent PPO, :mod:`.spec` (a run's configuration with its

@@ -74,6 +74,7 @@ from benchmarks.rl.macro_controllers import (
     SINGLE_CONTROLLERS,
     empty_band_share,
 )
+from benchmarks.rl.macro_report import write_report
 from benchmarks.rl.report import (
     ControllerResult,
     RunResult,
@@ -86,7 +87,6 @@ from benchmarks.rl.report import (
     comparable,
     hyperparams_record,
     write_csv,
-    write_report,
 )
 from benchmarks.rl.runs import check_kept_runs
 from benchmarks.rl.suite_report import kept_runs, report_suite
