@@ -1,4 +1,4 @@
-"""The identify wing (issue 49): learn the model, then control, at the agents' budgets.
+"""The identify wing: learn the model, then control, at the agents' budgets.
 
 ``python -m benchmarks.identify`` (:mod:`.cli`) explores each task of the suite with a stated
 policy, identifies the model (:func:`controllers.identify`), designs the receding-horizon

@@ -87,7 +87,7 @@ def parse_args(argv: list[str] | None = None) -> Settings:
     parser = options_parser(
         Options, prog=prog("identify"),
         description="Learn the model, then control: explore, identify, design the RHC on the "
-        "estimate, score it at the agents' budgets (issue 49).",
+        "estimate, score it at the agents' budgets.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )  # fmt: skip
     opts = parse_options(parser, Options, argv)

@@ -1,4 +1,4 @@
-"""The learner of issue 49: explore, identify, design on the estimate, control with the RHC.
+"""The identify wing's learner: explore, identify, design on the estimate, control with the RHC.
 
 :func:`learn` spends ``steps`` environment steps, whole episodes of the task's horizon, on the
 task's raw environment under the stated exploration policy (:data:`EXPLORATION`:

@@ -5,7 +5,7 @@ protocol against the receding-horizon controllers (``python -m benchmarks.compar
 reports (:mod:`.report`, :mod:`.macro_report`, :mod:`.figures`, :mod:`.suite_report`,
 :mod:`.suite_tables`, :mod:`.suite_figures`) and tuning (:mod:`.tune`, :mod:`.tune_summary`, :mod:`.tuned_report`).
 
-Agents with the mode hidden (issue 48): :mod:`.belief_env` (the mode filter's belief in the
+Agents with the mode hidden: :mod:`.belief_env` (the mode filter's belief in the
 observation), sb3-contrib's recurrent PPO, :mod:`.spec` (a run's configuration with its
 observation), :mod:`.run_files` (its files).
 

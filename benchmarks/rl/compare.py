@@ -14,7 +14,7 @@ Run ``python -m benchmarks.compare_rl --help`` for the options. Three presets (`
   (:data:`MODEL_BASED_CURVES`, :data:`SINGLE_CONTROLLERS`) by
   :func:`benchmarks.evaluate.evaluate` on the same ``--eval-episodes`` episodes (common random
   numbers);
-* ``hidden`` (issue 48): every task with the mode hidden (``observe="state"``), PPO on the
+* ``hidden``: every task with the mode hidden (``observe="state"``), PPO on the
   state-only observation, sb3-contrib's recurrent PPO and PPO fed the mode filter's belief,
   each on the reward alone and Lagrangian (:data:`benchmarks.rl.hyperparams.HIDDEN_CONFIGS`,
   named ``ppo_state_reward``, ``recurrent_ppo_state_lagrangian``, ``ppo_belief_reward``, ...),

@@ -10,7 +10,7 @@ phase per episode. Observations and rewards are scaled by fixed functions
 whose running statistics never forget the first, diverging episodes. What was tried and what it
 gave is in ``results/rl/HISTORY.md``.
 
-The suite comparison (issue 31) uses the same hyperparameters on every task, with the scalings
+The suite comparison uses the same hyperparameters on every task, with the scalings
 of each task (:data:`TASK_SCALES`), the penalties in units of its reward scale, its own
 configurations, seeds and budgets (:data:`SUITE_CONFIGS`, :data:`SUITE_SEEDS`,
 :data:`SUITE_TIMESTEPS`); their history is ``results/rl_suite/HISTORY.md``.
@@ -251,7 +251,7 @@ TIMESTEPS_VARIANT: dict[tuple[str, str], int] = {
 }
 
 
-#: The suite comparison (issue 31): per task, PPO on the reward alone, PPO residual over the
+#: The suite comparison: per task, PPO on the reward alone, PPO residual over the
 #: task's gains, and the Lagrangian PPO, SAC and TD3; :data:`SUITE_SEEDS` seeds each.
 SUITE_CONFIGS: tuple[tuple[str, str], ...] = (
     ("ppo", "reward"),
@@ -298,7 +298,7 @@ def suite_timesteps(task: str, algo: str, variant: str) -> int:
     return SUITE_TIMESTEPS_TASK.get((task, algo, variant), default)
 
 
-#: The hidden comparison (issue 48): per task, with the mode hidden (``observe="state"``), PPO
+#: The hidden comparison: per task, with the mode hidden (``observe="state"``), PPO
 #: on the state-only observation, sb3-contrib's recurrent PPO on it, and PPO with the mode
 #: filter's belief appended (``"belief"``), each on the reward alone and Lagrangian:
 #: ``(algo, variant, observation)``; :data:`HIDDEN_SEEDS` seeds each.

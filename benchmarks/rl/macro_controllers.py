@@ -61,7 +61,7 @@ MODEL_BASED_CURVES: tuple[ModelBasedCurve, ...] = (
     ModelBasedCurve(
         "RHC joint", lambda m, xi: paper_rhc(m, xi, "joint"), constraint="joint", color="0.45"
     ),  # fmt: skip
-    # the multi-step controller (issue 21): a fully branched scenario tree of 3 stages; the
+    # the multi-step controller: a fully branched scenario tree of 3 stages; the
     # root's chance constraint is P3's, so the tightened band is the one-step curve's
     ModelBasedCurve(
         "RHC 3-step",

@@ -1,4 +1,4 @@
-"""The speed rows of the hidden mode (issue 48): per task of the suite, one decision of
+"""The speed rows of the hidden mode: per task of the suite, one decision of
 ``BeliefRecedingHorizonController.act(x, belief, k)`` against ``RecedingHorizonController.act(x,
 mode, k)`` in alternating rounds on the same closed-loop states (target: at most
 :data:`BELIEF_TARGET` times), and one step of the mode filter (``ModeFilter.step_batch``) on one
@@ -28,8 +28,8 @@ from sdjls_gym.systems import TASKS
 
 __all__ = ["BELIEF_TARGET", "QUICK_TASKS", "hidden_states", "measure_hidden", "measure_hidden_task"]
 
-#: The target of issue 48: the belief controller's decision within this many times the mode
-#: controller's.
+#: The target of the hidden mode's speed: the belief controller's decision within this many
+#: times the mode controller's.
 BELIEF_TARGET = 3.0
 #: The tasks timed with ``--quick``.
 QUICK_TASKS = ("SDJLS-Solar-v0", "SDJLS-Degradation-v0")

@@ -21,7 +21,8 @@ in alternating rounds, a ratio the median of the rounds' ratios; :func:`paired_t
 4. one decision of the multi-step ``ScenarioTreeController`` (``steps`` in 1, 2, 3, 5, and
    ``steps=10, branching=2``) against its cvxpy reference (the same tree written plainly, solved
    by Clarabel) and against one-step ``act()``, with the QP solves per decision and the largest
-   difference of the two answers; and the 111-node tree of issue 28 on its own closed loop;
+   difference of the two answers; and the 111-node tree (:func:`large_tree_model`) on its own
+   closed loop;
 5. scaling of one-step ``act`` and ``act_batch`` with m, r, n and N (:data:`SCALING_SIZES`) on
    closed-loop states of random tasks, each row against the DAQP floor of the same P3, and of
    the batched Monte Carlo with the number of trajectories;
@@ -277,7 +278,7 @@ def measure_tree(opts) -> dict[str, Any]:
     return {"rows": rows}
 
 
-#: The rows of the scaling table, ``(n, m, r, N)``: issue 29's five sizes, then one knob at a
+#: The rows of the scaling table, ``(n, m, r, N)``: five base sizes, then one knob at a
 #: time (m, r, n, N) around them.
 SCALING_SIZES = (
     (2, 1, 2, 3),
@@ -365,7 +366,7 @@ def measure_p3_task(task: Task, opts) -> dict[str, Any]:
 
 
 def large_tree_model(seed: int = 11, N: int = 10, r: int = 20) -> SDJLSModel:
-    """The system of issue 28's 111-node tree: N = 10 modes, n = 4, m = 1, r = 20 random rows
+    """The system of the 111-node tree: N = 10 modes, n = 4, m = 1, r = 20 random rows
     (the large trees of ``tests/test_tree_reliability.py`` too, with zero gains)."""
     rng = np.random.default_rng(seed)
     n, m = 4, 1

@@ -156,7 +156,7 @@ def _tree_lines(tree: dict[str, Any]) -> list[str]:
     lines += [
         "",
         f"Tree decision time against its size: the {big['nodes']}-node tree ({big['variables']} QP "
-        "variables; issue 28's system: N = 10, n = 4, m = 1, r = 20 random rows, steps = 3) on "
+        "variables; its system: N = 10, n = 4, m = 1, r = 20 random rows, steps = 3) on "
         f"{big['decisions']} new states of its own closed loop after 120 decisions (not timed; "
         f"{big.get('decisions_with_a_build', 0)} more decisions built a family and are left "
         "out): median "
@@ -230,7 +230,7 @@ def hidden_lines(h: dict[str, Any] | None) -> list[str]:
         return []
     lines = [
         "",
-        "The mode hidden (issue 48): one decision of the belief controller "
+        "The mode hidden: one decision of the belief controller "
         "(`BeliefRecedingHorizonController.act(x, belief, k)`) against the task's "
         "`RecedingHorizonController.act(x, mode, k)`, in alternating rounds on the states of the "
         "belief controller's closed loop with the mode hidden (each with its belief and its true "
