@@ -21,7 +21,7 @@ worker processes.
 from __future__ import annotations
 
 import threading
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -46,6 +46,7 @@ __all__ = [
     "check_gain",
     "check_terminal_weights",
     "frozen",
+    "ReadOnlyArrays",
 ]
 
 #: Largest state magnitude a controller accepts. The costs it reports (``x'Q x`` and the like)
@@ -71,6 +72,17 @@ def frozen(a: Any) -> np.ndarray:
     out = np.array(a, dtype=np.float64, order="C")
     out.setflags(write=False)
     return out
+
+
+class ReadOnlyArrays:
+    """A base of frozen result dataclasses: the fields named in ``ARRAYS`` are stored as
+    :func:`frozen` copies (read-only, contiguous float64), whatever array-like is passed."""
+
+    ARRAYS: ClassVar[tuple[str, ...]] = ()
+
+    def __post_init__(self) -> None:
+        for name in self.ARRAYS:
+            object.__setattr__(self, name, frozen(getattr(self, name)))
 
 
 def check_model(model: Any) -> SDJLSModel:

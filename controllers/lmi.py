@@ -36,7 +36,7 @@ from sdjls_gym.errors import LMIInfeasibleError, LMISolverError
 from sdjls_gym.messages import a_type, describe
 from sdjls_gym.validation import check_array, check_bool, check_number
 
-from .base import check_model, frozen
+from .base import ReadOnlyArrays, check_model
 
 __all__ = [
     "GainSynthesisResult",
@@ -53,7 +53,7 @@ _ROUNDOFF_FACTOR = 1e3
 
 # ---------------------------------------------------------------------------------- results
 @dataclass(frozen=True, eq=False)
-class GainSynthesisResult:
+class GainSynthesisResult(ReadOnlyArrays):
     """Gains from Proposition 2, verified against Proposition 1.
 
     Attributes
@@ -82,6 +82,8 @@ class GainSynthesisResult:
     status: str
     solver: str
     margin: float
+
+    ARRAYS = ("K", "X", "Y", "P")
 
 
 # ---------------------------------------------------------------------------------- helpers
@@ -343,15 +345,7 @@ def synthesize_gains(
     Xv = sym(np.array([x.value for x in X], dtype=np.float64))
     Yv = np.array([y.value for y in Y], dtype=np.float64)
     K, P, margin = _verified_gains(model, Xv, Yv, f"{what}: solver {solver}", status)
-    return GainSynthesisResult(
-        K=frozen(K),
-        X=frozen(Xv),
-        Y=frozen(Yv),
-        P=frozen(P),
-        status=status,
-        solver=solver,
-        margin=margin,
-    )
+    return GainSynthesisResult(K=K, X=Xv, Y=Yv, P=P, status=status, solver=solver, margin=margin)
 
 
 def _prop2_problem(model: SDJLSModel, objective: str, eps: float) -> tuple[list, list, cp.Problem]:

@@ -22,7 +22,7 @@ from sdjls_gym import SDJLSModel
 from sdjls_gym.errors import LMIInfeasibleError, LMISolverError
 from sdjls_gym.validation import check_array, check_int_array, check_number
 
-from .base import check_model, frozen
+from .base import ReadOnlyArrays, check_model
 from .lmi import (
     as_array,
     check_eps,
@@ -40,7 +40,7 @@ __all__ = ["MeanSquareCertificate", "second_moment_spectral_radius", "verify_mea
 
 
 @dataclass(frozen=True, eq=False)
-class MeanSquareCertificate:
+class MeanSquareCertificate(ReadOnlyArrays):
     """The constants of Appendix A for given gains: ``E||x_k||^2 <= beta1 ||x0||^2 q^k + beta2``.
 
     The bound (eq. eq:msqs) holds for the closed loop ``u_k = K_theta x_k + nu_k`` with any
@@ -103,6 +103,8 @@ class MeanSquareCertificate:
     spectral_radius: float
     status: str
     solver: str
+
+    ARRAYS = ("K", "P", "margins")
 
     def bound(self, k: int | np.ndarray, x0: np.ndarray) -> float | np.ndarray:
         """The bound ``beta1 ||x0||^2 q^k + beta2`` on ``E||x_k||^2``, eq. (eq:msqs).
@@ -355,9 +357,9 @@ def verify_mean_square_bound(
     given = {"nu_bound": nu_bound, "delta": delta, "kappa": kappa}
     beta2 = _beta2(noise_term, delta_v, alpha1, beta, kappa_v, c1, q, given)
     return MeanSquareCertificate(
-        K=frozen(K),
-        P=frozen(Pv),
-        margins=frozen(margins),
+        K=K,
+        P=Pv,
+        margins=margins,
         mu=mu,
         alpha1=alpha1,
         alpha2=alpha2,

@@ -134,6 +134,16 @@ BatchTransition = tuple[
 ]
 
 
+def _size(matrix: str, axis: int, doc: str) -> cached_property[int]:
+    """A cached size of a system: ``<matrix>.shape[axis]``, documented by ``doc``."""
+
+    def size(self: Any) -> int:
+        return getattr(self, matrix).shape[axis]
+
+    size.__doc__ = doc
+    return cached_property(size)
+
+
 class Sizes:
     """The sizes of a system, read from its matrices ``A`` (N, n, n), ``B`` (N, n, m), ``E``
     (N, n, p) and ``G`` (r, n): a base of :class:`Dynamics` and of the model. Cached: they are
@@ -144,30 +154,11 @@ class Sizes:
     E: np.ndarray
     G: np.ndarray
 
-    @cached_property
-    def N(self) -> int:
-        """Number of modes."""
-        return self.A.shape[0]
-
-    @cached_property
-    def n(self) -> int:
-        """Number of states."""
-        return self.A.shape[1]
-
-    @cached_property
-    def m(self) -> int:
-        """Number of inputs."""
-        return self.B.shape[2]
-
-    @cached_property
-    def p(self) -> int:
-        """Number of noise inputs (columns of E)."""
-        return self.E.shape[2]
-
-    @cached_property
-    def r(self) -> int:
-        """Number of rows of the region ``G x <= H_k``."""
-        return self.G.shape[0]
+    N = _size("A", 0, "Number of modes.")
+    n = _size("A", 1, "Number of states.")
+    m = _size("B", 2, "Number of inputs.")
+    p = _size("E", 2, "Number of noise inputs (columns of E).")
+    r = _size("G", 0, "Number of rows of the region ``G x <= H_k``.")
 
 
 @dataclass(frozen=True, eq=False)

@@ -23,10 +23,11 @@ import tempfile
 import types
 import typing
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import gymnasium as gym
 
+from benchmarks.core.commands import prog
 from benchmarks.core.files import target_error
 
 __all__ = [
@@ -34,6 +35,7 @@ __all__ = [
     "SB3_ALGOS",
     "CliError",
     "file_option_error",
+    "filled",
     "holds_full_run",
     "import_attribute",
     "load_cli_policy",
@@ -46,6 +48,7 @@ __all__ = [
     "plain_name_error",
     "quick_folder",
     "quick_out_error",
+    "script_parser",
 ]
 
 SB3_ALGOS = ("a2c", "ddpg", "ppo", "sac", "td3")
@@ -126,6 +129,29 @@ def options_parser(options: type, **parser_kwargs: Any) -> argparse.ArgumentPars
                 kwargs[key] = meta[key]
         parser.add_argument(flag, **kwargs)
     return parser
+
+
+_T = TypeVar("_T")
+
+
+def filled(name: str, value: _T | None) -> _T:
+    """``value`` of the option ``name``, which the command's ``parse_args`` fills in (a
+    ValueError names an ``Options`` built by hand and left incomplete)."""
+    if value is None:
+        raise ValueError(f"Options.{name} is None; expected it filled in (use parse_args)")
+    return value
+
+
+def script_parser(options: type, script: str, description: str) -> argparse.ArgumentParser:
+    """:func:`options_parser` of the command ``python -m benchmarks.<script>``: its console
+    name, the first paragraph of ``description`` (a module's docstring may be passed whole) and
+    every option's default in its help."""
+    return options_parser(
+        options,
+        prog=prog(script),
+        description=description.split("\n\n")[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
 
 
 def one_of(help: str, choices: tuple[str, ...], metavar: str) -> dict[str, Any]:

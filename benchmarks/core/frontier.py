@@ -372,6 +372,16 @@ class BoundedGap:
     rule: str
     gap: CurveGap | None
 
+    @property
+    def equal_risk_gap(self) -> CurveGap | None:
+        """:attr:`gap` where the score is that gap (``rule == "gap"``), else None."""
+        return self.gap if self.rule == "gap" else None
+
+    @property
+    def reason(self) -> str | None:
+        """Why the score is not the gap at equal risk: :attr:`rule`, None where it is."""
+        return None if self.rule == "gap" else self.rule
+
 
 def bounded_gap(curve: ReferenceCurve, costs: np.ndarray, violations: np.ndarray,
                 diverged: int) -> BoundedGap:  # fmt: skip

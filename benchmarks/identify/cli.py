@@ -9,7 +9,6 @@ folder; a run that is started again continues where it stopped (the points are c
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from dataclasses import asdict, dataclass
@@ -79,17 +78,14 @@ class Settings:
 
 def parse_args(argv: list[str] | None = None) -> Settings:
     """The options, each checked before any work, with their defaults filled in."""
-    from benchmarks.core.cli import options_parser, output_folder, parse_options
+    from benchmarks.core.cli import output_folder, parse_options, script_parser
     from benchmarks.core.evaluate import check_evaluation
     from benchmarks.identify.agents import DEFAULT_AGENTS
     from sdjls_gym.validation import check_int
 
-    parser = options_parser(
-        Options, prog=prog("identify"),
-        description="Learn the model, then control: explore, identify, design the RHC on the "
-        "estimate, score it at the agents' budgets.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )  # fmt: skip
+    parser = script_parser(Options, "identify",
+                           "Learn the model, then control: explore, identify, design the RHC on "
+                           "the estimate, score it at the agents' budgets.")  # fmt: skip
     opts = parse_options(parser, Options, argv)
     quick = opts.quick
     seeds = opts.seeds if opts.seeds is not None else QUICK["seeds"] if quick else SEEDS

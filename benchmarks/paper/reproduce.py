@@ -16,7 +16,6 @@ resolve).
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import re
@@ -28,8 +27,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from benchmarks.core.cli import option, options_parser, output_folder, parse_options
-from benchmarks.core.commands import prog
+from benchmarks.core.cli import option, output_folder, parse_options, script_parser
 from benchmarks.core.files import stable_floats, write_atomic
 from benchmarks.core.montecarlo import Rollouts, rollout
 from benchmarks.core.reference import paper_rhc
@@ -56,12 +54,7 @@ class Options:
 
 
 def parse_args(argv: list[str] | None = None) -> Options:
-    parser = options_parser(
-        Options,
-        prog=prog("reproduce_paper"),
-        description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
+    parser = script_parser(Options, "reproduce_paper", __doc__)
     opts = parse_options(parser, Options, argv)
     if opts.runs < 1:
         parser.error(f"--runs = {opts.runs}; expected a positive integer")

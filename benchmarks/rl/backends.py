@@ -109,14 +109,15 @@ def _import_ray() -> Any:
     return ray
 
 
-def _run_ray(
-    todo: list[RunSpec], workers: int, address: str | None, finished: Callable, log: Callable
-) -> None:
+def ray_init_kwargs(workers: int, address: str | None) -> dict[str, Any]:
+    """``ray.init``'s arguments for the trainings (and :mod:`benchmarks.rl.tune`'s trials): this
+    checkout's ``sdjls_gym``, ``controllers`` and ``benchmarks`` packages on every worker
+    (``py_modules``), one BLAS thread, no worker logs on the driver; a local instance of
+    ``workers`` CPUs (``address`` None) or the cluster at ``address``."""
     import benchmarks
     import controllers
     import sdjls_gym
 
-    ray = _import_ray()
     packages = []
     for m in (sdjls_gym, controllers, benchmarks):
         if m.__file__ is None:
@@ -132,7 +133,14 @@ def _run_ray(
         kwargs.update(num_cpus=workers, include_dashboard=False)
     else:
         kwargs["address"] = address
-    ray.init(**kwargs)
+    return kwargs
+
+
+def _run_ray(
+    todo: list[RunSpec], workers: int, address: str | None, finished: Callable, log: Callable
+) -> None:
+    ray = _import_ray()
+    ray.init(**ray_init_kwargs(workers, address))
     pending: dict[Any, RunSpec] = {}
     try:
         task = ray.remote(num_cpus=1, max_retries=RAY_MAX_RETRIES)(train_run)

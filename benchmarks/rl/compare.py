@@ -44,14 +44,20 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
-from benchmarks.core.cli import one_of, options_parser, output_folder, parse_options
-from benchmarks.core.commands import prog
+from benchmarks.core.cli import (
+    filled,
+    one_of,
+    option,
+    output_folder,
+    parse_options,
+    script_parser,
+)
 from benchmarks.core.evaluate import REFERENCE_XIS, check_evaluation, evaluate
 from benchmarks.core.files import stable_floats, write_atomic
 from benchmarks.core.logs import log
@@ -140,129 +146,90 @@ CONFIGS = tuple(f"{a}_{v}" for a in ALGOS for v in VARIANTS) + tuple(
 # ----------------------------------------------------------------------------- options
 @dataclass
 class Options:
-    preset: str = field(
-        default="suite",
-        metadata={
-            "help": "defaults of --tasks, --configs, --seeds, the budgets and --out: 'suite' "
-            "(every task, the 5 configurations of rl_hyperparams.SUITE_CONFIGS, 5 seeds, "
-            "results/rl_suite), 'macro' (the comparison of results/rl: the macro task, 3 "
-            "algorithms x 6 variants, 3 seeds) or 'hidden' (every task with the mode hidden: "
-            "the 6 configurations of rl_hyperparams.HIDDEN_CONFIGS, 5 seeds, results/hidden, "
-            "scored by python -m benchmarks.hidden)",
-            "choices": tuple(PRESETS),
-        },
+    preset: str = option(
+        "suite",
+        "defaults of --tasks, --configs, --seeds, the budgets and --out: 'suite' "
+        "(every task, the 5 configurations of rl_hyperparams.SUITE_CONFIGS, 5 seeds, "
+        "results/rl_suite), 'macro' (the comparison of results/rl: the macro task, 3 "
+        "algorithms x 6 variants, 3 seeds) or 'hidden' (every task with the mode hidden: "
+        "the 6 configurations of rl_hyperparams.HIDDEN_CONFIGS, 5 seeds, results/hidden, "
+        "scored by python -m benchmarks.hidden)",
+        choices=tuple(PRESETS),
     )
-    tasks: list[str] | None = field(
-        default=None,
-        metadata=one_of(
-            "suite env ids to train on (default: the preset's)",
-            SUITE,
-            "TASK",
-        ),
+    tasks: list[str] | None = option(
+        None, **one_of("suite env ids to train on (default: the preset's)", SUITE, "TASK")
     )
-    configs: list[str] | None = field(
-        default=None,
-        metadata=one_of(
-            "configurations <algo>_<variant> (default: the preset's)",
-            CONFIGS,
-            "CONFIG",
-        ),
+    configs: list[str] | None = option(
+        None, **one_of("configurations <algo>_<variant> (default: the preset's)", CONFIGS, "CONFIG")
     )
-    algos: list[str] | None = field(
-        default=None,
-        metadata=one_of(
+    algos: list[str] | None = option(
+        None,
+        **one_of(
             "with --variants: train every algorithm in every variant (instead of "
             "--configs); one alone combines with all variants / all algorithms",
             ALGOS,
             "ALGO",
         ),
     )
-    variants: list[str] | None = field(
-        default=None,
-        metadata=one_of("training variants (see --algos)", VARIANTS, "VARIANT"),
+    variants: list[str] | None = option(
+        None, **one_of("training variants (see --algos)", VARIANTS, "VARIANT")
     )
-    timesteps: int | None = field(
-        default=None,
-        metadata={
-            "help": "env steps per training run (default: the preset's budgets, "
-            "benchmarks/rl_hyperparams.py; "
-            f"{HP.QUICK_TIMESTEPS} with --quick; N replaces them all)"
-        },
+    timesteps: int | None = option(
+        None,
+        "env steps per training run (default: the preset's budgets, "
+        "benchmarks/rl_hyperparams.py; "
+        f"{HP.QUICK_TIMESTEPS} with --quick; N replaces them all)",
     )
-    seeds: int | None = field(
-        default=None, metadata={"help": "training seeds per configuration (default: the preset's)"}
+    seeds: int | None = option(None, "training seeds per configuration (default: the preset's)")
+    eval_episodes: int = option(
+        1000, "evaluation episodes per controller and trained agent, per noise seed"
     )
-    eval_episodes: int = field(
-        default=1000,
-        metadata={"help": "evaluation episodes per controller and trained agent, per noise seed"},
+    seed: int = option(0, "first noise seed of the evaluation episodes")
+    eval_seeds: int = option(
+        3, "evaluation noise seeds, --seed, --seed + 1, ... (their episodes pooled; 1 with --quick)"
     )
-    seed: int = field(default=0, metadata={"help": "first noise seed of the evaluation episodes"})
-    eval_seeds: int = field(
-        default=3,
-        metadata={"help": "evaluation noise seeds, --seed, --seed + 1, ... (their episodes "
-                  "pooled; 1 with --quick)"},
-    )  # fmt: skip
-    out: Path | None = field(
-        default=None,
-        metadata={
-            "help": "folder for figures, summary files, REPORT.md and runs/ (*.json, *.pt); "
-            "default: the preset's (results/rl_suite, results/rl), or a new temporary folder "
-            "with --quick (a smoke test never writes into the committed results)"
-        },
+    out: Path | None = option(
+        None,
+        "folder for figures, summary files, REPORT.md and runs/ (*.json, *.pt); "
+        "default: the preset's (results/rl_suite, results/rl), or a new temporary folder "
+        "with --quick (a smoke test never writes into the committed results)",
     )
-    workers: int = field(
-        default=2,
-        metadata={"help": "trainings run at once (processes, or the CPUs of a local Ray instance)"},
+    workers: int = option(
+        2, "trainings run at once (processes, or the CPUs of a local Ray instance)"
     )
-    backend: str = field(
-        default="process",
-        metadata={
-            "help": "where the trainings run: local processes or Ray tasks",
-            "choices": BACKENDS,
-        },  # fmt: skip
+    backend: str = option(
+        "process", "where the trainings run: local processes or Ray tasks", choices=BACKENDS
     )
-    address: str | None = field(
-        default=None,
-        metadata={
-            "help": "Ray cluster to join with --backend ray ('auto' after `ray start "
-            "--head`); default: a local Ray instance of --workers CPUs"
-        },  # fmt: skip
+    address: str | None = option(
+        None,
+        "Ray cluster to join with --backend ray ('auto' after `ray start "
+        "--head`); default: a local Ray instance of --workers CPUs",
     )
-    quick: bool = field(
-        default=False,
-        metadata={
-            "help": f"smoke test: {HP.QUICK_TIMESTEPS} steps per run, 200 evaluation episodes, "
-            "3 learning-curve points of 20 episodes"
-        },
+    quick: bool = option(
+        False,
+        f"smoke test: {HP.QUICK_TIMESTEPS} steps per run, 200 evaluation episodes, "
+        "3 learning-curve points of 20 episodes",
     )
-    train_only: bool = field(
-        default=False,
-        metadata={
-            "help": "train and keep the runs, then stop: no scoring, no report (rerun without "
-            "it to score the kept runs)"
-        },
+    train_only: bool = option(
+        False,
+        "train and keep the runs, then stop: no scoring, no report (rerun without "
+        "it to score the kept runs)",
     )
-    score_only: bool = field(
-        default=False,
-        metadata={
-            "help": "train nothing: score the runs kept so far; the report names the missing "
-            "ones (per task, configuration and seed)"
-        },
+    score_only: bool = option(
+        False,
+        "train nothing: score the runs kept so far; the report names the missing "
+        "ones (per task, configuration and seed)",
     )
-    tuned: list[Path] | None = field(
-        default=None,
-        metadata={
-            "help": "summaries of benchmarks.rl.tune studies (<out>/<study>.json): their best "
-            "hyperparameters replace the defaults of that task's configuration, trained at the "
-            "study's budget unless --timesteps (seeds from 0: never the tuning's); with "
-            "--train-only (then python -m benchmarks.tuned_report), --out or --quick",
-            "metavar": "STUDY.json",
-        },
+    tuned: list[Path] | None = option(
+        None,
+        "summaries of benchmarks.rl.tune studies (<out>/<study>.json): their best "
+        "hyperparameters replace the defaults of that task's configuration, trained at the "
+        "study's budget unless --timesteps (seeds from 0: never the tuning's); with "
+        "--train-only (then python -m benchmarks.tuned_report), --out or --quick",
+        metavar="STUDY.json",
     )
-    retrain: bool = field(
-        default=False, metadata={"help": "train again even when runs/ has the trained run"}
-    )
-    no_progress: bool = field(default=False, metadata={"help": "do not show the progress bar"})
+    retrain: bool = option(False, "train again even when runs/ has the trained run")
+    no_progress: bool = option(False, "do not show the progress bar")
 
     def config_pairs(self) -> list[tuple[str, str]]:
         """The ``(algo, variant)`` pairs of :attr:`configs`."""
@@ -274,12 +241,7 @@ class Options:
 
 
 def parse_args(argv: list[str] | None = None) -> Options:
-    parser = options_parser(
-        Options,
-        prog=prog("compare_rl"),
-        description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
+    parser = script_parser(Options, "compare_rl", __doc__)
     given = {a.split("=")[0] for a in (sys.argv[1:] if argv is None else argv)}
     opts = parse_options(parser, Options, argv)
     preset = PRESETS[opts.preset]
@@ -391,17 +353,6 @@ def tuned_studies(paths: list[Path] | None) -> dict[tuple[str, str, str], tuple[
             raise ValueError(f"--tuned {path}: a second study of {key}")
         out[key] = (overrides, summary["settings"]["timesteps"])  # checked by read_summary
     return out
-
-
-_T = TypeVar("_T")
-
-
-def filled(name: str, value: _T | None) -> _T:
-    """``value`` of the option ``name``, which :func:`parse_args` fills in (a ValueError names
-    an ``Options`` built by hand and left incomplete)."""
-    if value is None:
-        raise ValueError(f"Options.{name} is None; expected it filled in (use parse_args)")
-    return value
 
 
 def specs_of(opts: Options) -> list[Any]:

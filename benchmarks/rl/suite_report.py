@@ -151,11 +151,11 @@ class AgentScore:
 
     @property
     def tree_gap(self) -> CurveGap | None:
-        return self.tree.gap if self.tree.rule == "gap" else None
+        return self.tree.equal_risk_gap
 
     @property
     def tree_reason(self) -> str | None:
-        return None if self.tree.rule == "gap" else self.tree.rule
+        return self.tree.reason
 
     def to_json(self) -> dict[str, Any]:
         data = result_json(self.result)
@@ -182,14 +182,6 @@ class TaskReport:
     missing: dict[str, list[int]]  # configuration -> seeds without a kept run
     expected: dict[str, list[int]]  # configuration -> seeds asked for
     status: list[CurveStatus] = field(default_factory=list)
-
-    @property
-    def tree_gap(self) -> CurveGap | None:
-        return self.tree_score.gap if self.tree_score.rule == "gap" else None
-
-    @property
-    def tree_reason(self) -> str | None:
-        return None if self.tree_score.rule == "gap" else self.tree_score.rule
 
     @property
     def aggregates(self) -> list[Any]:
@@ -502,7 +494,8 @@ def report_suite(specs: list[RunSpec], records: Sequence[RunRecord | None], run_
     log("rliable's aggregates across the tasks")
     across = across_tasks(reports, list(opts.configs), resamples)
     efficiency = sample_efficiency(reports, across, resamples)
-    per_task = {r.env_id: gap_text(r.tree_gap, r.tree_reason) for r in reports}
+    per_task = {r.env_id: gap_text(r.tree_score.equal_risk_gap, r.tree_score.reason)
+                for r in reports}  # fmt: skip
     conclusions = conclusion_lines(reports, across)
     tree_agg = aggregate_gaps(np.array([[r.tree_score.value for r in reports]]), resamples)
     tree_refs = {"aggregate": tree_agg, "per_task": per_task}
@@ -564,6 +557,7 @@ def _score_tasks(specs: list[RunSpec], records: Sequence[RunRecord | None], run_
 
 def _task_json(r: TaskReport) -> dict[str, Any]:
     """One task's section of ``summary.json``."""
+    gap = r.tree_score.equal_risk_gap
     return {
         "xi": r.xi,
         "episodes": r.rhc.episodes,
@@ -575,8 +569,8 @@ def _task_json(r: TaskReport) -> dict[str, Any]:
             "episodes": r.tree.episodes,
             "bounded_gap_at_xi": r.tree_score.value,
             "xis": list(r.tree.xis),
-            "gap_at_xi": None if r.tree_gap is None else asdict(r.tree_gap),
-            "gap_reason": r.tree_reason,
+            "gap_at_xi": None if gap is None else asdict(gap),
+            "gap_reason": r.tree_score.reason,
         },  # fmt: skip
         "rl_runs": [a.to_json() for a in r.agents],
         "rl_aggregates": [asdict(a) for a in r.aggregates],

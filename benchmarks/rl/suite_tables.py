@@ -148,7 +148,7 @@ def task_section(r: Any, figures: list[str], sentence: str = "") -> list[str]:
                      f"{p['cost_median']:.4g} | {p['violation']:.3f} ({vlo:.3f}-{vhi:.3f}) | "
                      f"{p['diverged']} |")  # fmt: skip
     lines += ["", f"The tree at xi = {r.xi:g} against the one-step curve, % of its cost: "
-              f"{gap_text(r.tree_gap, r.tree_reason)}.", ""]  # fmt: skip
+              f"{gap_text(r.tree_score.equal_risk_gap, r.tree_score.reason)}.", ""]  # fmt: skip
     missing = [f"{c} seed(s) {_seeds(s)}" for c, s in r.missing.items()]
     lines += [f"Missing runs: {'; '.join(missing)}." if missing else "No run is missing.", ""]
     if r.agents:
@@ -193,8 +193,9 @@ def write_csv(path: Path, reports: list[Any]) -> None:
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(CSV_HEADER)
     for r in reports:
-        for (name, p), gap, reason, eps in zip(r.reference_rows(), (None, r.tree_gap),
-                                               (None, r.tree_reason),
+        for (name, p), gap, reason, eps in zip(r.reference_rows(),
+                                               (None, r.tree_score.equal_risk_gap),
+                                               (None, r.tree_score.reason),
                                                (r.rhc.episodes, r.tree.episodes), strict=True):  # fmt: skip
             w.writerow(stable_floats([r.env_id, name, "model-based", "", "", "", r.xi, eps,
                                       p["cost_mean"], *p["cost_ci95"], p["cost_median"],

@@ -26,23 +26,29 @@ study database (unless ``--storage`` names another), ``runs/<task>/`` (the trial
 
 from __future__ import annotations
 
-import argparse
 import functools
 import json
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
-from benchmarks.core.cli import options_parser, output_folder, parse_options, plain_name_error
-from benchmarks.core.commands import prog
+from benchmarks.core.cli import (
+    filled,
+    option,
+    output_folder,
+    parse_options,
+    plain_name_error,
+    script_parser,
+)
 from benchmarks.core.files import stable_floats, write_atomic
 from benchmarks.core.logs import log
 from benchmarks.core.stats import efficient_points
 from benchmarks.rl import hyperparams as HP
+from benchmarks.rl.backends import ray_init_kwargs
 from benchmarks.rl.envs import get_task, task_settings
 from benchmarks.rl.train import ALGOS, VARIANTS, CurvePoint, RunSpec, save_run, train_run
 from benchmarks.rl.tune_summary import read_summary
@@ -212,63 +218,46 @@ def late_value(curve: list[CurvePoint], episodes: int, reference: Any) -> float:
 # ----------------------------------------------------------------------------- options
 @dataclass
 class Options:
-    algo: str = field(default="ppo", metadata={"help": "algorithm", "choices": ALGOS})
-    variant: str = field(default="residual", metadata={"help": "variant", "choices": VARIANTS})
-    task: str = field(default="SDJLS-Macro-v0", metadata={"help": "suite env id", "choices": SUITE})
-    trials: int | None = field(
-        default=None,
-        metadata={
-            "help": f"finished trials the study holds at the end (default 40; {QUICK['trials']} with --quick)"
-        },
+    algo: str = option("ppo", "algorithm", choices=ALGOS)
+    variant: str = option("residual", "variant", choices=VARIANTS)
+    task: str = option("SDJLS-Macro-v0", "suite env id", choices=SUITE)
+    trials: int | None = option(
+        None,
+        f"finished trials the study holds at the end (default 40; {QUICK['trials']} with --quick)",
     )
-    timesteps: int | None = field(
-        default=None,
-        metadata={
-            "help": "env steps per trial and seed (default: the suite's budget of the "
-            f"configuration; {QUICK['timesteps']} with --quick)"
-        },  # fmt: skip
+    timesteps: int | None = option(
+        None,
+        "env steps per trial and seed (default: the suite's budget of the "
+        f"configuration; {QUICK['timesteps']} with --quick)",
     )
-    seeds: int = field(default=1, metadata={"help": f"seeds per trial (from {TUNE_SEED0} on)"})
-    storage: str | None = field(
-        default=None,
-        metadata={"help": "Optuna storage URL (default: sqlite:///<out>/studies.db)"},
+    seeds: int = option(1, f"seeds per trial (from {TUNE_SEED0} on)")
+    storage: str | None = option(None, "Optuna storage URL (default: sqlite:///<out>/studies.db)")
+    study_name: str | None = option(
+        None,
+        "study name, a plain name: <out>/<study>.json is its summary (default: "
+        "<task>-<algo>-<variant>-<timesteps>-<seeds>s)",
     )
-    study_name: str | None = field(
-        default=None,
-        metadata={"help": "study name, a plain name: <out>/<study>.json is its summary (default: "
-                  "<task>-<algo>-<variant>-<timesteps>-<seeds>s)"},
-    )  # fmt: skip
-    out: Path | None = field(
-        default=None,
-        metadata={
-            "help": f"folder for the study database, runs/ and <study>.json (default: "
-            f"{DEFAULT_OUT}, or a new temporary folder with --quick)"
-        },  # fmt: skip
+    out: Path | None = option(
+        None,
+        f"folder for the study database, runs/ and <study>.json (default: "
+        f"{DEFAULT_OUT}, or a new temporary folder with --quick)",
     )
-    backend: str = field(
-        default="optuna",
-        metadata={
-            "help": "run the trials in this process (optuna) or as Ray Tune trials (ray)",
-            "choices": ("optuna", "ray"),
-        },  # fmt: skip
+    backend: str = option(
+        "optuna",
+        "run the trials in this process (optuna) or as Ray Tune trials (ray)",
+        choices=("optuna", "ray"),
     )
-    address: str | None = field(
-        default=None, metadata={"help": "Ray cluster to join with --backend ray"}
+    address: str | None = option(None, "Ray cluster to join with --backend ray")
+    workers: int = option(1, "trials at once with --backend ray (a local instance's CPUs)")
+    seed: int = option(0, "seed of the TPE sampler")
+    quick: bool = option(
+        False,
+        f"smoke test: {QUICK['trials']} trials of {QUICK['timesteps']} steps, "
+        f"{QUICK['curve_points']} learning-curve points of {QUICK['curve_episodes']} "
+        "episodes",
     )
-    workers: int = field(
-        default=1, metadata={"help": "trials at once with --backend ray (a local instance's CPUs)"}
-    )
-    seed: int = field(default=0, metadata={"help": "seed of the TPE sampler"})
-    quick: bool = field(
-        default=False,
-        metadata={
-            "help": f"smoke test: {QUICK['trials']} trials of {QUICK['timesteps']} steps, "
-            f"{QUICK['curve_points']} learning-curve points of {QUICK['curve_episodes']} "
-            "episodes"
-        },  # fmt: skip
-    )
-    print_space: bool = field(default=False, metadata={"help": "print the search space and exit"})
-    no_progress: bool = field(default=False, metadata={"help": "do not log each trial"})
+    print_space: bool = option(False, "print the search space and exit")
+    no_progress: bool = option(False, "do not log each trial")
 
     @property
     def curve_points(self) -> int:
@@ -279,23 +268,8 @@ class Options:
         return QUICK["curve_episodes"] if self.quick else HP.LEARNING_CURVE["episodes"]
 
 
-_T = TypeVar("_T")
-
-
-def _resolved(value: _T | None, name: str) -> _T:
-    """``opts.<name>``, which :func:`parse_args` fills; None is a bug of the caller."""
-    if value is None:
-        raise ValueError(f"Options.{name} = None; expected the value parse_args fills in")
-    return value
-
-
 def parse_args(argv: list[str] | None = None) -> Options:
-    parser = options_parser(
-        Options,
-        prog=prog("tune"),
-        description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
+    parser = script_parser(Options, "tune", __doc__)
     opts = parse_options(parser, Options, argv)
     for name in ("trials", "timesteps", "seeds", "workers"):
         value = getattr(opts, name)
@@ -345,7 +319,7 @@ def run_trial(params: dict[str, Any], opts: Options, report: Any = None) -> tupl
     ``report(value, timesteps)`` is called at each learning-curve point of the first seed (an
     exception it raises, a pruning, ends the trial)."""
     reference = reference_curve(opts.task, opts.curve_episodes, HP.LEARNING_CURVE["seed"])
-    timesteps, out = _resolved(opts.timesteps, "timesteps"), _resolved(opts.out, "out")
+    timesteps, out = filled("timesteps", opts.timesteps), filled("out", opts.out)
     values, names = [], []
     for i in range(opts.seeds):
         spec = RunSpec(opts.algo, opts.variant, TUNE_SEED0 + i, timesteps, opts.curve_points,
@@ -386,10 +360,10 @@ def load_study(opts: Options) -> Any:
     ``--seed`` and the number of trials already in it, and the median pruner."""
     import optuna
 
-    warmup = int(0.3 * _resolved(opts.timesteps, "timesteps"))
+    warmup = int(0.3 * filled("timesteps", opts.timesteps))
     pruner = optuna.pruners.MedianPruner(n_startup_trials=1 if opts.quick else 5,
                                          n_warmup_steps=warmup)  # fmt: skip
-    study = optuna.create_study(study_name=opts.study_name, storage=_storage(_resolved(opts.storage, "storage")),
+    study = optuna.create_study(study_name=opts.study_name, storage=_storage(filled("storage", opts.storage)),
                                 direction="minimize", load_if_exists=True, pruner=pruner)  # fmt: skip
     attrs = study_attrs(opts)
     kept = {k: study.user_attrs[k] for k in attrs if k in study.user_attrs}
@@ -428,7 +402,7 @@ def optimize_optuna(study: Any, opts: Options, log: Any) -> None:
         t0, c0, steps = time.perf_counter(), time.process_time(), None
         try:
             value, names = run_trial(params, opts, report)
-            steps = _resolved(opts.timesteps, "timesteps") * opts.seeds
+            steps = filled("timesteps", opts.timesteps) * opts.seeds
         finally:  # a pruned trial's spending too
             trial.set_user_attr("wall_s", time.perf_counter() - t0)
             trial.set_user_attr("cpu_s", time.process_time() - c0)
@@ -439,7 +413,7 @@ def optimize_optuna(study: Any, opts: Options, log: Any) -> None:
     def logged(study: Any, trial: Any) -> None:
         log(f"trial {trial.number}: {trial.state.name} value {trial.value} {trial.params}")
 
-    trials = _resolved(opts.trials, "trials")
+    trials = filled("trials", opts.trials)
     todo = trials - finished(study)
     if todo <= 0:
         log(f"study {opts.study_name} already holds {finished(study)} finished trials")
@@ -461,7 +435,7 @@ def _ray_trainable(config: dict[str, Any], opts: dict[str, Any]) -> None:
 
     o = Options(**{**opts, "out": Path(opts["out"])})
     value, _ = run_trial(config, o, lambda v, t: tune.report({"objective": v, "timesteps": t}))
-    steps = _resolved(o.timesteps, "timesteps") * o.seeds + 1
+    steps = filled("timesteps", o.timesteps) * o.seeds + 1
     tune.report({"objective": value, "timesteps": steps, "final": True})
 
 
@@ -469,10 +443,6 @@ def optimize_ray(study: Any, opts: Options, log: Any) -> None:
     """The trials as Ray Tune trials: OptunaSearch on the study's storage (TPE), Ray's
     MedianStoppingRule on the learning curve (a trial it stops is recorded with its last
     point's score)."""
-    import benchmarks
-    import controllers
-    import sdjls_gym
-
     try:
         import ray
         from ray import tune
@@ -482,22 +452,13 @@ def optimize_ray(study: Any, opts: Options, log: Any) -> None:
         raise ImportError(
             f'--backend ray needs Ray Tune ({exc}): pip install -e ".[cluster]"'
         ) from None
-    trials, timesteps = _resolved(opts.trials, "trials"), _resolved(opts.timesteps, "timesteps")
-    storage, out = _resolved(opts.storage, "storage"), _resolved(opts.out, "out")
+    trials, timesteps = filled("trials", opts.trials), filled("timesteps", opts.timesteps)
+    storage, out = filled("storage", opts.storage), filled("out", opts.out)
     todo = trials - finished(study)
     if todo <= 0:
         log(f"study {opts.study_name} already holds {finished(study)} finished trials")
         return
-    packages = [str(Path(_resolved(m.__file__, f"{m.__name__}.__file__")).parent)
-                for m in (sdjls_gym, controllers, benchmarks)]  # fmt: skip
-    env_vars = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    kwargs: dict[str, Any] = {"runtime_env": {"py_modules": packages, "excludes": ["__pycache__"],
-                                              "env_vars": env_vars}, "log_to_driver": False}  # fmt: skip
-    if opts.address is None:
-        kwargs.update(num_cpus=opts.workers, include_dashboard=False)
-    else:
-        kwargs["address"] = opts.address
-    ray.init(**kwargs)
+    ray.init(**ray_init_kwargs(opts.workers, opts.address))
 
     # by their module's name, not __main__'s (python -m benchmarks.tune): Ray's workers import them
     from benchmarks.rl.tune import _define_by_run, _ray_trainable
@@ -566,7 +527,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any] | None:
     if opts.print_space:
         print("\n".join(describe_space(opts.algo, opts.variant)))
         return None
-    out = _resolved(opts.out, "out")
+    out = filled("out", opts.out)
     if opts.quick:
         print(f"--quick: writing to {out}", file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)

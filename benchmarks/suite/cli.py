@@ -8,7 +8,6 @@ from dataclasses import dataclass
 from typing import Any
 
 from benchmarks.core.cli import option
-from benchmarks.core.commands import prog
 from benchmarks.core.evaluate import check_evaluation
 from benchmarks.core.suite import describe_suite, evaluate_suite
 from sdjls_gym import SUITE
@@ -56,20 +55,10 @@ class Options:
 def parse_args(argv: list[str] | None = None) -> tuple[Options, Any]:
     """The options, each checked before any work (a bad one: exit status 2, naming it); with
     ``--policy``, also the factory it names."""
-    import argparse
+    from benchmarks.core.cli import parse_options, script_parser
 
-    from benchmarks.core.cli import (
-        options_parser,
-        parse_options,
-    )
-
-    parser = options_parser(
-        Options,
-        prog=prog("suite"),
-        description="Score a policy on every task of the suite, or compute the model-based "
-        "references (without --policy).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
+    parser = script_parser(Options, "suite", "Score a policy on every task of the suite, or "
+                           "compute the model-based references (without --policy).")  # fmt: skip
     opts = parse_options(parser, Options, argv)
     opts.tasks = list(dict.fromkeys(opts.tasks))
     if opts.episodes is None:

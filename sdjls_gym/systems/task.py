@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from sdjls_gym.dynamics import Sizes
 from sdjls_gym.model import SDJLSModel
 
 __all__ = ["Task"]
@@ -33,6 +34,11 @@ def _frozen_mapping(value: Mapping[str, Any], arrays: bool) -> Mapping[str, Any]
             _frozen_array(item) if arrays and isinstance(item, (np.ndarray, list)) else item
         )
     return MappingProxyType(items)
+
+
+def _model_size(name: str) -> property:
+    """The model's size ``name`` (:class:`sdjls_gym.dynamics.Sizes`), with its docstring."""
+    return property(lambda task: getattr(task.model, name), doc=getattr(Sizes, name).__doc__)
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,25 +100,10 @@ class Task:
         values["rhc"], values["env_kwargs"] = dict(self.rhc), dict(self.env_kwargs)
         return (Task, tuple(values[f.name] for f in fields(self)))
 
-    @property
-    def N(self) -> int:
-        """Number of modes."""
-        return self.model.N
-
-    @property
-    def n(self) -> int:
-        """Number of states."""
-        return self.model.n
-
-    @property
-    def m(self) -> int:
-        """Number of inputs."""
-        return self.model.m
-
-    @property
-    def r(self) -> int:
-        """Number of rows of the region ``G x <= H_k``."""
-        return self.model.r
+    N = _model_size("N")
+    n = _model_size("n")
+    m = _model_size("m")
+    r = _model_size("r")
 
     def __repr__(self) -> str:
         return (
