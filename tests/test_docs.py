@@ -289,7 +289,7 @@ def test_docs_extra_is_bounded_and_ci_builds_the_site_strictly():
     assert all("<" in r for r in docs)
     ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
     assert 'pip install -e ".[docs]"' in ci and "mkdocs build --strict" in ci
-    assert ci.index("python -m pytest -q\n") < ci.index("mkdocs build --strict")
+    assert ci.index("python -m pytest -q -n 2\n") < ci.index("mkdocs build --strict")
     pre_commit = (ROOT / ".pre-commit-config.yaml").read_text(encoding="utf-8")
     assert "entry: mkdocs build --strict" in pre_commit
 
