@@ -189,11 +189,13 @@ def _design(name: str, kind: str, config: str, seed: int | None, gap: float | No
     ``bounded`` by ``rule`` (a run outside the curve)."""
     if bounded is None:
         bounded, rule = (100.0, "diverged") if diverged else (gap, "gap")
-    return DesignScore(name, kind, config, seed, 100, cost, (cost - 1, cost + 1), cost, 0.1,
-                       (0.09, 0.11), diverged, gap, None if gap is None else (gap - 1, gap + 1),
-                       None if gap is not None else ("2 episode(s) diverged" if diverged
-                                                     else "violation frequency above"),
-                       bounded, rule)  # fmt: skip
+    return DesignScore(name=name, kind=kind, configuration=config, seed=seed, episodes=100,
+                       cost_mean=cost, cost_ci95=(cost - 1, cost + 1), cost_median=cost,
+                       violation=0.1, violation_wilson95=(0.09, 0.11), diverged=diverged,
+                       gap=gap, gap_ci95=None if gap is None else (gap - 1, gap + 1),
+                       gap_reason=None if gap is not None else (
+                           "2 episode(s) diverged" if diverged else "violation frequency above"),
+                       bounded_gap=bounded, bounded_gap_rule=rule)  # fmt: skip
 
 
 AGENT = "ppo_state_reward"

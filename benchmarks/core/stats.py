@@ -21,6 +21,7 @@ import numpy as np
 from scipy import stats
 
 __all__ = [
+    "EpisodeStatistics",
     "BOOTSTRAP_RESAMPLES",
     "BOOTSTRAP_SEED",
     "FLAT_TOL",
@@ -100,6 +101,22 @@ def format_p(p: float) -> str:
 #: (the same resamples for every controller scored on the same number of episodes).
 BOOTSTRAP_RESAMPLES = 2000
 BOOTSTRAP_SEED = 0
+
+
+@dataclass(frozen=True, kw_only=True)
+class EpisodeStatistics:
+    """A policy's statistics over its evaluation episodes, as every report states them: the
+    episodes, the mean episode cost with its 95% Student-t interval and the median, the
+    violation frequency with its 95% Wilson interval, the diverged episodes. A report's record
+    of one controller or run extends it (keyword fields)."""
+
+    episodes: int
+    cost_mean: float
+    cost_ci95: tuple[float, float]
+    cost_median: float
+    violation: float
+    violation_wilson95: tuple[float, float]
+    diverged: int
 
 
 @dataclass(frozen=True)

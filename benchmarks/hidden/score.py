@@ -37,6 +37,7 @@ from benchmarks.core.environment import resolve_env
 from benchmarks.core.evaluate import Score, evaluate
 from benchmarks.core.frontier import ReferenceCurve, reference_curve
 from benchmarks.core.montecarlo import Rollouts, rollout
+from benchmarks.core.stats import EpisodeStatistics
 from controllers import (
     BeliefRecedingHorizonController,
     HiddenModePolicy,
@@ -85,7 +86,7 @@ class FilterAccuracy:
 
 
 @dataclass(frozen=True)
-class DesignScore:
+class DesignScore(EpisodeStatistics):
     """One design on one task: ``kind`` is ``"oracle"``, ``"controller"`` or ``"agent"``
     (``configuration`` its configuration's name, ``seed`` its training seed).
 
@@ -101,13 +102,6 @@ class DesignScore:
     kind: str
     configuration: str
     seed: int | None
-    episodes: int
-    cost_mean: float
-    cost_ci95: tuple[float, float]
-    cost_median: float
-    violation: float
-    violation_wilson95: tuple[float, float]
-    diverged: int
     gap: float | None
     gap_ci95: tuple[float, float] | None
     gap_reason: str | None

@@ -48,7 +48,7 @@ from benchmarks.core.reference import (
     TREE_XIS,
     curve_xis,
 )
-from benchmarks.core.stats import CurveGap
+from benchmarks.core.stats import CurveGap, EpisodeStatistics
 from sdjls_gym.systems import TASKS, Task
 
 __all__ = [
@@ -68,18 +68,11 @@ AGGREGATED = ("RHC joint", "RHC 3-step", "Linear feedback", "MJLS LQ")
 
 
 @dataclass(frozen=True)
-class Point:
+class Point(EpisodeStatistics):
     """One controller on one task: its statistics and its gap to the reference curve."""
 
     family: str  # "RHC individual", "RHC joint", "RHC 3-step", "Linear feedback", "MJLS LQ"
     xi: float | None
-    episodes: int
-    cost_mean: float
-    cost_ci95: tuple[float, float]
-    cost_median: float
-    violation: float
-    violation_wilson95: tuple[float, float]
-    diverged: int
     gap: CurveGap | None = None
     reason: str | None = None  # why there is no gap (None on the reference curve itself)
 
@@ -109,7 +102,14 @@ def _point(family: str, xi: float | None, episodes: int, stats: dict[str, Any],
            gap: CurveGap | None = None, reason: str | None = None) -> Point:  # fmt: skip
     keys = ("cost_mean", "cost_ci95", "cost_median", "violation", "violation_wilson95",
             "diverged")  # fmt: skip
-    return Point(family, xi, episodes, **{k: stats[k] for k in keys}, gap=gap, reason=reason)
+    return Point(
+        family=family,
+        xi=xi,
+        episodes=episodes,
+        **{k: stats[k] for k in keys},
+        gap=gap,
+        reason=reason,
+    )
 
 
 def _against(curve: Any, costs: np.ndarray, violations: np.ndarray, violation: float,
