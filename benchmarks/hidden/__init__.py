@@ -1,4 +1,4 @@
-"""The hidden wing (issue 48): every task of the suite with the mode hidden
+"""The hidden wing: every task of the suite with the mode hidden
 (``observe="state"``), the controllers that decide without it (certainty equivalence, the belief
 RHC) and the agents of ``python -m benchmarks.compare_rl --preset hidden``, scored against the
 oracle that sees it (``python -m benchmarks.hidden``, ``results/hidden``).
