@@ -317,14 +317,24 @@ class Dynamics(Sizes):
         xmax = np.max(np.abs(x), axis=-1, initial=0.0)[..., None]
         tie = np.abs(values) <= self._tie_scale * (self._G_abs_sum * xmax + np.abs(H)) + 1e-300
         if tie.any():
-            G, xs = self.G.tolist(), np.broadcast_to(x, (*values.shape[:-1], self.n))
-            Hb = np.broadcast_to(H, values.shape)
-            for index in zip(*np.nonzero(tie), strict=True):
-                *batch, j = (int(i) for i in index)
-                xb, h = xs[tuple(batch)], float(Hb[index])
-                if np.all(np.isfinite(xb)) and math.isfinite(h):
-                    values[index] = exact.row_sign(G[j], xb.tolist(), h)
+            self._exact_ties(x, H, values, tie)
         return max_last(values) <= 0.0
+
+    def _exact_ties(self, x: np.ndarray, H: np.ndarray, values: np.ndarray,
+                    tie: np.ndarray) -> None:  # fmt: skip
+        """Replace the tied rows' ``values`` by their exact sign (:func:`exact.row_sign`), once
+        per distinct ``(row, state, H)`` (a batch started from one state ties in every env)."""
+        index = np.nonzero(tie)
+        xs = np.broadcast_to(x[..., None, :], (*values.shape, self.n))[index]  # (ties, n)
+        hs = np.broadcast_to(H, values.shape)[index]
+        keys = np.column_stack([index[-1].astype(np.float64), xs, hs])
+        ok = np.all(np.isfinite(keys), axis=1)
+        distinct, inverse = np.unique(keys[ok], axis=0, return_inverse=True)
+        G = self.G.tolist()
+        signs = np.array([exact.row_sign(G[int(r[0])], r[1:-1].tolist(), float(r[-1]))
+                          for r in distinct], dtype=np.float64)  # fmt: skip
+        if signs.size:
+            values[tuple(i[ok] for i in index)] = signs[inverse.reshape(-1)]
 
     def in_region_one(self, x: np.ndarray, k: int) -> bool:
         """:meth:`in_region` for one float64 state ``x`` (n,) and an int ``k``: the same exact

@@ -268,3 +268,28 @@ def test_act_and_act_batch_choose_the_same_family_at_an_exact_tie():
     for model, x, inside, exact in checked:
         assert inside is exact and np.all(model.in_region(x, 0) == exact)
         assert model.in_region_one(x, 0) is exact
+
+
+def test_a_batch_of_tied_and_untied_states_decides_each_as_alone():
+    """The exact tie rule decides each distinct tied (row, state) once for a whole batch (a
+    vector env started from one state ties in every env): a shuffled batch of copies of tied
+    states, states off the boundary and non-finite ones gives, state by state, what
+    ``in_region_one`` gives alone, in every batch shape."""
+    rng = np.random.default_rng(1)
+    G = rng.normal(size=(3, 2))
+    ties = rng.normal(size=(4, 2))
+    model = SDJLSModel(
+        A=0.5 * rng.normal(size=(2, 2, 2)), B=rng.normal(size=(2, 2, 1)),
+        P_in=[[0.9, 0.1], [0.2, 0.8]], P_out=[[0.1, 0.9], [0.7, 0.3]], G=G, H0=G @ ties[0],
+        Q=np.eye(2), R=np.eye(1), x0=np.zeros(2),
+    )  # fmt: skip
+    # ties[0] lies on every row's boundary to the last bit (H0 = G x), 50 copies of it
+    states = np.concatenate([np.repeat(ties, 50, axis=0), rng.normal(size=(100, 2)),
+                             [[np.inf, 0.0], [np.nan, 1.0]]])  # fmt: skip
+    states = states[rng.permutation(len(states))]
+    alone = np.array([model.in_region_one(s, 0) if np.all(np.isfinite(s))
+                      else bool(np.all(model.in_region(s, 0))) for s in states])  # fmt: skip
+    assert alone.any() and not alone.all()
+    np.testing.assert_array_equal(model.in_region(states, 0), alone)
+    np.testing.assert_array_equal(model.in_region(states.reshape(2, -1, 2), 0),
+                                  alone.reshape(2, -1))  # fmt: skip
