@@ -194,7 +194,8 @@ def test_each_new_kind_trains_and_is_scored_with_the_mode_hidden(tmp_path, algo,
     assert record.config["observe"] == "state" and len(record.learning_curve) >= 2
     path = save_run(tmp_path, record, policy)
     assert read_run(path).name == spec.name
-    assert run_env(path) == (TASK, HIDDEN)
+    # scored with the mode hidden, within the comparison's action bound (the agents' u_bound)
+    assert run_env(path) == (TASK, {"action_bound": task_settings(TASK).u_bound, **HIDDEN})
     agent = load_agent(path)
     assert isinstance(agent, kind)
     score = evaluate(agent, episodes=6, seed=1, env_id=TASK, env_kwargs=HIDDEN)
