@@ -363,9 +363,11 @@ class BoundedGap:
     value : float
         Percent, in ``[-WORST_GAP, WORST_GAP]``; lower is better, 0 on the curve.
     rule : str
-        ``"gap"``, ``"diverged"``, ``"riskier than the curve"`` or ``"safer than the curve"``.
+        ``"gap"``, ``"diverged"``, ``"riskier than the curve"``, ``"safer than the curve"`` or
+        ``"the curve's cost is not positive"``.
     gap : CurveGap or None
-        The gap at equal risk, where there is one.
+        The paired gap at equal risk, where the run's violation frequency lies in the curve's
+        range (its ``relative`` None where the curve's cost there is not positive).
     """
 
     value: float
@@ -398,6 +400,6 @@ def bounded_gap(curve: ReferenceCurve, costs: np.ndarray, violations: np.ndarray
         return BoundedGap(WORST_GAP, "riskier than the curve", None)
     strictest = float(curve.costs[keep[0]].mean())
     if strictest <= 0:
-        return BoundedGap(WORST_GAP, "the curve's cost is not positive", None)
+        return BoundedGap(WORST_GAP, "the curve's cost is not positive", gap)
     value = 100.0 * (float(np.mean(costs)) - strictest) / strictest
     return BoundedGap(float(np.clip(value, -WORST_GAP, WORST_GAP)), "safer than the curve", gap)

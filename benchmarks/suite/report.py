@@ -125,10 +125,9 @@ def _against(curve: Any, costs: np.ndarray, violations: np.ndarray, violation: f
              diverged: int) -> tuple[CurveGap | None, str | None, float]:  # fmt: skip
     """The gap at equal risk to ``curve`` (or why there is none) and the bounded gap
     (:func:`benchmarks.core.frontier.bounded_gap`: every run's score)."""
-    g = None if diverged else curve.gap(costs, violations)
-    reason = gap_reason(violation, diverged, g, curve.violations, curve.costs)
-    bounded = bounded_gap(curve, costs, violations, int(diverged)).value
-    return (g if reason is None else None), reason, bounded
+    score = bounded_gap(curve, costs, violations, int(diverged))  # the paired gap computed once
+    reason = gap_reason(violation, diverged, score.gap, curve.violations, curve.costs)
+    return (score.gap if reason is None else None), reason, score.value
 
 
 def task_references(
@@ -136,13 +135,13 @@ def task_references(
     episodes: int,
     seed: int | tuple[int, ...],
     xis: tuple[float, ...],
-    tree_episodes: int | None,
+    tree_episodes: int,
     tree_xis: tuple[float, ...],
     bar: Any = None,
 ) -> TaskReferences:
     """Score every model-based controller on ``task`` (see the module docstring): ``episodes``
-    episodes from each noise seed of ``seed``; the tree on as many (``tree_episodes`` None) or
-    on ``tree_episodes`` per seed."""
+    episodes from each noise seed of ``seed``; the tree on ``tree_episodes`` per seed, against
+    the one-step curve on the same episodes."""
     from controllers import LinearFeedbackController, MJLSLQRController
 
     spec = resolve_env(task.env_id, dict(task.env_kwargs))
@@ -158,8 +157,8 @@ def task_references(
         gap = _against(ind, joint.costs[i], joint.violations[i], stats["violation"],
                        stats["diverged"])  # fmt: skip
         points.append(_point("RHC joint", xi, pooled, stats, *gap))
-    t_eps = episodes if tree_episodes is None else tree_episodes
-    ind_tree = ind if tree_episodes is None else reference_curve(task, t_eps, seed, xis=xis, **kw)
+    t_eps = tree_episodes
+    ind_tree = ind if t_eps == episodes else reference_curve(task, t_eps, seed, xis=xis, **kw)
     tree = tree_curve(task, t_eps, seed, tree_xis, steps=TREE_STEPS, **kw)
     for i, xi in enumerate(tree.xis):
         stats = tree.point(i)
@@ -351,7 +350,6 @@ def run_references(opts: Any, argv: list[str]) -> dict[str, Any]:
         task = TASKS[env_id]
         xi = float(task.rhc["xi"])
         xis = tuple(sorted({*QUICK_XIS, xi})) if opts.quick else curve_xis(task)
-        t_eps: int | None
         t_eps, t_xis = (
             QUICK_TREE if opts.quick else TREE_BY_TASK.get(env_id, (TREE_EPISODES, TREE_XIS))
         )
@@ -378,7 +376,7 @@ def run_references(opts: Any, argv: list[str]) -> dict[str, Any]:
         + "; ".join(f"{t.env_id}: {', '.join(f'{x:g}' for x in xis)}" for t, xis, _, _ in plan)
         + "}",  # fmt: skip
         "tree": "; ".join(
-            f"{t.env_id}: {e or opts.episodes} episodes x {len(seeds)} seed(s) at xi "
+            f"{t.env_id}: {e} episodes x {len(seeds)} seed(s) at xi "
             f"{', '.join(f'{x:g}' for x in txs)}"
             for t, _, e, txs in plan
         ),  # fmt: skip
