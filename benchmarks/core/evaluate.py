@@ -82,6 +82,7 @@ __all__ = [
     "evaluate",
     "evaluate_rollouts",
     "score_policy",
+    "score_policy_rollouts",
 ]
 
 #: Visited states drawn from the rollouts to time the decisions on.
@@ -371,6 +372,14 @@ def score_policy(policy: Any, spec: TaskEnv, episodes: int, seed: int | tuple[in
     checked against the environment (its sizes, the hidden mode, its spaces), then scored by
     :func:`evaluate_rollouts`. ``how`` says how the environment was chosen, for the errors.
     :func:`evaluate` and :func:`benchmarks.core.suite.evaluate_suite` both score through it."""
+    return score_policy_rollouts(policy, spec, episodes, seed, how)[0]
+
+
+def score_policy_rollouts(policy: Any, spec: TaskEnv, episodes: int,
+                          seed: int | tuple[int, ...], how: str = "env_id",
+                          ) -> tuple[Score, Rollouts]:  # fmt: skip
+    """:func:`score_policy` and the rollouts it scored (for a caller that measures more on the
+    same episodes, such as the hidden wing's filter accuracy)."""
     check_fits(policy, spec, how)
     check_hidden(policy, spec)
     try:
@@ -380,7 +389,7 @@ def score_policy(policy: Any, spec: TaskEnv, episodes: int, seed: int | tuple[in
             raise
         raise ValueError(f"{exc} (scored on env_id = {spec.env_id!r}: {how}; pass env_id or env= "
                          "of the policy's task)") from None  # fmt: skip
-    return evaluate_rollouts(controller, spec, episodes, seed, spec.env_id)[0]
+    return evaluate_rollouts(controller, spec, episodes, seed, spec.env_id)
 
 
 # ----------------------------------------------------------------------------- report lines

@@ -46,9 +46,9 @@ from benchmarks.core.reference import (
     curve_xis,
     one_step_rhc,
     task_key,
-    tree_rhc,
 )
 from benchmarks.core.stats import CurveGap, efficient_points, mean_ci, paired_curve_gap, wilson
+from benchmarks.core.tree_levels import LevelStore, run_tree_levels
 from controllers.lru import BudgetedLRU
 from sdjls_gym.systems import Task
 
@@ -307,18 +307,21 @@ def reference_curve(
 def tree_curve(task: Task, episodes: int, seed: int | Sequence[int], xis: Sequence[float], *,
                steps: int, horizon: int | None = None,
                action_bound: float | np.ndarray | None = None, divergence_bound: float = 1e6,
-               progress: Any = None) -> ReferenceCurve:  # fmt: skip
+               progress: Any = None, store: LevelStore | None = None,
+               workers: int = 1) -> ReferenceCurve:  # fmt: skip
     """The scenario tree's curve (:func:`~benchmarks.core.reference.tree_rhc` with ``steps``
     stages) on the fixed levels ``xis``, each on ``episodes`` episodes from each noise seed of
     ``seed``: the second view, with no refinement (its decisions cost 10 to 1000 times the
-    one-step controller's)."""
+    one-step controller's). ``store`` keeps each level's run on disk and ``workers`` runs the
+    missing ones on that many processes (:func:`benchmarks.core.tree_levels.run_tree_levels`:
+    the same curve either way)."""
     seeds = as_seeds(seed)
     horizon = task.horizon if horizon is None else int(horizon)
     bound = float(np.max(task.action_bound if action_bound is None else action_bound))
-    run = LevelRunner(task.model, lambda xi: tree_rhc(task, xi, steps, horizon=horizon), episodes,
-                      seeds, horizon, bound, divergence_bound)  # fmt: skip
     levels = sorted({float(x) for x in xis})
-    rows = [run(x, progress) for x in levels]
+    rows = run_tree_levels(task, levels, seeds, episodes, steps=steps, horizon=horizon,
+                           bound=bound, divergence_bound=divergence_bound, store=store,
+                           workers=workers, progress=progress)  # fmt: skip
     return ReferenceCurve(task.env_id, tuple(levels), REFERENCE_CONSTRAINT, episodes, seeds,
                           horizon, np.stack([r[0] for r in rows]),
                           np.stack([r[1] for r in rows]), np.array([r[2] for r in rows]))  # fmt: skip

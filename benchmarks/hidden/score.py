@@ -17,11 +17,11 @@ With the mode hidden (``env_kwargs={"observe": "state"}``), on a task of the sui
 * every kept agent of the hidden comparison (``benchmarks.rl``'s ``hidden_runs`` and
   ``load_agent``).
 
-Each is scored by :func:`benchmarks.core.evaluate.evaluate` on the episodes of every seed of
+Each is scored by :func:`benchmarks.core.evaluate.evaluate`'s protocol on the episodes of every seed of
 :data:`EVAL_SEEDS` (pooled); a design *keeps the system bounded* when none of its evaluation
 episodes diverged. For the designs that decide from the filter (certainty equivalence, the
 belief RHC, the agents fed the belief) the filter's accuracy is measured on the same episodes
-(:func:`filter_accuracy`).
+(:func:`filter_accuracy`, on the rollouts the score was computed from).
 """
 
 from __future__ import annotations
@@ -34,9 +34,9 @@ from typing import Any
 import numpy as np
 
 from benchmarks.core.environment import resolve_env
-from benchmarks.core.evaluate import Score, evaluate
+from benchmarks.core.evaluate import Score, score_policy_rollouts
 from benchmarks.core.frontier import ReferenceCurve, reference_curve
-from benchmarks.core.montecarlo import Rollouts, rollout
+from benchmarks.core.montecarlo import Rollouts
 from benchmarks.core.stats import EpisodeStatistics
 from controllers import (
     BeliefRecedingHorizonController,
@@ -188,18 +188,12 @@ def filter_accuracy(model: Any, rollouts: Sequence[Rollouts]) -> FilterAccuracy:
 
 
 # ----------------------------------------------------------------------------- scoring
-def _evaluate(policy: Any, env_id: str, episodes: int) -> Score:
-    """:func:`evaluate` with the mode hidden on ``episodes`` episodes of each seed of
-    :data:`EVAL_SEEDS`, pooled."""
-    return evaluate(policy, episodes=episodes, seed=EVAL_SEEDS, env_id=env_id,
-                    env_kwargs={**TASKS[env_id].env_kwargs, **HIDDEN})  # fmt: skip
-
-
-def _rollouts(env_id: str, policy: Any, episodes: int) -> list[Rollouts]:
-    """``policy``'s rollouts on the evaluation episodes (the same as :func:`_evaluate`'s)."""
-    s = resolve_env(env_id, {**TASKS[env_id].env_kwargs, **HIDDEN})
-    return [rollout(s.model, policy, episodes, s.horizon, seed, s.action_bound, None,
-                    s.divergence_bound) for seed in EVAL_SEEDS]  # fmt: skip
+def _evaluate(policy: Any, env_id: str, episodes: int) -> tuple[Score, Rollouts]:
+    """:func:`benchmarks.core.evaluate.evaluate`'s protocol with the mode hidden on
+    ``episodes`` episodes of each seed of :data:`EVAL_SEEDS`, pooled, and those rollouts (the
+    filter's accuracy is measured on them)."""
+    spec = resolve_env(env_id, {**TASKS[env_id].env_kwargs, **HIDDEN})
+    return score_policy_rollouts(policy, spec, episodes, EVAL_SEEDS)
 
 
 def design_score(name: str, kind: str, configuration: str, seed: int | None, score: Score,
@@ -264,8 +258,8 @@ def score_task(env_id: str, runs: Sequence[Any], episodes: int, log: Any = None)
     designs = [_oracle(curve, xi)]
     for name, policy in controllers(env_id).items():
         c0 = time.process_time()
-        score = _evaluate(policy, env_id, episodes)
-        accuracy = filter_accuracy(task.model, _rollouts(env_id, policy, episodes))
+        score, ro = _evaluate(policy, env_id, episodes)
+        accuracy = filter_accuracy(task.model, [ro])
         designs.append(design_score(name, "controller", name, None, score, accuracy,
                                     time.process_time() - c0))  # fmt: skip
         if log is not None:
@@ -283,9 +277,9 @@ def score_task(env_id: str, runs: Sequence[Any], episodes: int, log: Any = None)
         for r in kept:
             c0 = time.process_time()
             agent = load_agent(r.path)
-            score = _evaluate(agent, env_id, episodes)
+            score, ro = _evaluate(agent, env_id, episodes)
             fed = parse_config(r.configuration)[2] == "belief"  # decides from the filter
-            seen = filter_accuracy(task.model, _rollouts(env_id, agent, episodes)) if fed else None
+            seen = filter_accuracy(task.model, [ro]) if fed else None
             designs.append(design_score(f"{r.configuration} s{r.seed}", "agent", r.configuration,
                                         r.seed, score, seen, time.process_time() - c0))  # fmt: skip
     points = [curve.point(i) for i in range(len(curve.xis))]

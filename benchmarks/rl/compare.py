@@ -195,7 +195,10 @@ class Options:
         "with --quick (a smoke test never writes into the committed results)",
     )
     workers: int = option(
-        2, "trainings run at once (processes, or the CPUs of a local Ray instance)"
+        2,
+        "trainings run at once (processes, or the CPUs of a local Ray instance); when "
+        "scoring, the 3-step tree's level runs at once (each kept in <out>/tree_levels, so an "
+        "interrupted scoring resumes)",
     )
     backend: str = option(
         "process", "where the trainings run: local processes or Ray tasks", choices=BACKENDS

@@ -66,6 +66,7 @@ from benchmarks.core.reference import (
     TREE_XIS,
 )
 from benchmarks.core.stats import CurveGap, CurveStatus, curve_status, efficient_points
+from benchmarks.core.tree_levels import TREE_STORE, LevelStore
 from benchmarks.rl.claims import (
     RunCounts,
     across_sentence,
@@ -266,10 +267,13 @@ def point_gap(cost_mean: float, violation: float, diverged: int,
 
 def score_task(env_id: str, runs: list[tuple[RunSpec, RunRecord | None]], run_dir: Path,
                episodes: int, seed: int | tuple[int, ...], quick: bool = False,
-               log: Any = None) -> TaskReport:  # fmt: skip
+               log: Any = None, store: LevelStore | None = None,
+               workers: int = 1) -> TaskReport:  # fmt: skip
     """Score the kept runs of ``runs`` (``(spec, record or None)`` of one task) and the task's
     two model-based curves on the comparison's environment
-    (:func:`benchmarks.rl.envs.comparison_env_kwargs`; see the module docstring)."""
+    (:func:`benchmarks.rl.envs.comparison_env_kwargs`; see the module docstring). ``store``
+    and ``workers``: where the tree's level runs are kept and on how many processes the
+    missing ones run (:func:`benchmarks.core.frontier.tree_curve`)."""
     task = TASKS[env_id]
     env_kwargs = comparison_env_kwargs(task)
     spec = replace(resolve_env(env_id, env_kwargs), task=task)
@@ -282,7 +286,8 @@ def score_task(env_id: str, runs: list[tuple[RunSpec, RunRecord | None]], run_di
     if log is not None:
         log(f"{env_id}: the 3-step tree on {t_eps} episodes x {len(as_seeds(seed))} seed(s) at "
             f"xi {', '.join(f'{x:g}' for x in t_xis)}")  # fmt: skip
-    tree = tree_curve(task, t_eps, seed, t_xis, steps=TREE_STEPS, **kw)
+    tree = tree_curve(task, t_eps, seed, t_xis, steps=TREE_STEPS, store=store, workers=workers,
+                      **kw)  # fmt: skip
     rhc_on_tree = rhc if same else reference_curve(task, t_eps, seed, **kw)
     i = t_xis.index(xi)
     tree_score = bounded_gap(rhc_on_tree, tree.costs[i], tree.violations[i], int(tree.diverged[i]))
@@ -551,7 +556,8 @@ def _score_tasks(specs: list[RunSpec], records: Sequence[RunRecord | None], run_
         log(f"scoring {task}: {kept} of {len(pairs)} run(s) kept, {opts.eval_episodes} episodes "
             f"x {len(seeds)} noise seed(s)")  # fmt: skip
         reports.append(score_task(task, pairs, run_dir, opts.eval_episodes, seeds, opts.quick,
-                                  log))  # fmt: skip
+                                  log, LevelStore(Path(opts.out) / TREE_STORE),
+                                  opts.workers))  # fmt: skip
     return reports
 
 

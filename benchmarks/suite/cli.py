@@ -44,6 +44,11 @@ class Options:
         "references: episodes per seed of the 3-step tree curve on every task "
         "(default: benchmarks.core.reference.TREE_EPISODES, or TREE_BY_TASK's)",
     )
+    workers: int = option(
+        1,
+        "references: processes running the 3-step tree's levels at once (each level run is "
+        "kept in <out>/tree_levels, so an interrupted run resumes)",
+    )
     quick: bool = option(
         False,
         "references, smoke test: 50 episodes, a coarse grid of xi, a 2-point "
@@ -65,8 +70,9 @@ def parse_args(argv: list[str] | None = None) -> tuple[Options, Any]:
         opts.episodes = 50 if opts.quick else 1000
     if opts.seeds is None:
         opts.seeds = 1 if opts.quick or opts.policy is not None else 3
-    if opts.seeds < 1:
-        parser.error(f"--seeds = {opts.seeds}; expected a positive integer")
+    for name in ("seeds", "workers"):
+        if getattr(opts, name) < 1:
+            parser.error(f"--{name} = {getattr(opts, name)}; expected a positive integer")
     try:
         check_evaluation(opts.episodes, opts.seed)  # --seed itself, then every seed's
         check_evaluation(opts.episodes, tuple(range(opts.seed, opts.seed + opts.seeds)))

@@ -55,6 +55,7 @@ from benchmarks.core.reference import (
     curve_xis,
 )
 from benchmarks.core.stats import CurveGap, EpisodeStatistics
+from benchmarks.core.tree_levels import TREE_STORE, LevelStore
 from sdjls_gym.systems import TASKS, Task
 
 __all__ = [
@@ -138,10 +139,13 @@ def task_references(
     tree_episodes: int,
     tree_xis: tuple[float, ...],
     bar: Any = None,
+    store: LevelStore | None = None,
+    workers: int = 1,
 ) -> TaskReferences:
     """Score every model-based controller on ``task`` (see the module docstring): ``episodes``
     episodes from each noise seed of ``seed``; the tree on ``tree_episodes`` per seed, against
-    the one-step curve on the same episodes."""
+    the one-step curve on the same episodes; its level runs kept in ``store`` and the missing
+    ones run on ``workers`` processes (:func:`benchmarks.core.frontier.tree_curve`)."""
     from controllers import LinearFeedbackController, MJLSLQRController
 
     spec = resolve_env(task.env_id, dict(task.env_kwargs))
@@ -159,7 +163,8 @@ def task_references(
         points.append(_point("RHC joint", xi, pooled, stats, *gap))
     t_eps = tree_episodes
     ind_tree = ind if t_eps == episodes else reference_curve(task, t_eps, seed, xis=xis, **kw)
-    tree = tree_curve(task, t_eps, seed, tree_xis, steps=TREE_STEPS, **kw)
+    tree = tree_curve(task, t_eps, seed, tree_xis, steps=TREE_STEPS, store=store, workers=workers,
+                      **kw)  # fmt: skip
     for i, xi in enumerate(tree.xis):
         stats = tree.point(i)
         gap = _against(ind_tree, tree.costs[i], tree.violations[i], stats["violation"],
@@ -362,7 +367,8 @@ def run_references(opts: Any, argv: list[str]) -> dict[str, Any]:
               disable=opts.no_progress) as bar:  # fmt: skip
         for task, xis, t_eps, t_xis in plan:
             bar.set_postfix_str(task.env_id)
-            refs.append(task_references(task, opts.episodes, seeds, xis, t_eps, t_xis, bar))
+            refs.append(task_references(task, opts.episodes, seeds, xis, t_eps, t_xis, bar,
+                                        LevelStore(out / TREE_STORE), opts.workers))  # fmt: skip
     aggs = aggregates(refs)
     bounded = bounded_aggregates(refs)
     wall = time.perf_counter() - start
