@@ -423,10 +423,20 @@ def test_bad_options_are_rejected(capsys):
         (["--eval-episodes", "1"], "--eval-episodes = 1 is out of range"),
         (["--workers", "0"], "--workers = 0; expected a positive integer"),
         (["--address", "auto"], "--address = 'auto' needs --backend ray"),
+        (["--preset", "hidden", "--eval-seeds", "2"], "the noise seeds (0, 1, 2)"),
+        (["--preset", "hidden", "--seed", "5"], "leave --seed and --eval-seeds out"),
     ):
         with pytest.raises(SystemExit):
             compare_rl.parse_args(argv)
         assert message in capsys.readouterr().err
+
+
+def test_the_hidden_preset_takes_its_own_noise_seeds(tmp_path):
+    """With the mode hidden the wing's seeds (0, 1, 2) are accepted when named; training alone
+    takes any, and the scoring is handed the training's --workers."""
+    opts = compare_rl.parse_args(["--preset", "hidden", "--seed", "0", "--eval-seeds", "3"])
+    assert compare_rl.hidden_argv(opts, tmp_path)[-2:] == ["--workers", "2"]
+    assert compare_rl.parse_args(["--preset", "hidden", "--train-only", "--eval-seeds", "2"])
 
 
 def test_best_agent_is_the_median_seed_of_the_cheapest_safe_configuration():

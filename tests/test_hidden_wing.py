@@ -142,6 +142,22 @@ def test_without_agents_the_wing_needs_no_runs(tmp_path):
     _check_bounded_gaps({d["name"]: d for d in task["designs"]})
 
 
+def test_tasks_scored_on_two_workers_give_the_same_numbers(tmp_path):
+    """``--workers 2`` scores the tasks in two processes: every number but the timings is the
+    one process's."""
+    tasks = ["--tasks", TASK, "SDJLS-Solar-v0", "--episodes", "5", "--quick", "--no-agents"]
+    one = hidden.main([*tasks, "--out", str(tmp_path / "one")])
+    two = hidden.main([*tasks, "--out", str(tmp_path / "two"), "--workers", "2"])
+    timing = {"decision_time_s", "scoring_cpu_s"}
+    for env_id in (TASK, "SDJLS-Solar-v0"):
+        a, b = one["tasks"][env_id], two["tasks"][env_id]
+        assert a["oracle_curve"] == b["oracle_curve"]
+        assert [{k: v for k, v in d.items() if k not in timing} for d in a["designs"]] == [
+            {k: v for k, v in d.items() if k not in timing} for d in b["designs"]
+        ]
+    assert two["scoring_cpu_min"] > 0
+
+
 def test_the_episodes_are_checked_over_every_seed(capsys):
     """``--episodes`` is per noise seed: at most the core's limit divided by the seeds."""
     from benchmarks.core.evaluate import MAX_EPISODES

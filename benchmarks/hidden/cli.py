@@ -11,9 +11,12 @@ scores the model-based designs alone (without stable-baselines3).
 from __future__ import annotations
 
 import argparse
+import resource
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
+from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -76,6 +79,11 @@ class Options:
                   "compare_rl --preset hidden --quick (their smoke-test budgets)"},
     )  # fmt: skip
     no_agents: bool = field(default=False, metadata={"help": "score the model-based designs alone"})
+    workers: int = field(
+        default=1,
+        metadata={"help": "tasks scored at once, each in its own process (the same numbers for "
+                  "any count)"},
+    )  # fmt: skip
 
 
 def parse_args(argv: list[str] | None = None) -> Options:
@@ -95,7 +103,7 @@ def parse_args(argv: list[str] | None = None) -> Options:
         check_evaluation(opts.episodes, EVAL_SEEDS)
     except ValueError as exc:
         parser.error(str(exc).replace("episodes = ", "--episodes = ", 1))
-    for name in ("seeds", "timesteps"):
+    for name in ("seeds", "timesteps", "workers"):
         value = getattr(opts, name)
         if value is not None and value < 1:
             parser.error(f"--{name} = {value}; expected a positive integer")
@@ -134,6 +142,24 @@ def _train_cpu_hours(runs: list[Any]) -> float | None:
     return sum(read_run(p).cpu_time_s or 0.0 for p in kept) / 3600.0
 
 
+def _children_cpu() -> float:
+    """CPU seconds of this process's finished children (the workers, once joined)."""
+    use = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return use.ru_utime + use.ru_stime
+
+
+def _score_one(task: str, runs: list[Any], episodes: int) -> TaskResult:
+    """One task's :func:`score_task` (in this process or a worker's)."""
+    if runs:
+        import torch
+
+        torch.set_num_threads(1)  # as in training, and for the agents' decision times
+    log(f"scoring {task}: the oracle, 2 controllers, {sum(r.path is not None for r in runs)}"
+        f" of {len(runs)} agent run(s) kept, {episodes} episodes x {len(EVAL_SEEDS)} "
+        "noise seeds")  # fmt: skip
+    return score_task(task, runs, episodes, log)
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Score every design on every task and write the report; returns the summary."""
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -142,19 +168,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
     if opts.quick:
         log(f"--quick: writing to {out}")
-    start, cpu0 = time.perf_counter(), time.process_time()
+    start, cpu0, child0 = time.perf_counter(), time.process_time(), _children_cpu()
     runs = _runs(opts)
-    if runs:
-        import torch
-
-        torch.set_num_threads(1)  # as in training, and for the agents' decision times
-    results: list[TaskResult] = []
-    for task in opts.tasks:
-        mine = [r for r in runs if r.task == task]
-        log(f"scoring {task}: the oracle, 2 controllers, {sum(r.path is not None for r in mine)}"
-            f" of {len(mine)} agent run(s) kept, {opts.episodes} episodes x {len(EVAL_SEEDS)} "
-            "noise seeds")  # fmt: skip
-        results.append(score_task(task, mine, int(opts.episodes or 0), log))
+    jobs = [(task, [r for r in runs if r.task == task], int(opts.episodes or 0))
+            for task in opts.tasks]  # fmt: skip
+    if opts.workers > 1 and len(jobs) > 1:
+        spawn = get_context("spawn")
+        with ProcessPoolExecutor(min(opts.workers, len(jobs)), mp_context=spawn) as pool:
+            results = list(pool.map(_score_one, *zip(*jobs, strict=True)))
+    else:
+        results = [_score_one(*job) for job in jobs]
     configs = list(dict.fromkeys(r.configuration for r in runs))
     across = across_tasks(results, configs, QUICK_RESAMPLES if opts.quick else AGGREGATE_RESAMPLES)
     figures = {r.env_id: task_figure(out, r) for r in results}
@@ -169,7 +192,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "budgets": {r.configuration: r.timesteps for r in runs},
         },  # fmt: skip
         "scoring_wall_min": (time.perf_counter() - start) / 60,
-        "scoring_cpu_min": (time.process_time() - cpu0) / 60,
+        "scoring_cpu_min": (time.process_time() - cpu0 + _children_cpu() - child0) / 60,
     }
     summary = write_outputs(out, results, across, meta, figures)
     log(f"wrote {out}/REPORT.md")

@@ -255,6 +255,7 @@ def parse_args(argv: list[str] | None = None) -> Options:
     _resolve_configs(parser, opts, preset)
     _check_numbers(parser, opts)
     _check_modes(parser, opts)
+    _check_hidden_seeds(parser, opts, given)
     _check_preset_output(parser, opts, preset)
     opts.out = output_folder(parser, "--out", opts.out, quick=opts.quick, default=preset["out"],
                              script="compare_rl")  # fmt: skip
@@ -312,6 +313,22 @@ def _check_modes(parser: argparse.ArgumentParser, opts: Options) -> None:
         tuned_studies(opts.tuned)
     except ValueError as exc:
         parser.error(str(exc))
+
+
+def _check_hidden_seeds(parser: argparse.ArgumentParser, opts: Options, given: set[str]) -> None:
+    """The hidden wing scores on its own noise seeds (``benchmarks.hidden.EVAL_SEEDS``): other
+    ones asked for with the mode hidden are refused, not ignored."""
+    if opts.train_only or not any(o != "mode" for _, _, o in opts.config_keys()):
+        return
+    from benchmarks.hidden.score import EVAL_SEEDS
+
+    asked = tuple(range(opts.seed, opts.seed + opts.eval_seeds))
+    if given & {"--seed", "--eval-seeds"} and asked != EVAL_SEEDS:
+        parser.error(
+            f"--seed {opts.seed} --eval-seeds {opts.eval_seeds} (noise seeds {asked}) with the "
+            f"mode hidden: its scoring (python -m benchmarks.hidden) uses the noise seeds "
+            f"{EVAL_SEEDS}, benchmarks.hidden.EVAL_SEEDS; leave --seed and --eval-seeds out"
+        )
 
 
 def _check_preset_output(parser: argparse.ArgumentParser, opts: Options, preset: dict) -> None:
@@ -447,10 +464,11 @@ def main(argv: list[str] | None = None) -> Summary | dict[str, Any] | None:
 
 def hidden_argv(opts: Options, run_dir: Path) -> list[str]:
     """``python -m benchmarks.hidden``'s options for the runs of ``opts`` (its evaluation
-    seeds are its own constant, ``benchmarks.hidden.EVAL_SEEDS``: ``--seed`` is not passed)."""
+    seeds are its own constant, ``benchmarks.hidden.EVAL_SEEDS``: ``--seed`` is not passed, and
+    other seeds are refused by :func:`parse_args`)."""
     argv = ["--runs", str(run_dir), "--out", str(opts.out), "--episodes", str(opts.eval_episodes),
             "--seeds", str(opts.seeds), "--tasks", *filled("tasks", opts.tasks),
-            "--configs", *filled("configs", opts.configs)]  # fmt: skip
+            "--configs", *filled("configs", opts.configs), "--workers", str(opts.workers)]  # fmt: skip
     if opts.timesteps is not None:
         argv += ["--timesteps", str(opts.timesteps)]
     return argv + (["--quick"] if opts.quick else [])
