@@ -386,6 +386,11 @@ def test_the_report_states_bounded_gaps_and_the_episodes_of_the_data(tmp_path):
     assert f"| {AGENT} s0 |" in report and "| +100.0 (diverged) |" in report
     b = {s["configuration"]: s for s in summary["tasks"]["B"]["summaries"]}
     assert b[CE]["bounded_gap"] == 100.0 and b[AGENT]["bounded_gap"] == pytest.approx(54.0)
+    # the short table, by hand: A keeps all three designs bounded, B only the belief RHC
+    assert "| A | 3 of 3 | +2.0% | -1.0% | ppo_state_reward +5.0% (median of 2 seed(s)) |" in report
+    assert ("| B | 1 of 3 | +100.0% (diverged) | +3.0% | ppo_state_reward +54.0% (median of 2 "
+            "seed(s); 1 of 2 diverged) |") in report  # fmt: skip
+    assert report.index("## The price in short") < report.index("## The price of the hidden")
     rows = list(csv.DictReader((tmp_path / "summary.csv").open()))
     ce_b = next(r for r in rows if r["task"] == "B" and r["name"] == CE)
     assert (ce_b["bounded_gap_percent"], ce_b["bounded_gap_rule"]) == ("100.0", "diverged")

@@ -17,10 +17,11 @@ from typing import Any
 
 from benchmarks.core.files import stable_floats, write_atomic
 from benchmarks.core.frontier import WORST_GAP
-from benchmarks.hidden.score import EVAL_SEEDS, DesignScore, TaskResult
+from benchmarks.hidden.score import CONTROLLERS, EVAL_SEEDS, DesignScore, TaskResult
 from benchmarks.hidden.summary import (
     ConfigSummary,
     DesignAcross,
+    bounded_designs,
     bounded_text,
     config_summaries,
     overall_sentences,
@@ -29,7 +30,7 @@ from benchmarks.hidden.summary import (
     unbounded_tasks,
 )
 
-__all__ = ["summary_json", "write_outputs"]
+__all__ = ["short_table", "summary_json", "write_outputs"]
 
 #: The bounded gap's rule, in words (the protocol paragraph and the across-tasks section).
 BOUNDED_RULE = (
@@ -77,6 +78,30 @@ def summary_table(results: Sequence[TaskResult]) -> list[str]:
             lines.append(f"| {r.env_id} | {s.configuration} | {seeds} | {s.cost_mean:.4g} | "
                          f"{s.violation:.3f} | {s.diverged:g} of {s.episodes} | {bounded} | "
                          f"{gap} | {bounded_text(s)} | {_filter(s)} |")  # fmt: skip
+    return lines
+
+
+def short_table(results: Sequence[TaskResult]) -> list[str]:
+    """One row per task: how many designs (the controllers and the agent configurations, each
+    agent configuration on every kept seed) kept every episode bounded, the bounded gap of
+    each controller, and the agent configuration with the smallest median bounded gap."""
+    lines = [
+        "| task | designs that kept every episode bounded | certainty equivalence | belief RHC "
+        "| the agent configuration of smallest bounded gap |",
+        "|---|---|---|---|---|",
+    ]
+    for r in results:
+        summaries = config_summaries(r)
+        by = {s.configuration: s for s in summaries}
+        bounded, unbounded = bounded_designs(summaries)
+        agents = [s for s in summaries if s.kind == "agent" and s.seeds > 0]
+        best = "-"
+        if agents:
+            a = min(agents, key=lambda s: s.bounded_gap)
+            best = f"{a.configuration} {bounded_text(a)}"
+        cells = [bounded_text(by[c]) if c in by else "-" for c in CONTROLLERS]
+        lines.append(f"| {r.env_id} | {len(bounded)} of {len(bounded) + len(unbounded)} | "
+                     f"{cells[0]} | {cells[1]} | {best} |")  # fmt: skip
     return lines
 
 
@@ -235,6 +260,13 @@ def write_outputs(out: Path, results: Sequence[TaskResult], across: Sequence[Des
         "## Conclusions",
         "",
         *[f"- {line}" for line in summary["conclusions"]],
+        "",
+        "## The price in short",
+        "",
+        "Bounded gaps to the oracle's curve (every run counts; agents: the median over their "
+        "kept seeds).",
+        "",
+        *short_table(results),
         "",
         "## The price of the hidden mode, per task",
         "",
