@@ -453,6 +453,7 @@ COPIED_TABLES = (
     ("Speed", "results/speed/SPEED.md", 6, 14),
     ("The suite, scored as one benchmark", "results/suite/REPORT.md", 8, 12),
     ("Learn the model, then control", "results/identify/REPORT.md", 8, 8),
+    ("The mode hidden", "results/hidden/REPORT.md", 8, 8),
 )
 
 

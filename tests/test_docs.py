@@ -338,3 +338,22 @@ def test_console_command_exits_0_when_main_returns_its_result(monkeypatch):
         sys.exit(reproduce_paper.main())
     assert exc.value.code != 0  # what a console command pointing at main would do
     assert cli.reproduce_paper() == 0
+
+
+def test_the_hidden_pages_results_are_the_reports_own():
+    """``docs/hidden.md``'s results are copied from ``results/hidden/REPORT.md``, where code
+    writes them from the numbers: every table row is a row of the report, every bullet one of its
+    conclusions (a sentence typed by hand, or left over from an earlier scoring, fails here)."""
+    from conftest import section
+
+    page = (DOCS / "hidden.md").read_text(encoding="utf-8")
+    report = (ROOT / "results/hidden/REPORT.md").read_text(encoding="utf-8")
+    assert not uncopied_rows(page, "Results", ROOT / "results/hidden/REPORT.md", 8)
+
+    def bullets(text: str) -> list[str]:
+        return [" ".join(b.split()) for b in re.findall(r"^- (.*?)(?=^- |^$|\Z)", text,
+                                                         flags=re.M | re.S)]  # fmt: skip
+
+    shown = bullets(section(page, "Results"))
+    stated = bullets(section(report, "Conclusions"))
+    assert shown and all(b in stated for b in shown), [b for b in shown if b not in stated]
