@@ -45,8 +45,8 @@ FLAGS = {
     "--retrain --no-progress",
     "reproduce_paper": "--runs --stat-runs --seed --out --no-progress",
     "render_picture": "--out --seed --episodes --fps-only --before",
-    "suite": "--policy --tasks --episodes --seed --seeds --json --out --tree-episodes --quick "
-    "--no-progress",
+    "suite": "--policy --tasks --episodes --seed --seeds --json --out --tree-episodes --workers "
+    "--quick --no-progress",
     "tune": "--algo --variant --task --trials --timesteps --seeds --storage --study-name --out "
     "--backend --address --workers --seed --quick --print-space --no-progress",
 }

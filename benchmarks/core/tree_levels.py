@@ -6,7 +6,7 @@ evaluation's own episodes (1000 per noise seed) takes CPU-hours. Two things make
 * a :class:`LevelStore`: each ``(level, noise seed)`` run is written to its own file the moment it
   is done, keyed by everything its numbers depend on (the task's model, ``K`` and RHC data, the
   tree's stages, the horizon, the action and divergence bounds, the level, the seed, the
-  episodes, and the version of ``sdjls_gym``), so an interrupted scoring resumes where it
+  episodes, and the installed version of ``sdjls-gym``), so an interrupted scoring resumes where it
   stopped and a second scoring of the same tree reuses it. A file whose stored key is not the
   one asked for is ignored (and replaced when the run is repeated);
 * ``workers``: the runs not in the store go to that many processes at once (each run is one
@@ -83,11 +83,11 @@ class LevelStore:
 def level_key(task: Task, steps: int, horizon: int, bound: float, divergence_bound: float,
               xi: float, seed: int, episodes: int) -> dict[str, Any]:  # fmt: skip
     """Everything a tree level run's numbers depend on (see the module)."""
-    from sdjls_gym import __version__
+    from importlib.metadata import version
 
     return {"task": task_key(task), "steps": int(steps), "horizon": int(horizon),
             "bound": float(bound), "divergence_bound": float(divergence_bound), "xi": float(xi),
-            "seed": int(seed), "episodes": int(episodes), "sdjls_gym": __version__}  # fmt: skip
+            "seed": int(seed), "episodes": int(episodes), "sdjls_gym": version("sdjls-gym")}  # fmt: skip
 
 
 def run_level(task: Task, steps: int, horizon: int, bound: float, divergence_bound: float,

@@ -320,7 +320,7 @@ def _check_hidden_seeds(parser: argparse.ArgumentParser, opts: Options, given: s
     ones asked for with the mode hidden are refused, not ignored."""
     if opts.train_only or not any(o != "mode" for _, _, o in opts.config_keys()):
         return
-    from benchmarks.hidden.score import EVAL_SEEDS
+    from benchmarks.hidden import EVAL_SEEDS
 
     asked = tuple(range(opts.seed, opts.seed + opts.eval_seeds))
     if given & {"--seed", "--eval-seeds"} and asked != EVAL_SEEDS:
