@@ -237,7 +237,7 @@ def rollout_statistics(ro: Rollouts, divergence_bound: float) -> dict[str, Any]:
         "violation": count / total,
         "violation_wilson95": (float(lo), float(hi)),
         "violation_episode_t95": (max(float(elo), 0.0), min(float(ehi), 1.0)),
-        "diverged": int(np.any(np.abs(ro.x) > divergence_bound, axis=(1, 2)).sum()),
+        "diverged": ro.diverged(divergence_bound),
         "max_abs_u": float(np.max(np.abs(ro.u))),
         "episode_costs": costs,
         "episode_violations": shares,

@@ -115,9 +115,10 @@ class LevelRunner:
             for seed in self.seeds:
                 ro = rollout(self.model, ctrl, self.episodes, self.horizon, seed, self.bound,
                              progress, self.divergence_bound)  # fmt: skip
-                costs.append(ro.episode_cost)
-                viols.append(ro.any_violation.mean(axis=1))
-                diverged += int(np.any(np.abs(ro.x) > self.divergence_bound, axis=(1, 2)).sum())
+                cost, viol, count = ro.outcomes(self.divergence_bound)
+                costs.append(cost)
+                viols.append(viol)
+                diverged += count
             self._levels[xi] = (np.concatenate(costs), np.concatenate(viols), diverged)
         return self._levels[xi]
 

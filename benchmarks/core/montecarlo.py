@@ -60,6 +60,15 @@ class Rollouts:
         """(runs,) sum over the episode of the stage costs."""
         return self.stage_cost.sum(axis=1)
 
+    def diverged(self, divergence_bound: float) -> int:
+        """How many episodes have a state entry beyond ``divergence_bound`` in magnitude."""
+        return int(np.any(np.abs(self.x) > divergence_bound, axis=(1, 2)).sum())
+
+    def outcomes(self, divergence_bound: float) -> tuple[np.ndarray, np.ndarray, int]:
+        """What a curve's level keeps of its episodes: costs (runs,), shares of violated steps
+        (runs,) and the diverged count (:meth:`diverged`)."""
+        return self.episode_cost, self.any_violation.mean(axis=1), self.diverged(divergence_bound)
+
     @classmethod
     def pooled(cls, parts: list[Rollouts]) -> Rollouts:
         """The episodes of ``parts`` (rollouts of the same horizon) as one set, in order."""

@@ -95,8 +95,7 @@ def run_level(task: Task, steps: int, horizon: int, bound: float, divergence_bou
     """The tree at level ``xi`` on ``episodes`` episodes of noise seed ``seed``."""
     ctrl = tree_rhc(task, xi, steps, horizon=horizon)
     ro = rollout(task.model, ctrl, episodes, horizon, seed, bound, progress, divergence_bound)
-    diverged = int(np.any(np.abs(ro.x) > divergence_bound, axis=(1, 2)).sum())
-    return ro.episode_cost, ro.any_violation.mean(axis=1), diverged
+    return ro.outcomes(divergence_bound)
 
 
 def run_tree_levels(task: Task, levels: Sequence[float], seeds: Sequence[int], episodes: int, *,

@@ -242,6 +242,10 @@ class Options:
         """The ``(algo, variant, observation)`` of :attr:`configs`."""
         return [parse_config(c) for c in self.configs or []]
 
+    def hides_mode(self) -> bool:
+        """Some configuration observes the state without the mode (the hidden wing scores it)."""
+        return any(o != "mode" for _, _, o in self.config_keys())
+
 
 def parse_args(argv: list[str] | None = None) -> Options:
     parser = script_parser(Options, "compare_rl", __doc__)
@@ -318,7 +322,7 @@ def _check_modes(parser: argparse.ArgumentParser, opts: Options) -> None:
 def _check_hidden_seeds(parser: argparse.ArgumentParser, opts: Options, given: set[str]) -> None:
     """The hidden wing scores on its own noise seeds (``benchmarks.hidden.EVAL_SEEDS``): other
     ones asked for with the mode hidden are refused, not ignored."""
-    if opts.train_only or not any(o != "mode" for _, _, o in opts.config_keys()):
+    if opts.train_only or not opts.hides_mode():
         return
     from benchmarks.hidden import EVAL_SEEDS
 
@@ -450,7 +454,7 @@ def main(argv: list[str] | None = None) -> Summary | dict[str, Any] | None:
     if opts.train_only:
         log(f"--train-only: {len(trained)} run(s) kept in {run_dir}; no scoring")
         return None
-    if any(o != "mode" for _, _, o in opts.config_keys()):  # the mode hidden: its own wing
+    if opts.hides_mode():  # the mode hidden: its own wing
         from benchmarks.hidden import main as hidden_main
 
         return hidden_main(hidden_argv(opts, run_dir))

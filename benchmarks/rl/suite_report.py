@@ -326,8 +326,7 @@ def _arrays(model: Any, policy: Any, episodes: int, seed: int | tuple[int, ...],
     (the rule of :class:`benchmarks.core.frontier.LevelRunner`)."""
     ro = rollouts(model, policy, episodes, spec.horizon, as_seeds(seed), spec.action_bound, None,
                   spec.divergence_bound)  # fmt: skip
-    diverged = int(np.any(np.abs(ro.x) > spec.divergence_bound, axis=(1, 2)).sum())
-    return ro.episode_cost, ro.any_violation.mean(axis=1), diverged
+    return ro.outcomes(spec.divergence_bound)
 
 
 # ----------------------------------------------------------------------------- across tasks
