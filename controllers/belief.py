@@ -198,18 +198,18 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
             lin = np.concatenate([s.K, F, model.G @ model.A, model.A, model.Q], axis=1)
             # the cost as a quadratic form in (x, u) per mode, for families whose terms do not
             # cancel (P3's own test, p3.cost_condition): [[Q + A'Pi A, A'Pi B], [., R + B'Pi B]]
+            # R_i + B_i'Pi_i B_i made exactly symmetric: every mixture of them is then symmetric
+            H_nu = np.stack([f.H_nu for f in fams])
+            H_sym = 0.5 * (H_nu + H_nu.transpose(0, 2, 1))
             M = np.zeros((N, n + m, n + m))
             M[:, :n, :n] = model.Q + np.einsum("ian,iab,ibk->ink", model.A, Pi, model.A)
             M[:, :n, n:] = F.transpose(0, 2, 1)
             M[:, n:, :n] = F
-            M[:, n:, n:] = np.stack([f.H_nu for f in fams])
+            M[:, n:, n:] = H_nu
             self._region.append(
                 {
                     "lin": np.ascontiguousarray(lin.reshape(-1, n)),
-                    "KH": np.concatenate(
-                        [s.K.reshape(N, -1), np.stack([f.H_nu for f in fams]).reshape(N, -1)],
-                        axis=1,
-                    ),
+                    "KH": np.concatenate([s.K.reshape(N, -1), H_sym.reshape(N, -1)], axis=1),
                     "Pi": Pi,
                     "noise": np.array([f.noise_term for f in fams]),
                     "M": M.reshape(N, -1) if all(f.expand_cost for f in fams) else None,
@@ -333,7 +333,8 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
     def _decide(self, x: np.ndarray, pi: np.ndarray, k: int) -> tuple[np.ndarray, dict[str, Any]]:
         model, s = self.model, self.settings
         N, m, n, r = model.N, model.m, model.n, model.r
-        inside = max(model.constraint_values_one(x, k).tolist()) <= 0.0  # in C1 at time k
+        dyn = model.dynamics  # its one-state paths, without the model's hand-over
+        inside = max(dyn.constraint_values_one(x, k).tolist()) <= 0.0  # in C1 at time k
         data = self._region[inside]
         y = (data["lin"] @ x).reshape(N, self._rows_per_mode)  # every mode's maps of x
         mixed = pi @ data["KH"]  # sum_i pi_i [K_i, R_i + B_i'Pi_i B_i], flattened
@@ -344,18 +345,15 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         else:
             top = int(np.argmax(pi))
             Kpi, v = self.K[top], y[top, :m]
-        if m > 1:
-            H = 0.5 * (H + H.T)
         P = np.zeros((m + 1, m + 1))
         P[:m, :m] = 2.0 * H  # 1/2 z'P z = nu'H(pi) nu
         q = 2.0 * (H @ v + pi @ y[:, m : 2 * m])  # the gradient in nu at nu = 0
-        head = np.concatenate([q, [s.alpha]])
-        band = model.H(k + 1) - y[:, 2 * m : 2 * m + r] - (self._GB_flat @ v).reshape(N, r)
+        band = dyn.H_one(k + 1) - y[:, 2 * m : 2 * m + r] - (self._GB_flat @ v).reshape(N, r)
         kept, mass = self.risk_allocation.allocate(pi)
         risk, tight = self.risk_allocation.risks(kept, mass)
         # eq. (constraint:feasibility), the rows of the kept modes
         hbar = (band if len(kept) == N else band[list(kept)]) - tight
-        w = np.concatenate([head, hbar.ravel(), self._tail])
+        w = np.concatenate([q, [s.alpha], hbar.ravel(), self._tail])
         notes: list[str] = []
         nu, rho, status, path = self._solve(self._qp.rows(kept), P, w, notes)
         u = v + nu  # eq. (eq:stabilization_input)
@@ -384,7 +382,8 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
         sol = self._qp.solve(kr, P, w, method=method, warm=self._warm_start, notes=notes)
         if sol is None:
             return self._rescue(kr, P, w, notes)
-        nu = np.minimum(np.maximum(sol.z[:m], -s.nu_bound), s.nu_bound)  # round-off outside U
+        b = s.nu_bound  # round-off outside U clipped (the floats of a verified answer)
+        nu = np.array([min(max(v, -b), b) for v in sol.z[:m]])
         return nu, answer_rho(kr, sol, nu, w), Status.SOLVED, _PATHS[sol.path]
 
     def _cost(

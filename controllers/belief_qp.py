@@ -37,8 +37,8 @@ import scipy.sparse as sp
 
 from .belief_rows import KeptRows, daqp_rows, kept_rows
 from .dual_qp import DAQP_INF, REGULARIZE, DaqpWorkspace, daqp_data, run_daqp
-from .kkt import ActiveSetFactor, active_set_factor, check_active_set
-from .kkt_maps import ActiveSetMaps, active_set_maps
+from .kkt import ActiveSetFactor, HessianFreeMaps, active_set_factor, check_active_set
+from .kkt_maps import ActiveSetMaps, active_set_maps, hessian_free_maps
 from .lru import BudgetedLRU
 from .qp import MAX_CANDIDATES, Solution, candidate_count
 from .qp_daqp import NEAR_ACTIVE_TOL, DaqpAnswer, active_set_of_multipliers, first_verified
@@ -66,6 +66,8 @@ def _floats(entry: Any) -> int:
         return 1
     if isinstance(entry, ActiveSetFactor):
         return max(1, entry.floats)
+    if isinstance(entry, HessianFreeMaps):
+        return max(1, entry.Fz.size + entry.Fl.size)
     return max(1, entry.RZ.size + entry.T.size)
 
 
@@ -91,7 +93,10 @@ class BeliefQP:
     (:func:`controllers.kkt_maps.active_set_maps`, the same KKT test) are cached as P3's are.
     With more inputs each active set is solved for the one instance
     (:func:`controllers.kkt.check_active_set`), after a cheap screen of the warm guesses (a
-    dense solve of its KKT system, a loose test) that keeps the full test for the likely one.
+    dense solve of its KKT system, a loose test) that keeps the full test for the likely one;
+    an active set whose rows fix every variable (the most common) is solved by two cached
+    products (:class:`controllers.kkt.HessianFreeMaps`): its solution does not depend on the
+    Hessian, which enters its multipliers through ``P z`` only.
 
     Holds solver state (warm active sets, caches): not thread-safe by itself, the controller's
     lock covers it. Pickles without its caches (rebuilt on use).
@@ -153,7 +158,9 @@ class BeliefQP:
         fac = self._factors.get((kr.modes, rows), active_set_factor, kr.C, rows, kr.pivots)
         if fac is None:
             return None
-        return check_active_set(fac, P, kr.C, w, kr.absC)
+        # rows that fix every variable: two cached products (the Hessian changes per decision)
+        free = self._factors.get((kr.modes, rows, "free"), hessian_free_maps, fac, kr.d)
+        return check_active_set(fac, P, kr.C, w, kr.absC, maps=free)
 
     def screen(
         self, kr: KeptRows, rows: tuple[int, ...], P: np.ndarray, w: np.ndarray
@@ -336,9 +343,14 @@ class BeliefQP:
         held = self._daqp_rows.get(kr.modes)
         if held is None:
             held = self._daqp_rows[kr.modes] = daqp_rows(kr)
-        rows, upper_of, lower_of, index, bits = held
-        bu = np.concatenate([h[nc : nc + m], [DAQP_INF], np.minimum(h[:nc], DAQP_INF)])
-        bl = np.concatenate([-h[nc + m : nc + 2 * m], [-h[-1]], np.full(nc, -DAQP_INF)])
+        rows, upper_of, lower_of, index, bits, lower = held
+        bu = np.empty(d + nc)  # the box's upper sides, rho's (none), the chance rows'
+        bu[:m] = h[nc : nc + m]
+        bu[m] = DAQP_INF
+        np.minimum(h[:nc], DAQP_INF, out=bu[d:])
+        bl = lower.copy()  # the box's lower sides, rho >= 0, none for the chance rows
+        np.negative(h[nc + m : nc + 2 * m], out=bl[:m])
+        bl[m] = -h[-1]
         sense = np.zeros(d + nc, dtype=np.int32)
         if start:
             at = list(start)

@@ -68,6 +68,7 @@ class RiskAllocation:
         self._unit = reference / factor  # the row scales of the kind
         self._all = tuple(range(model.N))
         self._risk_xi = np.full(model.N, 1.0 - xi)
+        self._kept: dict[tuple[int, ...], tuple[list[int], np.ndarray, np.ndarray]] = {}
 
     def allocate(self, belief: np.ndarray) -> tuple[tuple[int, ...], float]:
         """``(kept, m_D)`` of a probability vector (N,): the kept modes (ascending) and the
@@ -91,12 +92,16 @@ class RiskAllocation:
         N = self.model.N
         if mass == 0.0 and len(kept) == N:
             return self._risk_xi.copy(), self.table
-        idx = list(kept)
+        held = self._kept.get(kept)
+        if held is None:  # at most 2^N kept sets
+            idx = list(kept)
+            held = self._kept[kept] = (idx, self.table[idx], self._unit[idx])
+        idx, table, unit = held
         risk = np.ones(N)
         if mass == 0.0:
             risk[idx] = 1.0 - self.xi
-            return risk, self.table[idx]
+            return risk, table.copy()
         eps = (1.0 - self.xi - mass) / (1.0 - mass)
         risk[idx] = eps
         factor = tightening_factor(self.constraint, eps, self.model.r, self.model.p)
-        return risk, factor * self._unit[idx]
+        return risk, factor * unit

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .dual_qp import DAQP_INF
 from .kkt import KKT_TOL
 from .p3 import CLARABEL_SETTINGS
 from .qp_daqp import Solution, active_set_of_multipliers
@@ -93,7 +94,8 @@ def daqp_rows(kr: KeptRows) -> tuple:
     """What :meth:`controllers.belief_qp.BeliefQP` gives DAQP's ``daqp.solve`` for a kept set, and how to read it back:
     the chance rows (writable: DAQP takes writable buffers), the one-sided row of each DAQP
     constraint's upper and lower side (-1: absent; DAQP orders the simple bounds first), and
-    each one-sided row's DAQP constraint and working-set flag (1 active, 2 at its lower side)."""
+    each one-sided row's DAQP constraint and working-set flag (1 active, 2 at its lower side),
+    and the template of the lower sides (``-DAQP_INF`` where a constraint has none)."""
     nc = kr.n_chance
     rows_A = kr.A.shape[0]
     order = np.concatenate([np.arange(nc, rows_A), np.arange(nc)])  # DAQP j -> row of A
@@ -103,7 +105,8 @@ def daqp_rows(kr: KeptRows) -> tuple:
     one_sided = np.concatenate([kr.upper_idx, kr.lower_idx])  # one-sided row -> row of A
     index = position[one_sided]
     bits = np.where(np.arange(one_sided.size) >= kr.upper_idx.size, 3, 1).astype(np.int32)
-    return np.array(kr.A[:nc]), upper_of, lower_of, index, bits
+    lower = np.full(kr.d + nc, -DAQP_INF)  # the lower sides: set per instance where they exist
+    return np.array(kr.A[:nc]), upper_of.tolist(), lower_of.tolist(), index, bits, lower
 
 
 def answer_rho(kr: KeptRows, sol: Solution, nu: np.ndarray, w: np.ndarray) -> float:
@@ -114,7 +117,7 @@ def answer_rho(kr: KeptRows, sol: Solution, nu: np.ndarray, w: np.ndarray) -> fl
     if kr.rho_row in sol.rows:
         return 0.0
     m = kr.d - 1
-    excess = float(np.max(kr.C[: kr.n_chance, :m] @ nu - w[kr.d : kr.d + kr.n_chance]))
+    excess = float((kr.C[: kr.n_chance, :m] @ nu - w[kr.d : kr.d + kr.n_chance]).max())
     return max(excess, 0.0)
 
 

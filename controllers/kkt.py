@@ -33,12 +33,17 @@ Two forms compute the same numbers from one :class:`ActiveSetFactor` (the part t
 only on ``C`` and ``S``, :mod:`controllers.kkt_factor`) and one :func:`reduce_hessian` (the part that depends on ``P``): the
 maps over the whole ``w`` (:mod:`controllers.kkt_maps`; P3 and its enumeration, whose Hessian
 is fixed, and the scenario tree's pairs of Hessian and active set met again) and
-:func:`check_active_set` (one instance, for the scenario tree, whose Hessian changes).
+:func:`check_active_set` (one instance, for the scenario tree, whose Hessian changes). A third,
+:class:`HessianFreeMaps`, serves an active set whose rows fix every variable under a Hessian
+that changes (the belief controller's): ``z`` does not depend on ``P``, so the maps at ``P = 0``
+are kept and ``P z`` is added to the linear term per instance; the test that follows is
+:func:`check_active_set`'s (``tests/test_kkt_hessian_free.py`` compares the forms).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -49,6 +54,7 @@ __all__ = [
     "CONFIRM_TOL",
     "KKT_TOL",
     "ActiveSetFactor",
+    "HessianFreeMaps",
     "active_set_factor",
     "check_active_set",
     "confirm_multipliers",
@@ -65,6 +71,30 @@ KKT_TOL = 1e-12
 
 #: Definiteness threshold of the exact solve, relative to the scale of the reduced Hessian.
 _PD_TOL = 1e-12
+
+
+@dataclass(frozen=True, eq=False)
+class HessianFreeMaps:
+    """:func:`solve_stacked` of an active set whose rows fix every variable (no null space, so
+    no variable scaled by its curvature), as two matrices built once for any Hessian
+    (:func:`controllers.kkt_maps.hessian_free_maps`): ``z`` does not depend on ``P``, and the
+    Hessian enters the multipliers only through the products ``P z`` (stationarity on the free
+    variables, the coupling to the fixed ones, the bounds' rows). ``Fz`` and ``Fl`` are the
+    products at ``P = 0``; :meth:`solve` adds ``P z`` to the linear term (and ``|P| T_z`` to its
+    magnitude, as the products do) before ``Fl``. The same numbers as the step-by-step products
+    up to round-off, for a Hessian that changes at every instance (the belief controller's)."""
+
+    Fz: np.ndarray
+    Fl: np.ndarray
+
+    def solve(self, P: np.ndarray, W2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(z2, lam2)`` of :func:`solve_stacked` for the Hessian ``P`` and instances ``W2``."""
+        z2 = self.Fz @ W2
+        d, width = P.shape[0], W2.shape[0] // 2
+        G2 = W2.copy()
+        G2[:d] += P @ z2[:d]
+        G2[width : width + d] += np.abs(P) @ z2[d:]
+        return z2, self.Fl @ G2
 
 
 def _free_scaling(fac: ActiveSetFactor, flat: np.ndarray) -> np.ndarray:
@@ -104,7 +134,7 @@ def reduce_hessian(fac: ActiveSetFactor, P: np.ndarray):
     where it is zero) and ``ops`` the block-diagonal forms of :func:`solve_stacked`; None when the
     reduced Hessian is not positive definite (the minimizer is not unique), relative to its
     scale, or when a pivot slack has curvature."""
-    if fac.S.size and np.any(P[fac.S]):
+    if fac.S.size and P[fac.S].any():
         return None
     N = fac.N
     flat = P.ravel()
@@ -142,7 +172,11 @@ def reduce_hessian(fac: ActiveSetFactor, P: np.ndarray):
 
 
 def solve_stacked(
-    fac: ActiveSetFactor, red: tuple, P: np.ndarray, W2: np.ndarray, maps: tuple | None = None
+    fac: ActiveSetFactor,
+    red: tuple | None,
+    P: np.ndarray,
+    W2: np.ndarray,
+    maps: tuple | HessianFreeMaps | None = None,
 ):
     """The exact solution of the active set for the instances ``W`` (d + c, k) given stacked
     with the magnitudes of their entries, ``W2 = [W; |W|]`` (``|W|``: the identity for the
@@ -155,9 +189,13 @@ def solve_stacked(
     values and magnitudes. The same products serve the maps (:func:`active_set_maps`) and one
     instance (:func:`check_active_set`); the parts that are empty for this active set (no
     bound, no pivot row, no null space) are skipped. ``maps``: these products as two matrices
-    (:func:`controllers.kkt_maps.stacked_maps`), applied instead when given."""
+    (:func:`controllers.kkt_maps.stacked_maps`), applied instead when given, or
+    :class:`HessianFreeMaps` (``red`` is then not read)."""
+    if isinstance(maps, HessianFreeMaps):
+        return maps.solve(P, W2)
     if maps is not None:
         return maps[0] @ W2, maps[1] @ W2
+    assert red is not None
     _, _, Y, P_NB, ops = red
     k = W2.shape[1]
     zB = _fixed_variables(fac, W2) if fac.b_vars.size else None
@@ -287,7 +325,7 @@ def check_active_set(
     absC: np.ndarray | None = None,
     report: dict | None = None,
     red: tuple | None = None,
-    maps: tuple[np.ndarray, np.ndarray] | None = None,
+    maps: tuple[np.ndarray, np.ndarray] | HessianFreeMaps | None = None,
 ) -> list[float] | None:
     """``z`` (a list of d floats) if the active set of ``fac`` passes the KKT test at the
     instance ``w`` of ``min 1/2 z'Pz + q'z  s.t.  C z <= h``, else None.
@@ -298,13 +336,18 @@ def check_active_set(
     violated beyond their tolerance, most violated first, relative to it) and ``"drop"`` (the
     active rows whose multipliers are negative beyond their tolerance); both empty when the set
     is not a candidate. ``red``: :func:`reduce_hessian` of ``fac`` and ``P``, when the caller
-    has it; ``maps``: see :func:`solve_stacked`.
+    has it; ``maps``: see :func:`solve_stacked` (with :class:`HessianFreeMaps` the only
+    condition on ``P`` left to test is no curvature on a pivot slack, :func:`reduce_hessian`'s).
     """
     if report is not None:
         report.update(add=[], drop=[])
-    red = reduce_hessian(fac, P) if red is None else red
-    if red is None:
-        return None
+    if isinstance(maps, HessianFreeMaps):
+        if fac.S.size and P[fac.S].any():
+            return None
+    else:
+        red = reduce_hessian(fac, P) if red is None else red
+        if red is None:
+            return None
     d, s_all, gen = P.shape[0], fac.idx.size, fac.gen
     h = w[d:]
     absC = np.abs(C) if absC is None else absC
@@ -313,7 +356,7 @@ def check_active_set(
         z, lam, lam_T = z2[:d, 0], lam2[:s_all, 0], lam2[s_all:, 0]
         primal = C @ z - h  # every row, at the returned z, against its own terms
         primal_T = absC @ np.abs(z) + np.abs(h)
-        if gen.size and np.any(np.abs(primal[gen]) > KKT_TOL * primal_T[gen]):
+        if gen.size and (np.abs(primal[gen]) > KKT_TOL * primal_T[gen]).any():
             # one step of iterative refinement on the general rows (see ActiveSetMaps)
             r = np.zeros_like(w)
             r[d + gen] = primal[gen]
@@ -326,9 +369,9 @@ def check_active_set(
     resid = np.concatenate([primal, -lam])
     terms = np.concatenate([primal_T, lam_T])
     worst = float(resid.max(initial=-math.inf))
-    if not (math.isfinite(worst + float(z.sum())) and np.all(np.isfinite(terms))):
+    if not (math.isfinite(worst + float(z.sum())) and np.isfinite(terms).all()):
         return None
-    if worst > 0.0 and not np.all(resid <= KKT_TOL * terms):
+    if worst > 0.0 and not (resid <= KKT_TOL * terms).all():
         if report is not None:
             with np.errstate(divide="ignore", invalid="ignore"):
                 excess = np.where(resid > KKT_TOL * terms, resid / np.maximum(terms, 1e-300), 0.0)

@@ -18,13 +18,20 @@ import numpy as np
 from .kkt import (
     KKT_TOL,
     ActiveSetFactor,
+    HessianFreeMaps,
     active_set_factor,
     confirm_multipliers,
     reduce_hessian,
     solve_stacked,
 )
 
-__all__ = ["ActiveSetMaps", "active_set_maps", "snap_bounds", "stacked_maps"]
+__all__ = [
+    "ActiveSetMaps",
+    "active_set_maps",
+    "hessian_free_maps",
+    "snap_bounds",
+    "stacked_maps",
+]
 
 
 def snap_bounds(z: list[float], bounds: tuple, w: np.ndarray) -> list[float]:
@@ -195,3 +202,18 @@ def stacked_maps(
     Fl = np.zeros((2 * s, 2 * width))
     Fl[:s, :width], Fl[s:, width:] = lam2[:s], lam2[s:]
     return Fz, Fl
+
+
+def hessian_free_maps(fac: ActiveSetFactor, d: int) -> HessianFreeMaps | None:
+    """The :class:`controllers.kkt.HessianFreeMaps` of an active set of a QP with ``d``
+    variables: :func:`stacked_maps` at the Hessian 0. None when its rows leave a direction free
+    (the solution then depends on the Hessian), when a free variable is in no reduced row (its
+    scaling is its curvature) or when a number is not finite."""
+    if fac.Q2.shape[1] or not fac.used.all():
+        return None
+    P0 = np.zeros((d, d))
+    red = reduce_hessian(fac, P0)
+    if red is None:
+        return None
+    pair = stacked_maps(fac, red, P0)
+    return None if pair is None else HessianFreeMaps(*pair)

@@ -56,20 +56,26 @@ class Solution:
 
 
 def active_set_of_multipliers(
-    y: np.ndarray, upper_of: np.ndarray, lower_of: np.ndarray, d: int
+    y: np.ndarray, upper_of: np.ndarray | list[int], lower_of: np.ndarray | list[int], d: int
 ) -> tuple[int, ...] | None:
     """The active set (one-sided rows, sorted) of multipliers ``y`` in OSQP's form, one per
     two-sided row: positive where its upper side is active (one-sided row ``upper_of[row]``),
     negative for the lower (``lower_of[row]``; -1 where a side does not exist), 0 where
     inactive, as DAQP reports them. None when a side that does not exist is active or more
-    than ``d`` rows (the variables) are."""
-    nz = np.flatnonzero(y)
-    if nz.size > d:
+    than ``d`` rows (the variables) are. ``upper_of`` and ``lower_of`` may be given as lists
+    (kept by a caller that reads many answers)."""
+    # the QPs read here have tens of rows: a loop in Python is cheaper than array calls
+    up = upper_of if isinstance(upper_of, list) else upper_of.tolist()
+    low = lower_of if isinstance(lower_of, list) else lower_of.tolist()
+    rows: list[int] = []
+    for j, v in enumerate(y.tolist()):
+        if v != 0.0:  # NaN counts as nonzero, as for np.flatnonzero
+            if len(rows) == d:
+                return None
+            rows.append(up[j] if v > 0.0 else low[j])
+    if rows and min(rows) < 0:
         return None
-    rows = np.where(y[nz] > 0.0, upper_of[nz], lower_of[nz])
-    if nz.size and int(rows.min()) < 0:
-        return None
-    return tuple(sorted(rows.tolist()))
+    return tuple(sorted(rows))
 
 
 #: DAQP's answer: ``(z, y, status)``, ``z`` and ``y`` None on failure.
