@@ -61,7 +61,6 @@ from benchmarks.core.montecarlo import rollouts
 from benchmarks.core.reference import (
     QUICK_TREE,
     TREE_BY_TASK,
-    TREE_EPISODES,
     TREE_STEPS,
     TREE_XIS,
 )
@@ -228,19 +227,19 @@ def kept_runs(specs: list[RunSpec], run_dir: Path) -> list[RunRecord | None]:
     return [load_run(run_dir, s) for s in specs]
 
 
-def tree_plan(env_id: str, quick: bool) -> tuple[int, tuple[float, ...]]:
-    """Episodes per noise seed and levels of a task's 3-step tree curve:
-    :data:`~benchmarks.core.reference.TREE_EPISODES` at
-    :data:`~benchmarks.core.reference.TREE_XIS` with :data:`TREE_EXTRA_XIS` and the task's own
-    ``xi`` (the tasks of :data:`~benchmarks.core.reference.TREE_BY_TASK`: their own plan);
-    ``quick``: the smoke test's plan. The agents are rolled out again on the same episodes."""
+def tree_plan(env_id: str, quick: bool, episodes: int) -> tuple[int, tuple[float, ...]]:
+    """Episodes per noise seed and levels of a task's 3-step tree curve: the evaluation's
+    ``episodes`` (an agent's gap to the tree rests on as many episodes as its gap to the
+    one-step RHC, and on the same ones) at :data:`~benchmarks.core.reference.TREE_XIS` with
+    :data:`TREE_EXTRA_XIS` and the task's own ``xi`` (the tasks of
+    :data:`~benchmarks.core.reference.TREE_BY_TASK`: their own levels); ``quick``: the smoke
+    test's plan, whose agents are rolled out again on the tree's fewer episodes."""
     xi = float(TASKS[env_id].rhc["xi"])
     if quick:
         return QUICK_TREE[0], tuple(sorted({*QUICK_TREE[1], xi}))
     if env_id in TREE_BY_TASK:
-        count, xis = TREE_BY_TASK[env_id]
-        return count, tuple(sorted({*xis, xi}))
-    return TREE_EPISODES, tuple(sorted({*TREE_XIS, *TREE_EXTRA_XIS, xi}))
+        return episodes, tuple(sorted({*TREE_BY_TASK[env_id], xi}))
+    return episodes, tuple(sorted({*TREE_XIS, *TREE_EXTRA_XIS, xi}))
 
 
 def point_gap(cost_mean: float, violation: float, diverged: int,
@@ -281,7 +280,7 @@ def score_task(env_id: str, runs: list[tuple[RunSpec, RunRecord | None]], run_di
                           "divergence_bound": spec.divergence_bound}  # fmt: skip
     xi = float(task.rhc["xi"])
     rhc = reference_curve(task, episodes, seed, **kw)
-    t_eps, t_xis = tree_plan(env_id, quick)
+    t_eps, t_xis = tree_plan(env_id, quick, episodes)
     same = t_eps == episodes
     if log is not None:
         log(f"{env_id}: the 3-step tree on {t_eps} episodes x {len(as_seeds(seed))} seed(s) at "

@@ -10,7 +10,8 @@ overrides (the runs that
 :data:`benchmarks.rl.tune.TUNE_SEED0`, so these seeds are fresh). Both groups are scored as the
 suite's report scores a task (:func:`benchmarks.rl.suite_report.score_task`: the same
 evaluation episodes, the paired gaps to the one-step RHC curve and to the 3-step tree's curve
-with their 95% intervals) and compared with rliable (:func:`benchmarks.core.aggregate.compare_gaps`:
+with their 95% intervals; the tree's level runs read from and kept in ``tree_levels`` beside
+``--runs``, the suite comparison's store) and compared with rliable (:func:`benchmarks.core.aggregate.compare_gaps`:
 the IQM difference of the gaps and the probability that a tuned run has the lower gap, each with
 its stratified-bootstrap 95% interval). A group in which a run has no gap (diverged, or outside
 a curve's range) is not summarized: the table says why, as the suite's report does.
@@ -36,6 +37,7 @@ from benchmarks.core.commands import prog
 from benchmarks.core.evaluate import check_evaluation
 from benchmarks.core.files import stable_floats, write_atomic
 from benchmarks.core.logs import log
+from benchmarks.core.tree_levels import TREE_STORE, LevelStore
 from benchmarks.rl import compare as compare_rl
 from benchmarks.rl.runs import check_kept_runs
 from benchmarks.rl.suite_report import (
@@ -137,8 +139,10 @@ def compare_study(path: Path, run_dir: Path, seeds: int, episodes: int,
     records = kept_runs(specs, run_dir)
     log(f"{task} {algo}_{variant}: {sum(r is not None for r in records)} of {len(specs)} "
         f"run(s) kept in {run_dir}; scoring on {episodes} episodes")  # fmt: skip
+    # the tree's level runs kept beside the runs (the suite comparison's, for results/rl_suite)
+    store = LevelStore(run_dir.parent / TREE_STORE)
     report = score_task(task, list(zip(specs, records, strict=True)), run_dir, episodes, seed,
-                        quick, log)  # fmt: skip
+                        quick, log, store)  # fmt: skip
     tuned_ids = {id(r) for r in records[len(default) :] if r is not None}
     groups = {
         "default": [a for a in report.agents if id(a.run) not in tuned_ids],

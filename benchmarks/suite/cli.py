@@ -42,7 +42,7 @@ class Options:
     tree_episodes: int | None = option(
         None,
         "references: episodes per seed of the 3-step tree curve on every task "
-        "(default: benchmarks.core.reference.TREE_EPISODES, or TREE_BY_TASK's)",
+        "(default: --episodes, the one-step curves' own episodes)",
     )
     workers: int = option(
         1,

@@ -7,9 +7,11 @@ numbers):
   (:func:`benchmarks.core.reference.curve_xis`), with individual chance constraints (the *reference
   curve* every normalized gap is measured against) and with joint ones;
 * the 3-step scenario-tree controller (``ScenarioTreeController(..., steps=3)``) over
-  :data:`~benchmarks.core.reference.TREE_XIS`, on fewer episodes (:data:`~benchmarks.core.reference.TREE_EPISODES`; its decisions cost 100 to 1000
-  times the one-step controller's), its gaps measured against the one-step curve recomputed on
-  those episodes;
+  :data:`~benchmarks.core.reference.TREE_XIS` (VTOL: its
+  :data:`~benchmarks.core.reference.TREE_BY_TASK` levels), on the same episodes (its decisions
+  cost 100 to 1000 times the one-step controller's; each level's run is kept in
+  ``<out>/tree_levels``, :mod:`benchmarks.core.tree_levels`), its gaps measured against the
+  one-step curve;
 * linear feedback ``u = K x`` with the task's gains, and the MJLS LQ regulator
   (``MJLSLQRController(model, "average")``, constraints ignored), scored by
   :func:`benchmarks.evaluate.evaluate`.
@@ -49,7 +51,6 @@ from benchmarks.core.frontier import (
 from benchmarks.core.reference import (
     QUICK_TREE,
     TREE_BY_TASK,
-    TREE_EPISODES,
     TREE_STEPS,
     TREE_XIS,
     curve_xis,
@@ -356,7 +357,7 @@ def run_references(opts: Any, argv: list[str]) -> dict[str, Any]:
         xi = float(task.rhc["xi"])
         xis = tuple(sorted({*QUICK_XIS, xi})) if opts.quick else curve_xis(task)
         t_eps, t_xis = (
-            QUICK_TREE if opts.quick else TREE_BY_TASK.get(env_id, (TREE_EPISODES, TREE_XIS))
+            QUICK_TREE if opts.quick else (opts.episodes, TREE_BY_TASK.get(env_id, TREE_XIS))
         )
         t_eps = opts.tree_episodes or t_eps
         plan.append((task, xis, t_eps, tuple(sorted({*t_xis, xi}))))
