@@ -196,11 +196,11 @@ class BeliefRecedingHorizonController(RecedingHorizonBase):
             Pi = np.stack([f.Pi for f in fams])
             F = np.einsum("iam,iab,ibn->imn", model.B, Pi, model.A)  # B_i'Pi_i A_i
             lin = np.concatenate([s.K, F, model.G @ model.A, model.A, model.Q], axis=1)
-            # the cost as a quadratic form in (x, u) per mode, for families whose terms do not
-            # cancel (P3's own test, p3.cost_condition): [[Q + A'Pi A, A'Pi B], [., R + B'Pi B]]
             # R_i + B_i'Pi_i B_i made exactly symmetric: every mixture of them is then symmetric
             H_nu = np.stack([f.H_nu for f in fams])
             H_sym = 0.5 * (H_nu + H_nu.transpose(0, 2, 1))
+            # the cost as a quadratic form in (x, u) per mode, for families whose terms do not
+            # cancel (P3's own test, p3.cost_condition): [[Q + A'Pi A, A'Pi B], [., R + B'Pi B]]
             M = np.zeros((N, n + m, n + m))
             M[:, :n, :n] = model.Q + np.einsum("ian,iab,ibk->ink", model.A, Pi, model.A)
             M[:, :n, n:] = F.transpose(0, 2, 1)

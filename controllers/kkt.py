@@ -97,6 +97,12 @@ class HessianFreeMaps:
         return z2, self.Fl @ G2
 
 
+def _pivot_has_curvature(fac: ActiveSetFactor, P: np.ndarray) -> bool:
+    """Whether a pivot slack of ``fac`` has curvature in ``P``: its row then does not give the
+    slack exactly, and the active set is not a candidate (every form of the solve tests this)."""
+    return bool(fac.S.size) and bool(P[fac.S].any())
+
+
 def _free_scaling(fac: ActiveSetFactor, flat: np.ndarray) -> np.ndarray:
     """``Dc`` of the variables ``N``: the Ruiz scaling of those in a reduced row; one in no
     reduced row is scaled by its curvature, ``1 / sqrt(P_jj)`` (1 where ``P_jj = 0``).
@@ -134,7 +140,7 @@ def reduce_hessian(fac: ActiveSetFactor, P: np.ndarray):
     where it is zero) and ``ops`` the block-diagonal forms of :func:`solve_stacked`; None when the
     reduced Hessian is not positive definite (the minimizer is not unique), relative to its
     scale, or when a pivot slack has curvature."""
-    if fac.S.size and P[fac.S].any():
+    if _pivot_has_curvature(fac, P):
         return None
     N = fac.N
     flat = P.ravel()
@@ -342,7 +348,7 @@ def check_active_set(
     if report is not None:
         report.update(add=[], drop=[])
     if isinstance(maps, HessianFreeMaps):
-        if fac.S.size and P[fac.S].any():
+        if _pivot_has_curvature(fac, P):
             return None
     else:
         red = reduce_hessian(fac, P) if red is None else red
